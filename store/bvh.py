@@ -1,0 +1,355 @@
+"""BVH reader and writer (SPEC §2).
+
+The reader accepts what real files contain: any rotation order per joint, 0, 3 or 6 channels on
+any joint (position channels on a non-root joint replace its offset), ``End Site`` in any case,
+CRLF, tabs, blank lines and any frame time. The MOTION block is parsed in bulk by numpy; a bad
+block is then scanned line by line only to name the faulty line. Every fault raises a
+:class:`~store.errors.MotionFormatError` subclass naming the file and line.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from store.errors import (
+    EmptyMotionError,
+    FrameValueError,
+    MissingSectionError,
+    SyntaxFormatError,
+    TruncatedFileError,
+    UnknownChannelError,
+)
+from store.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
+from tasks.kinematics import quat_from_euler, quat_identity, quat_to_euler
+
+_CHANNELS = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}
+
+
+@dataclass
+class _Joint:
+    name: str
+    parent: int
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    channels: tuple[str, ...] = ()
+    end_site: np.ndarray | None = None
+
+
+class _Tokens:
+    """Header tokens with their 1-based line numbers."""
+
+    def __init__(self, lines: list[str], path: str | None):
+        self.items = [(tok, i + 1) for i, line in enumerate(lines) for tok in line.split()]
+        self.pos = 0
+        self.path = path
+        self.last_line = len(lines)
+
+    def peek(self) -> str | None:
+        return self.items[self.pos][0] if self.pos < len(self.items) else None
+
+    def line(self) -> int:
+        return self.items[self.pos][1] if self.pos < len(self.items) else self.last_line
+
+    def next(self, what: str) -> str:
+        if self.pos >= len(self.items):
+            raise TruncatedFileError(self.path, self.last_line, f"file ends inside the HIERARCHY; expected {what}")
+        tok = self.items[self.pos][0]
+        self.pos += 1
+        return tok
+
+    def expect(self, word: str) -> None:
+        line = self.line()
+        tok = self.next(repr(word))
+        if tok.lower() != word.lower():
+            raise SyntaxFormatError(self.path, line, f"expected {word!r}, found {tok!r}")
+
+    def number(self, what: str) -> float:
+        line = self.line()
+        tok = self.next(what)
+        try:
+            value = float(tok)
+        except ValueError:
+            raise SyntaxFormatError(self.path, line, f"expected a number for {what}, found {tok!r}") from None
+        if not np.isfinite(value):
+            raise FrameValueError(self.path, line, f"{what} is {tok}")
+        return value
+
+
+def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int) -> None:
+    """Parse ``NAME { OFFSET .. CHANNELS .. children }`` after ROOT/JOINT."""
+    name_line = tk.line()
+    name = tk.next("a joint name")
+    if name == "{":
+        raise SyntaxFormatError(tk.path, name_line, "joint without a name")
+    index = len(joints)
+    joint = _Joint(name=name, parent=parent)
+    joints.append(joint)
+    tk.expect("{")
+    while True:
+        line = tk.line()
+        tok = tk.next("'}' closing joint " + name)
+        low = tok.lower()
+        if low == "}":
+            return
+        if low == "offset":
+            joint.offset = np.array([tk.number(f"OFFSET of {name}") for _ in range(3)])
+        elif low == "channels":
+            count = tk.number(f"CHANNELS count of {name}")
+            if count != int(count) or count < 0:
+                raise SyntaxFormatError(tk.path, line, f"bad channel count {count} for {name}")
+            chans = []
+            for _ in range(int(count)):
+                cline = tk.line()
+                c = tk.next(f"a channel name of {name}")
+                if c.lower() not in _CHANNELS:
+                    raise UnknownChannelError(tk.path, cline, f"unknown channel {c!r} on joint {name}")
+                chans.append(_CHANNELS[c.lower()])
+            joint.channels = tuple(chans)
+        elif low == "joint":
+            _parse_joint(tk, joints, index)
+        elif low == "end":
+            tk.expect("Site")
+            tk.expect("{")
+            tk.expect("OFFSET")
+            joint.end_site = np.array([tk.number(f"End Site OFFSET of {name}") for _ in range(3)])
+            tk.expect("}")
+        else:
+            raise SyntaxFormatError(tk.path, line, f"unexpected {tok!r} in joint {name}")
+
+
+def _find(lines: list[str], word: str, start: int = 0) -> int:
+    for i in range(start, len(lines)):
+        s = lines[i].strip()
+        if s.split(None, 1)[:1] == [word] or s.upper() == word:
+            return i
+    return -1
+
+
+def _header_value(lines: list[str], i: int, key: str, path: str | None) -> tuple[str, int]:
+    """The value after ``key`` ('Frames:' / 'Frame Time:') on line i (skipping blank lines)."""
+    while i < len(lines) and not lines[i].strip():
+        i += 1
+    if i >= len(lines):
+        raise TruncatedFileError(path, len(lines), f"file ends before '{key}'")
+    s = lines[i].strip()
+    if not s.lower().startswith(key.lower()):
+        raise SyntaxFormatError(path, i + 1, f"expected '{key}', found {s[:40]!r}")
+    return s[len(key):].strip(), i
+
+
+def _diagnose(rows: list[str], first_line: int, n_cols: int, path: str | None) -> FrameValueError:
+    """Slow path, only after the bulk parse failed: name the first bad frame line."""
+    for k, row in enumerate(rows):
+        toks = row.split()
+        if not toks:
+            continue
+        if len(toks) != n_cols:
+            return FrameValueError(path, first_line + k, f"frame line has {len(toks)} values, expected {n_cols}")
+        for t in toks:
+            try:
+                float(t)
+            except ValueError:
+                return FrameValueError(path, first_line + k, f"non-numeric value {t!r}")
+    return FrameValueError(path, first_line, "unreadable MOTION block")
+
+
+def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
+              scale_to_m: float | None = None, name: str | None = None, content_hash: str = "") -> Motion:
+    """Parse BVH text into a :class:`Motion`.
+
+    ``unit``/``scale_to_m`` come from the caller (BVH declares no unit). Cost: O(file size).
+    """
+    lines = text.splitlines()
+    h = _find(lines, "HIERARCHY")
+    if h < 0:
+        raise MissingSectionError(path, 1, "no HIERARCHY section")
+    m = _find(lines, "MOTION", h + 1)
+    if m < 0:
+        raise MissingSectionError(path, len(lines), "no MOTION section")
+    tk = _Tokens(lines[: m], path)
+    tk.pos = sum(len(line.split()) for line in lines[: h + 1])
+    joints: list[_Joint] = []
+    root_line = tk.line()
+    if (tok := tk.next("ROOT")).upper() != "ROOT":
+        raise SyntaxFormatError(path, root_line, f"expected ROOT, found {tok!r}")
+    _parse_joint(tk, joints, -1)
+    if tk.peek() is not None:
+        raise SyntaxFormatError(path, tk.line(), f"unexpected {tk.peek()!r} after the hierarchy")
+
+    frames_text, i = _header_value(lines, m + 1, "Frames:", path)
+    try:
+        n_frames = int(frames_text)
+    except ValueError:
+        raise SyntaxFormatError(path, i + 1, f"bad frame count {frames_text!r}") from None
+    ft_text, i = _header_value(lines, i + 1, "Frame Time:", path)
+    try:
+        frame_time = float(ft_text)
+    except ValueError:
+        raise SyntaxFormatError(path, i + 1, f"bad frame time {ft_text!r}") from None
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise FrameValueError(path, i + 1, f"frame time must be positive, got {ft_text}")
+    if n_frames <= 0:
+        raise EmptyMotionError(path, i, f"the file declares {n_frames} frames")
+
+    first = i + 1  # 0-based index of the first frame line
+    rows = lines[first:]
+    while rows and not rows[-1].strip():
+        rows.pop()
+    n_cols = sum(len(j.channels) for j in joints)
+    if n_cols == 0:
+        raise SyntaxFormatError(path, h + 1, "the hierarchy declares no channels")
+    try:
+        data = np.loadtxt(io.StringIO("\n".join(rows)), dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        raise _diagnose(rows, first + 1, n_cols, path) from None
+    if data.shape[0] and data.shape[1] != n_cols:
+        raise _diagnose(rows, first + 1, n_cols, path)
+    if data.shape[0] < n_frames:
+        raise TruncatedFileError(
+            path, first + len(rows), f"file ends after {data.shape[0]} of the {n_frames} declared frames"
+        )
+    if data.shape[0] > n_frames:
+        raise FrameValueError(path, first + 1 + n_frames, f"more frame lines than the {n_frames} declared")
+    bad = ~np.isfinite(data)
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        line_no = first + 1 + [k for k, row in enumerate(rows) if row.strip()][r]
+        raise FrameValueError(path, line_no, f"value {data[r, c]} in column {c + 1} is not finite")
+    return _to_motion(joints, data, 1.0 / frame_time, path, unit, scale_to_m, name, content_hash)
+
+
+def _to_motion(joints: list[_Joint], data: np.ndarray, fps: float, path: str | None, unit: str | None,
+               scale_to_m: float | None, name: str | None, content_hash: str) -> Motion:
+    skeleton = Skeleton(
+        names=tuple(j.name for j in joints),
+        parents=np.array([j.parent for j in joints]),
+        offsets=np.stack([j.offset for j in joints]),
+        channels=tuple(j.channels for j in joints),
+        end_sites={k: j.end_site for k, j in enumerate(joints) if j.end_site is not None},
+    )
+    n_frames = data.shape[0]
+    rotations = quat_identity((n_frames, len(joints)))
+    root = np.broadcast_to(joints[0].offset, (n_frames, 3)).copy()
+    translations: dict[int, np.ndarray] = {}
+    by_order: dict[str, list[tuple[int, list[int]]]] = {}
+    col = 0
+    for k, j in enumerate(joints):
+        cols = {c: col + n for n, c in enumerate(j.channels)}
+        col += len(j.channels)
+        pos = [c for c in j.channels if c in POSITION_CHANNELS]
+        if pos:
+            t = root if k == 0 else np.broadcast_to(j.offset, (n_frames, 3)).copy()
+            for c in pos:
+                t[:, "XYZ".index(c[0])] = data[:, cols[c]]
+            if k:
+                translations[k] = t
+        rot = [c for c in j.channels if c in ROTATION_CHANNELS]
+        if rot:
+            by_order.setdefault("".join(c[0] for c in rot), []).append((k, [cols[c] for c in rot]))
+    for order, members in by_order.items():
+        idx = [k for k, _ in members]
+        angles = data[:, np.array([c for _, c in members])]  # (F, G, len(order))
+        rotations[:, idx] = quat_from_euler(angles, order)
+    return Motion(
+        skeleton=skeleton,
+        fps=fps,
+        root_positions=root,
+        rotations=rotations,
+        name=name if name is not None else (Path(path).stem if path else "motion"),
+        source=path,
+        content_hash=content_hash,
+        unit=unit,
+        scale_to_m=scale_to_m,
+        translations=translations,
+    )
+
+
+def read_bvh(path: str | Path, *, unit: str | None = None, scale_to_m: float | None = None) -> Motion:
+    """Read a BVH file (any newline convention). See :func:`parse_bvh`."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MissingSectionError(str(path), None, f"cannot read file: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return parse_bvh(text, str(path), unit=unit, scale_to_m=scale_to_m,
+                     content_hash=hashlib.sha256(raw).hexdigest())
+
+
+def _channel_values(motion: Motion) -> np.ndarray:
+    """(F, C) channel values of every joint in file order."""
+    sk = motion.skeleton
+    f = motion.n_frames
+    cols: list[np.ndarray] = []
+    for k in range(sk.n_joints):
+        chans = sk.channels[k]
+        if not chans:
+            continue
+        values = {}
+        if sk.has_position(k):
+            t = motion.root_positions if k == 0 else motion.translations.get(k, np.broadcast_to(sk.offsets[k], (f, 3)))
+            for a, c in enumerate(POSITION_CHANNELS):
+                values[c] = t[:, a]
+        order = sk.rotation_order(k)
+        if order:
+            q = motion.rotations[:, k]
+            if len(order) == 3:
+                angles = quat_to_euler(q, order)
+            elif len(order) == 1:
+                a = "XYZ".index(order)
+                angles = np.rad2deg(2.0 * np.arctan2(q[:, 1 + a], q[:, 0]))[:, None]
+            else:
+                raise ValueError(f"cannot write joint {sk.names[k]} with rotation channels {order}")
+            for a, axis in enumerate(order):
+                values[axis + "rotation"] = angles[:, a]
+        cols.extend(values[c] for c in chans)
+    return np.stack(cols, axis=1)
+
+
+def format_bvh(motion: Motion, decimals: int = 6) -> str:
+    """BVH text for a motion: the hierarchy with tab indentation, then one line per frame."""
+    sk = motion.skeleton
+    out: list[str] = ["HIERARCHY"]
+    num = f"{{:.{decimals}f}}"
+
+    def vec(v: np.ndarray) -> str:
+        return " ".join(num.format(x) for x in v)
+
+    def joint(k: int, depth: int) -> None:
+        ind = "\t" * depth
+        out.append(f"{ind}{'ROOT' if k == 0 else 'JOINT'} {sk.names[k]}")
+        out.append(ind + "{")
+        out.append(f"{ind}\tOFFSET {vec(sk.offsets[k])}")
+        if sk.channels[k]:
+            out.append(f"{ind}\tCHANNELS {len(sk.channels[k])} {' '.join(sk.channels[k])}")
+        for c in sk.children(k):
+            joint(c, depth + 1)
+        if k in sk.end_sites:
+            out.append(f"{ind}\tEnd Site")
+            out.append(ind + "\t{")
+            out.append(f"{ind}\t\tOFFSET {vec(sk.end_sites[k])}")
+            out.append(ind + "\t}")
+        out.append(ind + "}")
+
+    joint(0, 0)
+    out.append("MOTION")
+    out.append(f"Frames: {motion.n_frames}")
+    out.append(f"Frame Time: {1.0 / motion.fps:.10g}")
+    buf = io.StringIO()
+    np.savetxt(buf, _channel_values(motion), fmt=f"%.{decimals}f", delimiter=" ")
+    # "-0.000000" and "0.000000" are the same value; print one spelling so round trips are exact.
+    body = buf.getvalue().replace("-" + num.format(0.0), num.format(0.0))
+    return "\n".join(out) + "\n" + body
+
+
+def write_bvh(motion: Motion, path: str | Path, decimals: int = 6) -> None:
+    """Write a motion as BVH (LF newlines)."""
+    Path(path).write_text(format_bvh(motion, decimals))
+

@@ -1,0 +1,267 @@
+"""Quaternion algebra, forward kinematics, resampling and the heading frame (SPEC §2).
+
+Quaternions are ``(..., 4)`` arrays ``(w, x, y, z)``; every function broadcasts over leading axes
+and is vectorized over frames (the only Python loops run over joints, J ~ 20-60).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from store.motion import Motion
+
+AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def axis_index(axis: str) -> int:
+    """0, 1, 2 for 'x', 'y', 'z' (case-insensitive)."""
+    try:
+        return AXES[axis.lower()]
+    except KeyError:
+        raise ValueError(f"unknown axis {axis!r}; expected one of x, y, z") from None
+
+
+def quat_identity(shape: tuple[int, ...] = ()) -> np.ndarray:
+    q = np.zeros(shape + (4,))
+    q[..., 0] = 1.0
+    return q
+
+
+def quat_normalize(q: np.ndarray) -> np.ndarray:
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` (apply b first, then a)."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_inv(q: np.ndarray) -> np.ndarray:
+    """Inverse of a unit quaternion (its conjugate)."""
+    return np.asarray(q, dtype=np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4)."""
+    q = np.asarray(q, dtype=np.float64)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotation by ``angle`` radians about unit ``axis`` (..., 3)."""
+    half = 0.5 * np.asarray(angle, dtype=np.float64)[..., None]
+    return np.concatenate([np.cos(half), np.sin(half) * np.asarray(axis, dtype=np.float64)], axis=-1)
+
+
+def quat_from_euler(angles: np.ndarray, order: str, degrees: bool = True) -> np.ndarray:
+    """Quaternions from Euler angles (..., len(order)) in an intrinsic order such as ``"ZXY"``.
+
+    BVH semantics: channels ``Zrotation Xrotation Yrotation`` mean ``R = Rz @ Rx @ Ry``.
+    """
+    angles = np.asarray(angles, dtype=np.float64)
+    if degrees:
+        angles = np.deg2rad(angles)
+    q = quat_identity(angles.shape[:-1])
+    for k, ax in enumerate(order.lower()):
+        e = np.zeros(3)
+        e[axis_index(ax)] = 1.0
+        q = quat_mul(q, quat_from_axis_angle(e, angles[..., k]))
+    return q
+
+
+def quat_to_euler(q: np.ndarray, order: str, degrees: bool = True) -> np.ndarray:
+    """Euler angles (..., 3) in intrinsic ``order`` for quaternions (inverse of quat_from_euler)."""
+    q = np.asarray(q, dtype=np.float64)
+    flat = q.reshape(-1, 4)
+    if len(flat) == 0:
+        return np.zeros(q.shape[:-1] + (3,))
+    rot = Rotation.from_quat(flat[:, [1, 2, 3, 0]])
+    return rot.as_euler(order.upper(), degrees=degrees).reshape(q.shape[:-1] + (3,))
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices."""
+    w, x, y, z = np.moveaxis(quat_normalize(np.asarray(q, dtype=np.float64)), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def quat_from_matrix(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w >= 0) from (..., 3, 3) rotation matrices."""
+    m = np.asarray(m, dtype=np.float64)
+    xyzw = Rotation.from_matrix(m.reshape(-1, 3, 3)).as_quat()
+    q = xyzw[:, [3, 0, 1, 2]].reshape(m.shape[:-2] + (4,))
+    return quat_canonical(q)
+
+
+def quat_canonical(q: np.ndarray) -> np.ndarray:
+    """The representative with w >= 0 (q and -q are the same rotation)."""
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def quat_log(q: np.ndarray) -> np.ndarray:
+    """Quaternion logarithm (..., 3): axis * half-angle, for unit q taken with w >= 0."""
+    q = quat_canonical(quat_normalize(np.asarray(q, dtype=np.float64)))
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    half = np.arctan2(s, q[..., :1])
+    scale = np.where(s > 1e-12, half / np.where(s > 1e-12, s, 1.0), 1.0)
+    return v * scale
+
+
+def quat_exp(v: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`quat_log`: unit quaternion from axis * half-angle (..., 3)."""
+    v = np.asarray(v, dtype=np.float64)
+    half = np.linalg.norm(v, axis=-1, keepdims=True)
+    sinc = np.where(half > 1e-12, np.sin(half) / np.where(half > 1e-12, half, 1.0), 1.0)
+    return np.concatenate([np.cos(half), v * sinc], axis=-1)
+
+
+def quat_slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation along the shorter arc; ``t`` broadcasts against q[..., 0]."""
+    q0 = np.asarray(q0, dtype=np.float64)
+    q1 = np.asarray(q1, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_t = np.sin(theta)
+    small = sin_t < 1e-9
+    safe = np.where(small, 1.0, sin_t)
+    w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    w1 = np.where(small, t, np.sin(t * theta) / safe)
+    return quat_normalize(w0 * q0 + w1 * q1)
+
+
+def quat_average(q: np.ndarray, weights: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Normalised weighted average of quaternions along ``axis``.
+
+    Each quaternion is first flipped onto the hemisphere of the one with the largest weight, then
+    the weighted sum is normalised. Weights may be slightly negative (KG04 §4.2 near-convex
+    weights); they need not sum to one.
+    """
+    q = np.moveaxis(np.asarray(q, dtype=np.float64), axis, 0)
+    w = np.asarray(weights, dtype=np.float64)
+    ref = q[int(np.argmax(w))]
+    sign = np.where(np.sum(q * ref, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    total = np.tensordot(w, q * sign, axes=(0, 0))
+    return quat_normalize(total)
+
+
+def forward_kinematics(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """Global joint positions (F, J, 3) and rotations (F, J, 4), in the file's unit.
+
+    O(F·J): one vectorized step over all frames per joint.
+    """
+    sk = motion.skeleton
+    trans = motion.local_translations()
+    local = motion.rotations
+    grot = np.empty_like(local)
+    gpos = np.empty_like(trans)
+    grot[:, 0] = local[:, 0]
+    gpos[:, 0] = trans[:, 0]
+    for j in range(1, sk.n_joints):
+        p = sk.parents[j]
+        grot[:, j] = quat_mul(grot[:, p], local[:, j])
+        gpos[:, j] = gpos[:, p] + quat_rotate(grot[:, p], trans[:, j])
+    return gpos, grot
+
+
+def end_site_positions(motion: Motion, global_positions: np.ndarray, global_rotations: np.ndarray) -> np.ndarray:
+    """(F, E, 3) global positions of the skeleton's end sites, in ``sorted(end_sites)`` order."""
+    keys = sorted(motion.skeleton.end_sites)
+    if not keys:
+        return np.zeros((motion.n_frames, 0, 3))
+    offs = np.stack([motion.skeleton.end_sites[k] for k in keys])
+    return global_positions[:, keys] + quat_rotate(global_rotations[:, keys], offs[None])
+
+
+def sample_motion(motion: Motion, frames: np.ndarray) -> Motion:
+    """The motion at fractional frame indices ``frames`` (slerp rotations, lerp translations).
+
+    Indices are clamped to [0, F-1]; the result keeps ``motion.fps``.
+    """
+    frames = np.clip(np.asarray(frames, dtype=np.float64), 0.0, motion.n_frames - 1)
+    i0 = np.floor(frames).astype(np.int64)
+    i1 = np.minimum(i0 + 1, motion.n_frames - 1)
+    t = frames - i0
+
+    def lerp(a: np.ndarray) -> np.ndarray:
+        tt = t.reshape((-1,) + (1,) * (a.ndim - 1))
+        return (1.0 - tt) * a[i0] + tt * a[i1]
+
+    rot = quat_slerp(motion.rotations[i0], motion.rotations[i1], t[:, None])
+    return replace(
+        motion,
+        root_positions=lerp(motion.root_positions),
+        rotations=rot,
+        translations={j: lerp(tr) for j, tr in motion.translations.items()},
+    )
+
+
+def resample(motion: Motion, fps: float) -> Motion:
+    """The motion at another frame rate over the same time span (slerp rotations, lerp root)."""
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    n = int(np.floor(motion.duration * fps + 1e-9)) + 1
+    frames = np.arange(n) * (motion.fps / fps)
+    return replace(sample_motion(motion, frames), fps=float(fps))
+
+
+def heading(rotations: np.ndarray, up: str = "y") -> np.ndarray:
+    """Rotation about the vertical axis contained in ``rotations`` (..., 4): its twist about ``up``.
+
+    The swing-twist decomposition keeps the part of each root rotation that turns about the
+    vertical axis; this is the root heading frame used by features and alignment.
+    """
+    q = np.asarray(rotations, dtype=np.float64)
+    k = axis_index(up)
+    twist = np.zeros_like(q)
+    twist[..., 0] = q[..., 0]
+    twist[..., 1 + k] = q[..., 1 + k]
+    norm = np.linalg.norm(twist, axis=-1, keepdims=True)
+    identity = quat_identity(q.shape[:-1])
+    return np.where(norm > 1e-9, twist / np.where(norm > 1e-9, norm, 1.0), identity)
+
+
+def heading_angle(rotations: np.ndarray, up: str = "y") -> np.ndarray:
+    """Heading angle in radians about ``up`` (right-handed), in (-pi, pi]."""
+    h = heading(rotations, up)
+    k = axis_index(up)
+    return np.angle(np.exp(1j * 2.0 * np.arctan2(h[..., 1 + k], h[..., 0])))
+
+
+def to_heading_frame(positions: np.ndarray, root_position: np.ndarray, root_rotation: np.ndarray,
+                     up: str = "y") -> np.ndarray:
+    """Express global positions (F, N, 3) in each frame's root heading frame.
+
+    The origin is the root projected on the ground plane; axes are turned by the inverse heading.
+    """
+    k = axis_index(up)
+    origin = np.array(root_position, dtype=np.float64, copy=True)
+    origin[..., k] = 0.0
+    inv = quat_inv(heading(root_rotation, up))
+    return quat_rotate(inv[:, None, :], positions - origin[:, None, :])

@@ -1,0 +1,25 @@
+"""Shared fixtures: the real-data folder (skipped with a reason where absent)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from store.datasets import ENV_VAR, mocap_root
+
+
+@pytest.fixture(scope="session")
+def mocap_dir() -> Path:
+    root = mocap_root()
+    if not root.is_dir():
+        pytest.skip(f"real motion capture not found at {root} (set {ENV_VAR} to its folder)")
+    return root
+
+
+@pytest.fixture(scope="session")
+def deepmimic_dir(mocap_dir: Path) -> Path:
+    d = mocap_dir / "deepmimic"
+    if not (d / "humanoid.urdf").is_file():
+        pytest.skip(f"DeepMimic clips not found under {d} (set {ENV_VAR})")
+    return d
