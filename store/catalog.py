@@ -1,0 +1,156 @@
+"""The corpus catalog: scan a folder of clips, label each with a category, hash and describe it.
+
+Labels come from, in order of precedence: a manifest CSV (``path,category``), the first matching
+regex rule of the config, the first folder level under the corpus root. An unreadable file is
+reported with its reason and skipped; the scan goes on. Cost: one full parse per clip, O(corpus
+bytes).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from flows.config import CorpusConfig
+from store.errors import MotionFormatError
+from store.formats import CLIP_SUFFIXES, read_motion
+from store.motion import Motion
+
+UNCATEGORIZED = "uncategorized"
+
+
+@dataclass(frozen=True)
+class ClipEntry:
+    """One clip of the corpus. ``path`` is corpus-relative (POSIX), ``sha256`` the file's hash."""
+
+    path: str
+    abs_path: str
+    category: str
+    sha256: str
+    format: str
+    fps: float
+    frames: int
+    duration: float
+    skeleton: str
+    n_joints: int
+    unit: str | None
+
+    @property
+    def name(self) -> str:
+        return Path(self.path).stem
+
+
+@dataclass(frozen=True)
+class ScanError:
+    """A file that could not be read, and why."""
+
+    path: str
+    reason: str
+
+
+@dataclass
+class Catalog:
+    root: str
+    entries: list[ClipEntry] = field(default_factory=list)
+    errors: list[ScanError] = field(default_factory=list)
+
+    def by_category(self) -> dict[str, list[ClipEntry]]:
+        groups: dict[str, list[ClipEntry]] = {}
+        for e in self.entries:
+            groups.setdefault(e.category, []).append(e)
+        return dict(sorted(groups.items()))
+
+    def find(self, name_or_path: str) -> ClipEntry:
+        """The entry whose relative path, stem or absolute path is ``name_or_path``."""
+        target = str(Path(name_or_path).resolve()) if Path(name_or_path).exists() else None
+        for e in self.entries:
+            if name_or_path in (e.path, e.name) or target == e.abs_path:
+                return e
+        raise KeyError(f"no clip {name_or_path!r} in the catalog of {self.root}")
+
+    def to_dict(self) -> dict:
+        return {
+            "root": self.root,
+            "clips": [asdict(e) for e in self.entries],
+            "errors": [asdict(e) for e in self.errors],
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+
+def _is_clip(path: Path) -> bool:
+    if path.suffix.lower() not in CLIP_SUFFIXES:
+        return False
+    if path.suffix.lower() == ".txt":  # DeepMimic clips are JSON with a "Frames" key
+        with open(path, "rb") as fh:
+            return b'"Frames"' in fh.read(4096)
+    return True
+
+
+def _read_manifest(path: str) -> dict[str, str]:
+    labels: dict[str, str] = {}
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        if reader.fieldnames is None or not {"path", "category"} <= set(reader.fieldnames):
+            raise ValueError(f"{path}: the manifest needs the columns 'path,category'")
+        for row in reader:
+            labels[Path(row["path"]).as_posix()] = row["category"]
+    return labels
+
+
+def label(rel: str, cfg: CorpusConfig, manifest: dict[str, str]) -> str:
+    """The category of a corpus-relative path (manifest, then rules, then first folder level)."""
+    if rel in manifest:
+        return manifest[rel]
+    for rule in cfg.category_rules:
+        if re.search(rule.pattern, rel):
+            return rule.category
+    parts = Path(rel).parts
+    return parts[0] if len(parts) > 1 else UNCATEGORIZED
+
+
+def load_clip(entry: ClipEntry, cfg: CorpusConfig) -> Motion:
+    """Read the clip of a catalog entry, with the config's unit for files that declare none."""
+    motion = read_motion(entry.abs_path, unit=cfg.length_unit, scale_to_m=cfg.scale_to_m)
+    if motion.content_hash != entry.sha256:
+        raise MotionFormatError(entry.abs_path, None, "the file changed since it was catalogued; rescan")
+    return motion
+
+
+def scan_corpus(root: str | Path, cfg: CorpusConfig | None = None) -> Catalog:
+    """Scan ``root`` recursively; every readable clip becomes a :class:`ClipEntry` (sorted by path)."""
+    cfg = cfg or CorpusConfig(path=str(root))
+    root = Path(root).resolve()
+    if not root.is_dir():
+        raise FileNotFoundError(f"corpus folder {root} does not exist")
+    manifest = _read_manifest(cfg.manifest) if cfg.manifest else {}
+    catalog = Catalog(root=str(root))
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        rel = path.relative_to(root).as_posix()
+        try:
+            if not _is_clip(path):
+                continue
+            motion = read_motion(path, unit=cfg.length_unit, scale_to_m=cfg.scale_to_m)
+        except (MotionFormatError, ValueError, OSError) as exc:
+            catalog.errors.append(ScanError(rel, str(exc)))
+            continue
+        catalog.entries.append(
+            ClipEntry(
+                path=rel,
+                abs_path=str(path),
+                category=label(rel, cfg, manifest),
+                sha256=motion.content_hash,
+                format=path.suffix.lower().lstrip("."),
+                fps=float(motion.fps),
+                frames=motion.n_frames,
+                duration=motion.duration,
+                skeleton=motion.skeleton.signature(),
+                n_joints=motion.skeleton.n_joints,
+                unit=motion.unit,
+            )
+        )
+    return catalog
