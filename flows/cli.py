@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 import typer
+
+from flows.config import CONFIG_DIR, Config, ConfigError, load_config
+from store.errors import MotionFormatError
 
 app = typer.Typer(
     name="motionweb",
@@ -17,6 +23,91 @@ def fail(message: str, code: int = 2) -> None:
     """Print a clear error (never a traceback) and exit non-zero."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
     raise typer.Exit(code)
+
+
+def config_or_fail(path: Path | None) -> Config:
+    """Load a config (the default one when ``path`` is None), turning errors into ``fail``."""
+    try:
+        return load_config(path)
+    except ConfigError as exc:
+        fail(str(exc))
+        raise  # unreachable: fail() exits
+
+
+def catalog_table(catalog) -> str:
+    """A fixed-width table of a catalog's clips followed by its unreadable files."""
+    rows = [("category", "clip", "frames", "fps", "seconds", "joints", "sha256")]
+    rows += [
+        (e.category, e.path, str(e.frames), f"{e.fps:g}", f"{e.duration:.2f}", str(e.n_joints), e.sha256[:12])
+        for e in catalog.entries
+    ]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows]
+    frames = sum(e.frames for e in catalog.entries)
+    cats = len(catalog.by_category())
+    lines.append(f"{len(catalog.entries)} clips, {cats} categories, {frames} frames")
+    for err in catalog.errors:
+        lines.append(f"skipped {err.path}: {err.reason}")
+    return "\n".join(lines)
+
+
+@app.command()
+def catalog(
+    corpus: Annotated[Path, typer.Argument(help="Folder of BVH / ASF+AMC / DeepMimic clips.")],
+    config: Annotated[Path | None, typer.Option(help="Config for category rules and units.")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the catalog as JSON.")] = False,
+) -> None:
+    """Scan a corpus folder: category, frames, fps, duration and hash of every clip."""
+    from store.catalog import scan_corpus
+
+    cfg = config_or_fail(config)
+    try:
+        cat = scan_corpus(corpus, cfg.corpus)
+    except (FileNotFoundError, ValueError) as exc:
+        fail(str(exc))
+    typer.echo(cat.to_json() if json_out else catalog_table(cat))
+
+
+@app.command()
+def preview(
+    motion: Annotated[Path, typer.Argument(help="A clip (.bvh, .amc, DeepMimic .txt).")],
+    out: Annotated[Path, typer.Option(help="Output GIF.")],
+    max_frames: Annotated[int, typer.Option(help="Subsample to at most this many frames.")] = 120,
+    fps: Annotated[float, typer.Option(help="GIF frame rate.")] = 15.0,
+    up: Annotated[str, typer.Option(help="Vertical axis of the clip.")] = "y",
+) -> None:
+    """Render a stick-figure animation of a clip to a GIF (headless)."""
+    from flows.preview import render_gif
+    from store.formats import read_motion
+
+    try:
+        m = read_motion(motion)
+    except (MotionFormatError, OSError) as exc:
+        fail(str(exc))
+    n = render_gif(m, out, max_frames=max_frames, fps=fps, up=up)
+    typer.echo(f"wrote {out} ({n} frames of {m.n_frames})")
+
+
+@app.command()
+def demo(
+    workdir: Annotated[Path, typer.Option(help="Folder for the demo corpus, store and outputs.")] = Path(
+        "motionweb-demo"
+    ),
+    config: Annotated[Path | None, typer.Option(help="Config (default: configs/demo.yaml).")] = None,
+) -> None:
+    """Generate the synthetic demo corpus and print its catalog."""
+    from store.catalog import scan_corpus
+    from store.demo_corpus import write_demo_corpus
+
+    cfg = config_or_fail(config or CONFIG_DIR / "demo.yaml")
+    workdir = workdir.resolve()
+    cfg.corpus.path = str(workdir / "corpus")
+    cfg.store.path = str(workdir / "store")
+    cfg.output = str(workdir / "out")
+    files = write_demo_corpus(cfg.corpus.path, seed=cfg.demo.seed,
+                              variants_per_category=cfg.demo.variants_per_category, fps=cfg.demo.fps)
+    typer.echo(f"demo corpus: {len(files)} clips in {cfg.corpus.path}")
+    typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ and is vectorized over frames (the only Python loops run over joints, J ~ 20-60)
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -92,7 +93,10 @@ def quat_to_euler(q: np.ndarray, order: str, degrees: bool = True) -> np.ndarray
     if len(flat) == 0:
         return np.zeros(q.shape[:-1] + (3,))
     rot = Rotation.from_quat(flat[:, [1, 2, 3, 0]])
-    return rot.as_euler(order.upper(), degrees=degrees).reshape(q.shape[:-1] + (3,))
+    with warnings.catch_warnings():  # at gimbal lock any split of the angles is exact; scipy warns
+        warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
+        angles = rot.as_euler(order.upper(), degrees=degrees)
+    return angles.reshape(q.shape[:-1] + (3,))
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:

@@ -1,0 +1,55 @@
+"""Config validation: defaults, path resolution and errors naming the key and the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from flows.config import CONFIG_DIR, ConfigError, load_config
+
+
+@pytest.mark.parametrize("name", ["default.yaml", "demo.yaml"])
+def test_shipped_configs_validate(name: str) -> None:
+    cfg = load_config(CONFIG_DIR / name)
+    assert Path(cfg.store.path).is_absolute() and Path(cfg.corpus.path).is_absolute()
+    assert cfg.matchweb.valid_a == 0.15 and cfg.features.rates[-1] == 30.0
+
+
+def test_relative_paths_resolve_against_the_config(tmp_path: Path) -> None:
+    (tmp_path / "c.yaml").write_text("corpus: {path: clips}\nstore: {path: 'memory://x'}\n")
+    cfg = load_config(tmp_path / "c.yaml")
+    assert cfg.corpus.path == str(tmp_path / "clips")
+    assert cfg.store.path == "memory://x"
+
+
+def test_unknown_key_names_key_and_file(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text("matchweb:\n  valid_aa: 0.2\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert "matchweb.valid_aa" in str(info.value) and "bad.yaml" in str(info.value)
+
+
+def test_wrong_type_names_key_and_file(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text("features:\n  window: five\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert "features.window" in str(info.value) and "bad.yaml" in str(info.value)
+
+
+def test_digest_changes_with_parameters(tmp_path: Path) -> None:
+    a = load_config(CONFIG_DIR / "default.yaml")
+    (tmp_path / "c.yaml").write_text("matchweb: {valid_a: 0.2}\n")
+    b = load_config(tmp_path / "c.yaml")
+    assert a.digest("features") == b.digest("features")
+    assert a.digest("matchweb") != b.digest("matchweb")
+
+
+def test_not_yaml_and_missing_file(tmp_path: Path) -> None:
+    (tmp_path / "x.yaml").write_text("a: [1, 2\n")
+    with pytest.raises(ConfigError, match="x.yaml"):
+        load_config(tmp_path / "x.yaml")
+    with pytest.raises(ConfigError, match="nope.yaml"):
+        load_config(tmp_path / "nope.yaml")
