@@ -219,7 +219,14 @@ def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
         r, c = np.argwhere(bad)[0]
         line_no = first + 1 + [k for k, row in enumerate(rows) if row.strip()][r]
         raise FrameValueError(path, line_no, f"value {data[r, c]} in column {c + 1} is not finite")
-    return _to_motion(joints, data, 1.0 / frame_time, path, unit, scale_to_m, name, content_hash)
+    return _to_motion(joints, data, frame_rate(frame_time), path, unit, scale_to_m, name, content_hash)
+
+
+def frame_rate(frame_time: float) -> float:
+    """Frames per second for a printed frame time; snapped to the nearest integer rate when the
+    frame time is that rate printed to a few digits (CMU's 0.008333 s means 120 fps)."""
+    fps = 1.0 / frame_time
+    return float(round(fps)) if abs(fps - round(fps)) < 1e-4 * fps else fps
 
 
 def _to_motion(joints: list[_Joint], data: np.ndarray, fps: float, path: str | None, unit: str | None,

@@ -20,6 +20,7 @@ from store.formats import CLIP_SUFFIXES, read_motion
 from store.motion import Motion
 
 UNCATEGORIZED = "uncategorized"
+FORMAT_NAMES = {".bvh": "bvh", ".amc": "asfamc", ".txt": "deepmimic"}
 
 
 @dataclass(frozen=True)
@@ -144,7 +145,7 @@ def scan_corpus(root: str | Path, cfg: CorpusConfig | None = None) -> Catalog:
                 abs_path=str(path),
                 category=label(rel, cfg, manifest),
                 sha256=motion.content_hash,
-                format=path.suffix.lower().lstrip("."),
+                format=FORMAT_NAMES[path.suffix.lower()],
                 fps=float(motion.fps),
                 frames=motion.n_frames,
                 duration=motion.duration,

@@ -1,0 +1,88 @@
+"""Corpus catalog: labels (folders, rules, manifest), hashes, clip facts and broken files."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flows.config import CategoryRule, CorpusConfig
+from store.bvh import write_bvh
+from store.catalog import load_clip, scan_corpus
+from store.motion import Motion, Skeleton
+
+
+def tiny_motion(frames: int, fps: float, names: tuple[str, ...] = ("hips", "knee")) -> Motion:
+    sk = Skeleton(
+        names=names,
+        parents=np.arange(len(names)) - 1,
+        offsets=np.tile([0.0, -0.4, 0.0], (len(names), 1)),
+        channels=(("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"),)
+        + (("Zrotation", "Xrotation", "Yrotation"),) * (len(names) - 1),
+    )
+    rot = np.zeros((frames, len(names), 4))
+    rot[..., 0] = 1.0
+    root = np.zeros((frames, 3))
+    root[:, 2] = np.linspace(0, 1, frames)
+    return Motion(skeleton=sk, fps=fps, root_positions=root, rotations=rot)
+
+
+@pytest.fixture
+def corpus(tmp_path: Path) -> Path:
+    root = tmp_path / "corpus"
+    (root / "walk").mkdir(parents=True)
+    (root / "jump" / "deep").mkdir(parents=True)
+    write_bvh(tiny_motion(30, 30.0), root / "walk" / "w1.bvh")
+    write_bvh(tiny_motion(120, 120.0, ("hips", "knee", "ankle")), root / "jump" / "deep" / "j1.bvh")
+    write_bvh(tiny_motion(10, 60.0), root / "loose.bvh")
+    (root / "walk" / "broken.bvh").write_text("HIERARCHY\nROOT a\n{\n")
+    (root / "walk" / "notes.md").write_text("not a clip")
+    return root
+
+
+def test_scan_labels_hashes_and_facts(corpus: Path) -> None:
+    cat = scan_corpus(corpus)
+    assert [e.path for e in cat.entries] == ["jump/deep/j1.bvh", "loose.bvh", "walk/w1.bvh"]
+    by = {e.path: e for e in cat.entries}
+    assert by["walk/w1.bvh"].category == "walk"
+    assert by["jump/deep/j1.bvh"].category == "jump"
+    assert by["loose.bvh"].category == "uncategorized"
+    j = by["jump/deep/j1.bvh"]
+    assert (j.frames, j.fps, j.n_joints) == (120, 120.0, 3)
+    assert j.duration == pytest.approx(119 / 120)
+    assert j.sha256 == hashlib.sha256((corpus / j.path).read_bytes()).hexdigest()
+    assert by["walk/w1.bvh"].skeleton == by["loose.bvh"].skeleton != j.skeleton
+    assert set(cat.by_category()) == {"jump", "uncategorized", "walk"}
+
+
+def test_broken_file_is_reported_and_skipped(corpus: Path) -> None:
+    cat = scan_corpus(corpus)
+    assert [e.path for e in cat.errors] == ["walk/broken.bvh"]
+    assert "broken.bvh" in cat.errors[0].reason and "no MOTION section" in cat.errors[0].reason
+
+
+def test_rules_and_manifest(corpus: Path, tmp_path: Path) -> None:
+    rules = CorpusConfig(category_rules=[CategoryRule(pattern=r"^loose", category="idle")])
+    assert {e.path: e.category for e in scan_corpus(corpus, rules).entries}["loose.bvh"] == "idle"
+    manifest = tmp_path / "m.csv"
+    manifest.write_text("path,category\nwalk/w1.bvh,locomotion\n")
+    cfg = CorpusConfig(manifest=str(manifest), category_rules=[CategoryRule(pattern="w1", category="x")])
+    assert {e.path: e.category for e in scan_corpus(corpus, cfg).entries}["walk/w1.bvh"] == "locomotion"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("file,label\n")
+    with pytest.raises(ValueError, match="bad.csv"):
+        scan_corpus(corpus, CorpusConfig(manifest=str(bad)))
+
+
+def test_load_clip_and_change_detection(corpus: Path) -> None:
+    cat = scan_corpus(corpus, CorpusConfig(length_unit="cm"))
+    entry = cat.find("w1")
+    m = load_clip(entry, CorpusConfig(length_unit="cm"))
+    assert m.n_frames == 30 and m.scale_to_m == 0.01
+    (corpus / "walk" / "w1.bvh").write_text((corpus / "walk" / "w1.bvh").read_text() + "\n\n")
+    with pytest.raises(ValueError, match="changed since"):
+        load_clip(entry, CorpusConfig())
+    with pytest.raises(KeyError, match="nope"):
+        cat.find("nope")
