@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from store.errors import (
     EmptyMotionError,
@@ -121,6 +122,102 @@ def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int) -> None:
             raise SyntaxFormatError(tk.path, line, f"unexpected {tok!r} in joint {name}")
 
 
+_POW10 = np.array([10.0**k for k in range(23)])
+#: kernel status codes
+_OK, _BAD_COUNT, _BAD_TOKEN, _TOO_MANY = 0, 1, 2, 3
+
+
+@njit(cache=True, nogil=True)
+def _parse_frames(buf, n_rows, n_cols, out, pow10):  # pragma: no cover - compiled
+    """Parse whitespace-separated decimal numbers, one frame per non-blank line, into ``out``.
+
+    Returns (status, line index of the fault within ``buf`` (0-based), rows parsed). Values are
+    mantissa / 10^k with an exact integer mantissa, i.e. correctly rounded for up to 15-16
+    significant digits, like strtod.
+    """
+    n = buf.shape[0]
+    i = 0
+    line = 0
+    row = 0
+    col = 0
+    while i < n:
+        c = buf[i]
+        if c == 10:  # newline ends a frame line
+            if col != 0:
+                if col != n_cols:
+                    return _BAD_COUNT, line, row
+                row += 1
+                col = 0
+            line += 1
+            i += 1
+            continue
+        if c == 32 or c == 9 or c == 13:
+            i += 1
+            continue
+        if row >= n_rows:
+            return _TOO_MANY, line, row
+        if col >= n_cols:
+            return _BAD_COUNT, line, row
+        neg = False
+        if c == 45 or c == 43:
+            neg = c == 45
+            i += 1
+        mant = 0
+        exp = 0
+        digits = 0
+        seen = False
+        while i < n and 48 <= buf[i] <= 57:
+            if digits < 18:
+                mant = mant * 10 + (buf[i] - 48)
+                if mant:
+                    digits += 1
+            else:
+                exp += 1
+            seen = True
+            i += 1
+        if i < n and buf[i] == 46:
+            i += 1
+            while i < n and 48 <= buf[i] <= 57:
+                if digits < 18:
+                    mant = mant * 10 + (buf[i] - 48)
+                    exp -= 1
+                    if mant:
+                        digits += 1
+                seen = True
+                i += 1
+        if seen and i < n and (buf[i] == 101 or buf[i] == 69):
+            i += 1
+            eneg = False
+            if i < n and (buf[i] == 45 or buf[i] == 43):
+                eneg = buf[i] == 45
+                i += 1
+            e = 0
+            eseen = False
+            while i < n and 48 <= buf[i] <= 57:
+                e = min(e * 10 + (buf[i] - 48), 100000)
+                eseen = True
+                i += 1
+            if not eseen:
+                return _BAD_TOKEN, line, row
+            exp += -e if eneg else e
+        if not seen or (i < n and not (buf[i] == 32 or buf[i] == 9 or buf[i] == 13 or buf[i] == 10)):
+            return _BAD_TOKEN, line, row
+        v = float(mant)
+        if 0 <= exp <= 22:
+            v = v * pow10[exp]
+        elif -22 <= exp < 0:
+            v = v / pow10[-exp]
+        else:
+            v = v * 10.0**exp
+        out[row, col] = -v if neg else v
+        col += 1
+    if col != 0:
+        if col != n_cols:
+            return _BAD_COUNT, line, row
+        row += 1
+    return _OK, line, row
+
+
 def _find(lines: list[str], word: str, start: int = 0) -> int:
     for i in range(start, len(lines)):
         s = lines[i].strip()
@@ -141,20 +238,14 @@ def _header_value(lines: list[str], i: int, key: str, path: str | None) -> tuple
     return s[len(key):].strip(), i
 
 
-def _diagnose(rows: list[str], first_line: int, n_cols: int, path: str | None) -> FrameValueError:
-    """Slow path, only after the bulk parse failed: name the first bad frame line."""
-    for k, row in enumerate(rows):
-        toks = row.split()
-        if not toks:
-            continue
-        if len(toks) != n_cols:
-            return FrameValueError(path, first_line + k, f"frame line has {len(toks)} values, expected {n_cols}")
-        for t in toks:
-            try:
-                float(t)
-            except ValueError:
-                return FrameValueError(path, first_line + k, f"non-numeric value {t!r}")
-    return FrameValueError(path, first_line, "unreadable MOTION block")
+_NON_FINITE = ("nan", "inf", "infinity")
+
+
+def _is_number(token: str) -> bool:
+    try:
+        return bool(np.isfinite(float(token)))
+    except ValueError:
+        return False
 
 
 def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
@@ -196,29 +287,24 @@ def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
         raise EmptyMotionError(path, i, f"the file declares {n_frames} frames")
 
     first = i + 1  # 0-based index of the first frame line
-    rows = lines[first:]
-    while rows and not rows[-1].strip():
-        rows.pop()
     n_cols = sum(len(j.channels) for j in joints)
     if n_cols == 0:
         raise SyntaxFormatError(path, h + 1, "the hierarchy declares no channels")
-    try:
-        data = np.loadtxt(io.StringIO("\n".join(rows)), dtype=np.float64, ndmin=2, comments=None)
-    except ValueError:
-        raise _diagnose(rows, first + 1, n_cols, path) from None
-    if data.shape[0] and data.shape[1] != n_cols:
-        raise _diagnose(rows, first + 1, n_cols, path)
-    if data.shape[0] < n_frames:
-        raise TruncatedFileError(
-            path, first + len(rows), f"file ends after {data.shape[0]} of the {n_frames} declared frames"
-        )
-    if data.shape[0] > n_frames:
-        raise FrameValueError(path, first + 1 + n_frames, f"more frame lines than the {n_frames} declared")
-    bad = ~np.isfinite(data)
-    if bad.any():
-        r, c = np.argwhere(bad)[0]
-        line_no = first + 1 + [k for k, row in enumerate(rows) if row.strip()][r]
-        raise FrameValueError(path, line_no, f"value {data[r, c]} in column {c + 1} is not finite")
+    block = "\n".join(lines[first:]).encode("ascii", errors="replace")
+    data = np.empty((n_frames, n_cols))
+    status, fault, rows = _parse_frames(np.frombuffer(block, dtype=np.uint8), n_frames, n_cols, data, _POW10)
+    line_no = first + 1 + int(fault)
+    if status == _BAD_COUNT:
+        count = len(lines[line_no - 1].split())
+        raise FrameValueError(path, line_no, f"frame line has {count} values, expected {n_cols}")
+    if status == _BAD_TOKEN:
+        bad = next((t for t in lines[line_no - 1].split() if not _is_number(t)), "?")
+        what = "a value that is not finite" if bad.lower().lstrip("+-") in _NON_FINITE else "non-numeric value"
+        raise FrameValueError(path, line_no, f"{what} {bad!r}")
+    if status == _TOO_MANY:
+        raise FrameValueError(path, line_no, f"more frame lines than the {n_frames} declared")
+    if rows < n_frames:
+        raise TruncatedFileError(path, len(lines), f"file ends after {rows} of the {n_frames} declared frames")
     return _to_motion(joints, data, frame_rate(frame_time), path, unit, scale_to_m, name, content_hash)
 
 

@@ -76,14 +76,15 @@ def quat_from_euler(angles: np.ndarray, order: str, degrees: bool = True) -> np.
     BVH semantics: channels ``Zrotation Xrotation Yrotation`` mean ``R = Rz @ Rx @ Ry``.
     """
     angles = np.asarray(angles, dtype=np.float64)
-    if degrees:
-        angles = np.deg2rad(angles)
-    q = quat_identity(angles.shape[:-1])
+    half = 0.5 * (np.deg2rad(angles) if degrees else angles)
+    cos, sin = np.cos(half), np.sin(half)
+    q = None
     for k, ax in enumerate(order.lower()):
-        e = np.zeros(3)
-        e[axis_index(ax)] = 1.0
-        q = quat_mul(q, quat_from_axis_angle(e, angles[..., k]))
-    return q
+        step = np.zeros(angles.shape[:-1] + (4,))
+        step[..., 0] = cos[..., k]
+        step[..., 1 + axis_index(ax)] = sin[..., k]
+        q = step if q is None else quat_mul(q, step)
+    return quat_identity(angles.shape[:-1]) if q is None else q
 
 
 def quat_to_euler(q: np.ndarray, order: str, degrees: bool = True) -> np.ndarray:

@@ -169,3 +169,31 @@ def test_unknown_channel_names_its_line(tmp_path: Path) -> None:
 def test_more_frames_than_declared(tmp_path: Path) -> None:
     err = _bad(QUIRKY.replace("Frames: 3", "Frames: 2"), tmp_path)
     assert isinstance(err, FrameValueError) and "more frame lines" in str(err)
+
+
+def test_compiled_frame_parser_matches_python_float() -> None:
+    """The numba MOTION parser against Python's float() (the slow, obviously correct reference)."""
+    from store.bvh import _POW10, _parse_frames
+
+    rng = np.random.default_rng(3)
+    values = np.concatenate([
+        rng.normal(scale=100.0, size=300),
+        rng.normal(scale=1e-3, size=100),
+        np.array([0.0, -0.0, 1e-30, 123456789012345678.0, 5e20, -7.25e-7, 1.0, 1e22, 1e23]),
+    ])
+    tokens = [f"{v:.6f}" for v in values[:200]] + [repr(float(v)) for v in values[200:]]
+    tokens += ["+3", ".5", "-.25", "7.", "1E3", "2.5e-3"]
+    n_cols = 4
+    tokens += ["0"] * (-len(tokens) % n_cols)
+    text = "\n".join("\t ".join(tokens[i:i + n_cols]) for i in range(0, len(tokens), n_cols)) + "\r\n"
+    rows = len(tokens) // n_cols
+    out = np.empty((rows, n_cols))
+    status, _, parsed = _parse_frames(np.frombuffer(text.encode(), np.uint8), rows, n_cols, out, _POW10)
+    assert (status, parsed) == (0, rows)
+    expect = np.array([float(t) for t in tokens]).reshape(rows, n_cols)
+    # correctly rounded (bit-identical to strtod) up to 15 significant digits, as printed BVH has
+    short = np.array([len(t.lstrip("+-").replace(".", "").lstrip("0")) <= 15 and "e" not in t.lower()
+                      for t in tokens]).reshape(rows, n_cols)
+    assert short.sum() > 200
+    np.testing.assert_array_equal(out[short], expect[short])
+    np.testing.assert_allclose(out, expect, rtol=4e-16)
