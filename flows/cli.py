@@ -96,8 +96,9 @@ def demo(
     config: Annotated[Path | None, typer.Option(help="Config (default: configs/demo.yaml).")] = None,
 ) -> None:
     """Generate the synthetic demo corpus and print its catalog."""
-    from store.catalog import scan_corpus
     from store.demo_corpus import write_demo_corpus
+
+    from store.catalog import scan_corpus
 
     cfg = config_or_fail(config or CONFIG_DIR / "demo.yaml")
     workdir = workdir.resolve()

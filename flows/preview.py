@@ -7,12 +7,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.animation import FuncAnimation, PillowWriter  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.animation import FuncAnimation, PillowWriter
 
-from store.motion import Motion  # noqa: E402
-from tasks.kinematics import axis_index, end_site_positions, forward_kinematics  # noqa: E402
+from store.motion import Motion
+from tasks.kinematics import axis_index, end_site_positions, forward_kinematics
 
 
 def stick_segments(motion: Motion, up: str = "y") -> tuple[np.ndarray, list[tuple[int, int]]]:
