@@ -71,6 +71,9 @@ class DaskConfig(_Section):
     address: str | None = None
     n_workers: int | None = None
     threads_per_worker: int = 1
+    #: local cluster only: worker processes (True), threads in this process (False), or None =
+    #: threads for small runs (few grid cells to compute), processes otherwise
+    processes: bool | None = None
 
 
 class StoreConfig(_Section):
