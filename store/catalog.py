@@ -16,7 +16,7 @@ from pathlib import Path
 
 from flows.config import CorpusConfig
 from store.errors import MotionFormatError
-from store.formats import CLIP_SUFFIXES, read_motion
+from store.formats import is_clip, read_motion
 from store.motion import Motion
 
 UNCATEGORIZED = "uncategorized"
@@ -83,15 +83,6 @@ class Catalog:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
 
 
-def _is_clip(path: Path) -> bool:
-    if path.suffix.lower() not in CLIP_SUFFIXES:
-        return False
-    if path.suffix.lower() == ".txt":  # DeepMimic clips are JSON with a "Frames" key
-        with open(path, "rb") as fh:
-            return b'"Frames"' in fh.read(4096)
-    return True
-
-
 def _read_manifest(path: str) -> dict[str, str]:
     labels: dict[str, str] = {}
     with open(path, newline="") as fh:
@@ -133,7 +124,7 @@ def scan_corpus(root: str | Path, cfg: CorpusConfig | None = None) -> Catalog:
     for path in sorted(p for p in root.rglob("*") if p.is_file()):
         rel = path.relative_to(root).as_posix()
         try:
-            if not _is_clip(path):
+            if not is_clip(path):
                 continue
             motion = read_motion(path, unit=cfg.length_unit, scale_to_m=cfg.scale_to_m)
         except (MotionFormatError, ValueError, OSError) as exc:

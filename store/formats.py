@@ -16,6 +16,17 @@ from store.motion import Motion
 CLIP_SUFFIXES = (".bvh", ".amc", ".txt")
 
 
+def is_clip(path: Path) -> bool:
+    """Whether a file holds a clip we read (a .txt only when it is a DeepMimic JSON clip)."""
+    suffix = path.suffix.lower()
+    if suffix not in CLIP_SUFFIXES:
+        return False
+    if suffix == ".txt":
+        with open(path, "rb") as fh:
+            return b'"Frames"' in fh.read(4096)
+    return True
+
+
 def sidecar(path: Path) -> dict:
     """The ground-truth/metadata JSON written beside a clip (``<stem>.json``), or {}."""
     side = path.with_suffix(".json")

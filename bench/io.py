@@ -1,0 +1,75 @@
+"""Benchmark: load + forward kinematics of every clip under the real-data folder.
+
+Prints MB/s parsed and joint-frames/s of FK for our readers, then the same clips written as BVH
+(the shared data is DeepMimic JSON, which bvhio cannot read) parsed by our reader and by the
+`bvhio` package in the same run, as a ratio. Target: >= 30 MB/s parsing and >= 10x bvhio.
+
+    .venv/bin/python bench/io.py [--repeat 3] [--upsample 120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from store.bvh import read_bvh, write_bvh
+from store.datasets import mocap_root
+from store.formats import is_clip, read_motion
+from tasks.kinematics import forward_kinematics, resample
+
+
+def best_of(repeat: int, fn) -> float:
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--upsample", type=float, default=120.0, help="rate of the BVH copies (CMU files are 120 Hz)")
+    args = ap.parse_args()
+    root = mocap_root()
+    files = sorted(p for p in root.rglob("*") if p.is_file() and is_clip(p))
+    if not files:
+        raise SystemExit(f"no clips under {root} (set MOTIONWEB_MOCAP)")
+    motions = [read_motion(p) for p in files]  # warm-up (numba compile, page cache)
+    size = sum(p.stat().st_size for p in files)
+    t_load = best_of(args.repeat, lambda: [read_motion(p) for p in files])
+    jf = sum(m.n_frames * m.skeleton.n_joints for m in motions)
+    t_fk = best_of(args.repeat, lambda: [forward_kinematics(m) for m in motions])
+    print(f"real clips: {len(files)} files under {root}, {size / 1e6:.2f} MB, "
+          f"{sum(m.n_frames for m in motions)} frames")
+    print(f"  load (native format)   {size / 1e6 / t_load:8.1f} MB/s   ({t_load * 1e3:.1f} ms)")
+    print(f"  forward kinematics     {jf / t_fk / 1e6:8.2f} M joint-frames/s")
+
+    import bvhio
+
+    with tempfile.TemporaryDirectory() as tmp:
+        bvh_files = []
+        for p, m in zip(files, motions, strict=True):
+            out = Path(tmp) / (p.stem + ".bvh")
+            write_bvh(resample(m, args.upsample), out)
+            bvh_files.append(out)
+        bsize = sum(p.stat().st_size for p in bvh_files)
+        bm = [read_bvh(p) for p in bvh_files]
+        t_ours = best_of(args.repeat, lambda: [read_bvh(p) for p in bvh_files])
+        t_fk2 = best_of(args.repeat, lambda: [forward_kinematics(m) for m in bm])
+        t_bvhio = best_of(max(1, args.repeat // 2), lambda: [bvhio.readAsBvh(str(p)) for p in bvh_files])
+        jf2 = sum(m.n_frames * m.skeleton.n_joints for m in bm)
+        print(f"BVH copies at {args.upsample:g} Hz: {len(bvh_files)} files, {bsize / 1e6:.2f} MB, "
+              f"{sum(m.n_frames for m in bm)} frames")
+        print(f"  motionweb read_bvh     {bsize / 1e6 / t_ours:8.1f} MB/s   ({t_ours * 1e3:.1f} ms)")
+        print(f"  bvhio.readAsBvh        {bsize / 1e6 / t_bvhio:8.1f} MB/s   ({t_bvhio * 1e3:.1f} ms)")
+        print(f"  ratio (bvhio / ours)   {t_bvhio / t_ours:8.1f} x   (target >= 10x)")
+        print(f"  read + FK              {bsize / 1e6 / (t_ours + t_fk2):8.1f} MB/s, "
+              f"FK {jf2 / t_fk2 / 1e6:.2f} M joint-frames/s")
+
+
+if __name__ == "__main__":
+    main()
