@@ -1,0 +1,590 @@
+"""The index flow: catalog → category chunks → features → pair plan → match webs → commit (SPEC §1, §10).
+
+Prefect tasks are chunk-level and thin; inside a chunk Dask computes batches of clip pairs
+balanced by grid cells (KG04 §3: one distance grid and web per pair of motions). Tasks pass
+store URLs and keys, never arrays: Dask workers read features from the Zarr store and write
+webs to it (SPEC §9). The pure pieces — chunking, skeleton compatibility, pair plan, batch
+balancing, generation manifest, summary — are plain functions tested without Prefect.
+
+Incremental rules follow from content addressing: a pair whose web key (both clip hashes +
+parameter digest) is complete in the store is *cached*; only the others are computed. A new
+generation lists exactly the pairs of the current catalog, so removed clips drop out.
+
+Skeleton compatibility: point-cloud distances (SPEC §3) need the same joints in both clips. In
+each chunk the majority skeleton signature is reported; every clip is paired only with clips of
+the same signature, so a clip with a minority skeleton is indexed against the (possibly empty)
+set of compatible clips and listed under ``skeleton`` in the generation record.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import math
+import os
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from typing import Any
+
+from prefect import flow, get_run_logger, task
+from prefect.cache_policies import NO_CACHE
+
+from flows.config import Config, DaskConfig, load_config
+from store.cache import (
+    Generation,
+    MotionStore,
+    feature_digest,
+    feature_key,
+    feature_params,
+    new_generation_id,
+    now_iso,
+    package_versions,
+    rate_tag,
+    web_digest,
+    web_key,
+    web_params,
+)
+from store.catalog import Catalog, ClipEntry, scan_corpus
+
+log = logging.getLogger(__name__)
+
+#: below this many working-rate cells to compute, a local cluster uses threads (no process start)
+SMALL_RUN_CELLS = 4e7
+#: a batch holds about this many cells at most (progress granularity; KG04 grids are O(n²))
+BATCH_CELLS = 5e7
+#: per-pair fixed cost in cell units when balancing (loading, coarse levels, writing)
+PAIR_OVERHEAD_CELLS = 2e4
+
+#: optional progress callback ``(stage, done, total)``, set by the CLI for a counter
+PROGRESS: Callable[[str, int, int], None] | None = None
+
+
+# ------------------------------------------------------------------------------ pure planning
+@dataclass(frozen=True)
+class Chunk:
+    """A set of clips indexed against each other (a category, or the whole corpus)."""
+
+    name: str
+    clips: tuple[ClipEntry, ...]
+
+    @property
+    def frames(self) -> int:
+        return sum(c.frames for c in self.clips)
+
+
+@dataclass(frozen=True)
+class PairJob:
+    """One web to compute: rows ``a``, columns ``b`` (``a.sha256 <= b.sha256``)."""
+
+    chunk: str
+    a: ClipEntry
+    b: ClipEntry
+    key: str
+    cells: int
+    self_pair: bool
+
+    def record(self) -> dict[str, Any]:
+        return {"chunk": self.chunk, "a": self.a.path, "b": self.b.path, "a_sha": self.a.sha256,
+                "b_sha": self.b.sha256, "key": self.key, "cells": self.cells, "self": self.self_pair}
+
+
+@dataclass
+class SkeletonReport:
+    """Per chunk: the majority skeleton and the clips only indexed against compatible clips."""
+
+    chunk: str
+    majority: str
+    groups: dict[str, list[str]]
+    minority: list[str]
+
+
+def working_rate(cfg: Config) -> float:
+    """The finest rate of the coarse-to-fine ladder (KG04 §3.2; the last of ``features.rates``)."""
+    return float(max(cfg.features.rates))
+
+
+def frames_at(entry: ClipEntry, rate: float) -> int:
+    """Frames of a clip resampled to ``rate`` (an estimate used for balancing and reporting)."""
+    return math.floor(entry.duration * rate + 1e-9) + 1
+
+
+def plan_chunks(entries: list[ClipEntry], chunk_by: str) -> list[Chunk]:
+    """Category chunks (SPEC §1), or one chunk ``all`` when ``chunk_by == "none"``."""
+    ordered = sorted(entries, key=lambda e: e.path)
+    if chunk_by == "none":
+        return [Chunk("all", tuple(ordered))] if ordered else []
+    groups: dict[str, list[ClipEntry]] = {}
+    for e in ordered:
+        groups.setdefault(e.category, []).append(e)
+    return [Chunk(name, tuple(clips)) for name, clips in sorted(groups.items())]
+
+
+def skeleton_groups(chunk: Chunk) -> SkeletonReport:
+    """Group a chunk's clips by skeleton signature; the majority (most frames on ties) first."""
+    groups: dict[str, list[ClipEntry]] = {}
+    for c in chunk.clips:
+        groups.setdefault(c.skeleton, []).append(c)
+    if not groups:
+        return SkeletonReport(chunk.name, "", {}, [])
+    majority = max(groups, key=lambda s: (len(groups[s]), sum(c.frames for c in groups[s]), s))
+    minority = [c.path for s, cs in groups.items() if s != majority for c in cs]
+    return SkeletonReport(chunk.name, majority, {s: [c.path for c in cs] for s, cs in groups.items()}, minority)
+
+
+def plan_pairs(chunk: Chunk, wdigest: str, rate: float, self_pairs: bool = True) -> list[PairJob]:
+    """Every unordered pair of skeleton-compatible clips of a chunk (and each clip with itself).
+
+    The rows clip is the one with the smaller hash, so a pair's key does not depend on paths or
+    order; two files with identical bytes share one key (and are treated as a self pair).
+    """
+    by_sig: dict[str, list[ClipEntry]] = {}
+    for c in chunk.clips:
+        by_sig.setdefault(c.skeleton, []).append(c)
+    jobs: list[PairJob] = []
+    for clips in by_sig.values():
+        for i, ci in enumerate(clips):
+            for cj in clips[i if self_pairs else i + 1:]:
+                a, b = (ci, cj) if (ci.sha256, ci.path) <= (cj.sha256, cj.path) else (cj, ci)
+                jobs.append(PairJob(
+                    chunk=chunk.name, a=a, b=b, key=web_key(a.sha256, b.sha256, wdigest),
+                    cells=frames_at(a, rate) * frames_at(b, rate), self_pair=a.sha256 == b.sha256,
+                ))
+    return jobs
+
+
+def unique_jobs(jobs: list[PairJob]) -> list[PairJob]:
+    """One job per web key (identical files give identical keys)."""
+    seen: dict[str, PairJob] = {}
+    for j in jobs:
+        seen.setdefault(j.key, j)
+    return list(seen.values())
+
+
+def balance_batches(jobs: list[PairJob], n_batches: int) -> list[list[PairJob]]:
+    """Split jobs into ``n_batches`` batches of nearly equal cell counts (greedy LPT).
+
+    Largest jobs first, each to the currently lightest batch: the makespan is within 4/3 of the
+    optimum, which keeps Dask workers busy to the end. Empty batches are dropped.
+    """
+    n_batches = max(1, min(n_batches, len(jobs)))
+    heap = [(0.0, i) for i in range(n_batches)]
+    batches: list[list[PairJob]] = [[] for _ in range(n_batches)]
+    for job in sorted(jobs, key=lambda j: (-j.cells, j.key)):
+        load, i = heapq.heappop(heap)
+        batches[i].append(job)
+        heapq.heappush(heap, (load + job.cells + PAIR_OVERHEAD_CELLS, i))
+    return [b for b in batches if b]
+
+
+def batch_count(jobs: list[PairJob], n_workers: int) -> int:
+    """About four batches per worker, more when a chunk is large (bounded batch size)."""
+    cells = sum(j.cells for j in jobs)
+    return min(len(jobs), max(4 * max(1, n_workers), math.ceil(cells / BATCH_CELLS)))
+
+
+def balance_clips(clips: list[ClipEntry], n_batches: int) -> list[list[ClipEntry]]:
+    """Feature batches balanced by frame count (LPT), one clip per hash."""
+    uniq = list({c.sha256: c for c in clips}.values())
+    n_batches = max(1, min(n_batches, len(uniq)))
+    heap = [(0, i) for i in range(n_batches)]
+    out: list[list[ClipEntry]] = [[] for _ in range(n_batches)]
+    for c in sorted(uniq, key=lambda c: (-c.frames, c.path)):
+        load, i = heapq.heappop(heap)
+        out[i].append(c)
+        heapq.heappush(heap, (load + c.frames, i))
+    return [b for b in out if b]
+
+
+@dataclass
+class ChunkPlan:
+    """What one chunk needs: feature clips to compute, web jobs to compute, cached pairs."""
+
+    chunk: Chunk
+    skeleton: SkeletonReport
+    pairs: list[PairJob]
+    features_todo: list[ClipEntry]
+    todo: list[PairJob]
+    cached: list[PairJob]
+
+
+def plan_chunk(chunk: Chunk, cfg: Config, has: Callable[[str], bool],
+               has_features: Callable[[str], bool]) -> ChunkPlan:
+    """Pair plan of one chunk split into cached and to-compute using the store predicates."""
+    pairs = plan_pairs(chunk, web_digest(cfg), working_rate(cfg))
+    uniq = unique_jobs(pairs)
+    todo = [j for j in uniq if not has(j.key)]
+    todo_keys = {j.key for j in todo}
+    cached = [j for j in pairs if j.key not in todo_keys]
+    feats = [c for c in {c.sha256: c for c in chunk.clips}.values() if not has_features(c.sha256)]
+    return ChunkPlan(chunk, skeleton_groups(chunk), pairs, feats, todo, cached)
+
+
+def build_generation(
+    cfg: Config, catalog: Catalog, plans: list[ChunkPlan], results: dict[str, dict[str, Any]],
+    failed_clips: dict[str, str], parent: str | None, timings: dict[str, float], gen_id: str | None = None,
+    cached_meta: dict[str, dict[str, Any]] | None = None,
+) -> Generation:
+    """The manifest of a run: clips, feature keys, web records, broken files, config, versions.
+
+    ``results`` maps computed web keys to their record (counts, seconds, or ``error``);
+    ``cached_meta`` the stored attributes of cached webs. Pairs that failed, or that involve a
+    clip that failed to load, are left out and listed under ``broken``.
+    """
+    fdig = feature_digest(cfg)
+    rates = sorted(float(r) for r in cfg.features.rates)
+    cached_meta = cached_meta or {}
+    broken = [{"path": e.path, "reason": e.reason} for e in catalog.errors]
+    bad_sha = set()
+    for e in catalog.entries:
+        if e.sha256 in failed_clips:
+            bad_sha.add(e.sha256)
+            broken.append({"path": e.path, "reason": failed_clips[e.sha256]})
+    webs: list[dict[str, Any]] = []
+    for plan in plans:
+        for job in plan.pairs:
+            if job.a.sha256 in bad_sha or job.b.sha256 in bad_sha:
+                continue
+            res = results.get(job.key)
+            if res is not None and "error" in res:
+                broken.append({"path": f"{job.a.path} x {job.b.path}", "reason": res["error"]})
+                continue
+            meta = res if res is not None else cached_meta.get(job.key, {})
+            rec = job.record()
+            rec["computed"] = res is not None
+            rec.update({k: meta[k] for k in ("n_chains", "n_bridges", "rate", "shape") if k in meta})
+            webs.append(rec)
+    clips = [asdict(e) | {"chunk": p.chunk.name} for p in plans for e in p.chunk.clips
+             if e.sha256 not in bad_sha]
+    for c in clips:
+        c.pop("abs_path", None)
+    features = {c["sha256"]: {rate_tag(r): feature_key(c["sha256"], fdig) for r in rates} for c in clips}
+    computed = {w["key"] for w in webs if w["computed"]}
+    stats = {
+        "chunks": len(plans),
+        "clips": len(clips),
+        "frames": sum(c["frames"] for c in clips),
+        "pairs": len(webs),
+        "pairs_computed": len(computed),
+        "pairs_cached": len(webs) - sum(1 for w in webs if w["computed"]),
+        "features_computed": sum(len(p.features_todo) for p in plans),
+        "chains": sum(int(w.get("n_chains", 0)) for w in webs),
+        "bridges": sum(int(w.get("n_bridges", 0)) for w in webs),
+        "broken": len(broken),
+        "skeleton_minority": sum(len(p.skeleton.minority) for p in plans),
+    }
+    return Generation(
+        id=gen_id or new_generation_id(),
+        created=now_iso(),
+        parent=parent,
+        params={"features": fdig, "webs": web_digest(cfg),
+                "features_params": feature_params(cfg), "web_params": web_params(cfg)},
+        config=cfg.model_dump(mode="json"),
+        clips=clips,
+        features=features,
+        webs=webs,
+        chunks=[{"name": p.chunk.name, "clips": len(p.chunk.clips), "frames": p.chunk.frames,
+                 "pairs": len(p.pairs), "computed": len(p.todo), "features_computed": len(p.features_todo)}
+                for p in plans],
+        broken=broken,
+        skeleton=[asdict(p.skeleton) for p in plans if len(p.skeleton.groups) > 1],
+        versions=package_versions(),
+        timings=dict(timings),
+        stats=stats,
+    )
+
+
+@dataclass
+class IndexSummary:
+    """What ``motionweb index`` prints."""
+
+    generation: str
+    store: str
+    params: dict[str, str]
+    chunks: int
+    clips: int
+    frames: int
+    pairs: int
+    pairs_computed: int
+    pairs_cached: int
+    features_computed: int
+    chains: int
+    bridges: int
+    wall_s: float
+    store_bytes: int
+    broken: list[dict[str, str]] = field(default_factory=list)
+    skeleton_minority: list[str] = field(default_factory=list)
+    params_changed: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def format_summary(s: IndexSummary | dict[str, Any]) -> str:
+    """Human-readable run summary (chunks, clips, frames, pairs computed/cached, chains, bridges...)."""
+    d = s.to_dict() if isinstance(s, IndexSummary) else s
+    lines = [
+        f"generation {d['generation']} in {d['store']}",
+        f"  chunks {d['chunks']}, clips {d['clips']}, frames {d['frames']}",
+        (f"  pairs {d['pairs']}: computed {d['pairs_computed']}, cached {d['pairs_cached']} "
+         f"(features computed for {d['features_computed']} clips)"),
+        f"  chains {d['chains']}, bridges {d['bridges']}",
+        f"  wall time {d['wall_s']:.1f} s, store size {d['store_bytes'] / 1e6:.2f} MB",
+        f"  parameters: features {d['params']['features']}, webs {d['params']['webs']}"
+        + (" (new parameter hash: results are not mixed with the previous generation's)"
+           if d.get("params_changed") else ""),
+    ]
+    if d["skeleton_minority"]:
+        lines.append(f"  {len(d['skeleton_minority'])} clips with a minority skeleton, indexed only "
+                     f"against compatible clips: {', '.join(d['skeleton_minority'])}")
+    if d["broken"]:
+        lines.append(f"  {len(d['broken'])} broken files skipped:")
+        lines += [f"    {b['path']}: {b['reason']}" for b in d["broken"]]
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------- work on Dask workers
+@lru_cache(maxsize=8)
+def _store(url: str) -> MotionStore:
+    return MotionStore(url)
+
+
+def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
+    """Features of clips at every rate plus point weights, written to the store (SPEC §3).
+
+    Runs on a Dask worker; returns one small record per clip (``error`` when unreadable).
+    """
+    from store.catalog import load_clip
+    from tasks.features import clip_features, point_weights
+
+    store = _store(store_url)
+    fdig = feature_digest(cfg)
+    out = []
+    for c in clips:
+        t = time.perf_counter()
+        try:
+            motion = load_clip(c, cfg.corpus)
+            by_rate = {float(r): clip_features(motion, float(r), cfg.features, up=cfg.corpus.up_axis)
+                       for r in cfg.features.rates}
+            weights = point_weights(motion.skeleton, cfg.features)
+            store.write_features(c.sha256, fdig, by_rate, weights,
+                                 {"path": c.path, "skeleton": c.skeleton, "fps": c.fps})
+            out.append({"sha256": c.sha256, "seconds": time.perf_counter() - t})
+        except Exception as exc:  # noqa: BLE001 - a broken clip is recorded, the run goes on
+            out.append({"sha256": c.sha256, "path": c.path, "error": f"{type(exc).__name__}: {exc}"})
+    return out
+
+
+def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
+    """Chains and bridges of a web from its flat arrays (ragged: ``*_offsets`` hold N+1 bounds)."""
+
+    def count(prefix: str) -> int:
+        off = arrays.get(f"{prefix}_offsets")
+        if off is not None:
+            return max(0, len(off) - 1)
+        for name, arr in arrays.items():
+            if name.startswith(prefix) and getattr(arr, "ndim", 0) >= 1:
+                return int(arr.shape[0])
+        return 0
+
+    return {"n_chains": count("paths"), "n_bridges": count("bridges")}
+
+
+def compute_web_batch(jobs: list[PairJob], cfg: Config, store_url: str) -> list[dict[str, Any]]:
+    """Match webs of a batch of pairs (KG04 §3.1-3.2), each written to the store under its key.
+
+    Runs on a Dask worker; reads features from the store and returns small records only.
+    """
+    from tasks.matchweb import build_web
+
+    store = _store(store_url)
+    fdig = feature_digest(cfg)
+    rate = working_rate(cfg)
+    out = []
+    for job in jobs:
+        t = time.perf_counter()
+        try:
+            fa, weights = store.read_features(job.a.sha256, fdig)
+            fb = fa if job.self_pair else store.read_features(job.b.sha256, fdig)[0]
+            web = build_web(fa, fb, weights, cfg.matchweb, job.self_pair)
+            arrays = web.to_arrays()
+            meta = {"a_sha": job.a.sha256, "b_sha": job.b.sha256, "rate": rate,
+                    "shape": [int(fa[rate].shape[0]), int(fb[rate].shape[0])], **web_counts(arrays)}
+            store.write_web(job.key, arrays, meta)
+            if cfg.matchweb.keep_grids:
+                from tasks.distance import distance_grid
+
+                store.write_grid(job.key, distance_grid(fa[rate], fb[rate], weights))
+            out.append({"key": job.key, "seconds": time.perf_counter() - t, **meta})
+        except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
+            out.append({"key": job.key, "error": f"{type(exc).__name__}: {exc}"})
+    return out
+
+
+# ----------------------------------------------------------------------------- Dask plumbing
+@contextmanager
+def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
+    """Address of the scheduler to use: ``dask.address``, or a local cluster for this run.
+
+    The local default is sized to the machine (one single-threaded worker per core, at most 2
+    unless ``n_workers`` says otherwise); small runs use threads, which start in ~1 s.
+    """
+    if dcfg.address:
+        yield dcfg.address
+        return
+    from distributed import LocalCluster
+
+    n = dcfg.n_workers or max(1, min(2, os.cpu_count() or 1))
+    processes = dcfg.processes if dcfg.processes is not None else not small
+    kwargs: dict[str, Any] = {"host": "127.0.0.1"} if processes else {}
+    with LocalCluster(n_workers=n, threads_per_worker=dcfg.threads_per_worker, processes=processes,
+                      dashboard_address=None, **kwargs) as cluster:
+        yield cluster.scheduler_address
+
+
+def _run_on_dask(address: str, fn: Callable, batches: list[list], cfg: Config, store_url: str,
+                 stage: str, logger: Any) -> list[dict[str, Any]]:
+    """Submit one Dask task per batch, gather records as they finish and report progress."""
+    from distributed import Client, as_completed
+
+    out: list[dict[str, Any]] = []
+    total = sum(len(b) for b in batches)
+    with Client(address, set_as_default=False) as client:
+        cfg_f = client.scatter(cfg, broadcast=True)
+        futures = [client.submit(fn, b, cfg_f, store_url, pure=False, key=f"{stage}-{i}-{os.urandom(4).hex()}")
+                   for i, b in enumerate(batches)]
+        step = max(1, total // 10)
+        last = 0
+        for fut in as_completed(futures):
+            out.extend(fut.result())
+            if PROGRESS is not None:
+                PROGRESS(stage, len(out), total)
+            if len(out) - last >= step or len(out) == total:
+                logger.info("%s: %d/%d", stage, len(out), total)
+                last = len(out)
+    return out
+
+
+def _workers(address: str) -> int:
+    from distributed import Client
+
+    with Client(address, set_as_default=False) as client:
+        return max(1, len(client.scheduler_info().get("workers", {})))
+
+
+# ---------------------------------------------------------------------------- Prefect tasks
+@task(name="catalog", cache_policy=NO_CACHE)
+def catalog_task(cfg: Config) -> Catalog:
+    """Scan the corpus (hash, label, describe every clip; broken files listed, not fatal)."""
+    cat = scan_corpus(cfg.corpus.path, cfg.corpus)
+    get_run_logger().info("catalog: %d clips, %d unreadable", len(cat.entries), len(cat.errors))
+    return cat
+
+
+@task(name="plan", cache_policy=NO_CACHE)
+def plan_task(chunks: list[Chunk], cfg: Config) -> list[ChunkPlan]:
+    """Pair plan of every chunk, split into cached and to-compute by the store."""
+    store = MotionStore(cfg.store.path)
+    fdig = feature_digest(cfg)
+    rates = [float(r) for r in cfg.features.rates]
+    plans = [plan_chunk(c, cfg, store.has, lambda sha: store.has_features(sha, fdig, rates)) for c in chunks]
+    logger = get_run_logger()
+    for p in plans:
+        logger.info("chunk %s: %d clips, %d pairs (%d to compute, %d cached), %d clips need features",
+                    p.chunk.name, len(p.chunk.clips), len(p.pairs), len(p.todo), len(p.cached),
+                    len(p.features_todo))
+    return plans
+
+
+@task(name="features", cache_policy=NO_CACHE, retries=1)
+def features_task(plan: ChunkPlan, cfg: Config, address: str) -> list[dict[str, Any]]:
+    """Features for the chunk's clips that lack them, on Dask."""
+    if not plan.features_todo:
+        return []
+    batches = balance_clips(plan.features_todo, 4 * _workers(address))
+    return _run_on_dask(address, compute_features_batch, batches, cfg, cfg.store.path,
+                        f"features[{plan.chunk.name}]", get_run_logger())
+
+
+@task(name="webs", cache_policy=NO_CACHE, retries=1)
+def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> list[dict[str, Any]]:
+    """Webs of the chunk's uncached pairs, batches balanced by cell count, on Dask."""
+    jobs = [j for j in plan.todo if j.a.sha256 not in bad_sha and j.b.sha256 not in bad_sha]
+    if not jobs:
+        return []
+    batches = balance_batches(jobs, batch_count(jobs, _workers(address)))
+    return _run_on_dask(address, compute_web_batch, batches, cfg, cfg.store.path,
+                        f"webs[{plan.chunk.name}]", get_run_logger())
+
+
+@task(name="commit", cache_policy=NO_CACHE)
+def commit_task(gen: Generation, store_url: str) -> str:
+    """Write the manifest and switch the ``current`` pointer (SPEC §9)."""
+    return MotionStore(store_url).commit(gen)
+
+
+# ------------------------------------------------------------------------------------ flow
+@flow(name="index-library")
+def index_library(config: str | Config) -> dict[str, Any]:
+    """Index a motion library into match webs (SPEC §1, §10); returns the run summary.
+
+    ``config`` is a config file path or a :class:`Config`. Nothing is visible to readers until
+    the final commit switches the store's ``current`` generation.
+    """
+    cfg = config if isinstance(config, Config) else load_config(config)
+    logger = get_run_logger()
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    store = MotionStore(cfg.store.path)
+    parent = store.current_id()
+    prev = store.generation(parent) if parent else None
+
+    catalog = catalog_task(cfg)
+    timings["catalog_s"] = time.perf_counter() - t0
+    chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
+    t = time.perf_counter()
+    plans = plan_task(chunks, cfg)
+    timings["plan_s"] = time.perf_counter() - t
+
+    todo_cells = sum(j.cells for p in plans for j in p.todo)
+    results: dict[str, dict[str, Any]] = {}
+    failed: dict[str, str] = {}
+    t = time.perf_counter()
+    if any(p.todo or p.features_todo for p in plans):
+        with dask_scheduler(cfg.dask, small=todo_cells < SMALL_RUN_CELLS) as address:
+            logger.info("dask scheduler %s; %d pairs (%.3g cells) to compute",
+                        address, sum(len(p.todo) for p in plans), todo_cells)
+            feats = [features_task.submit(p, cfg, address) for p in plans]
+            for rec in (r for f in feats for r in f.result()):
+                if "error" in rec:
+                    failed[rec["sha256"]] = rec["error"]
+            timings["features_s"] = time.perf_counter() - t
+            webs = [webs_task.submit(p, cfg, address, set(failed)) for p in plans]
+            for rec in (r for f in webs for r in f.result()):
+                results[rec["key"]] = rec
+    timings["compute_s"] = time.perf_counter() - t
+
+    cached_keys = {j.key for p in plans for j in p.cached}
+    cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
+    for key in cached_keys - set(cached_meta):
+        g = store._open(key)
+        cached_meta[key] = dict(g.attrs) if g is not None else {}
+    gen = build_generation(cfg, catalog, plans, results, failed, parent, timings, cached_meta=cached_meta)
+    gen.timings["before_commit_s"] = time.perf_counter() - t0
+    commit_task(gen, cfg.store.path)
+    wall = time.perf_counter() - t0
+    summary = IndexSummary(
+        generation=gen.id, store=cfg.store.path,
+        params={"features": gen.params["features"], "webs": gen.params["webs"]},
+        chunks=gen.stats["chunks"], clips=gen.stats["clips"], frames=gen.stats["frames"],
+        pairs=gen.stats["pairs"], pairs_computed=gen.stats["pairs_computed"],
+        pairs_cached=gen.stats["pairs_cached"], features_computed=gen.stats["features_computed"],
+        chains=gen.stats["chains"], bridges=gen.stats["bridges"], wall_s=wall,
+        store_bytes=store.size_bytes(), broken=gen.broken,
+        skeleton_minority=[m for p in plans for m in p.skeleton.minority],
+        params_changed=prev is not None and prev.params.get("webs") != gen.params["webs"],
+    )
+    logger.info("\n%s", format_summary(summary))
+    return summary.to_dict()
