@@ -376,12 +376,13 @@ def read_bvh(path: str | Path, *, unit: str | None = None, scale_to_m: float | N
                      content_hash=hashlib.sha256(raw).hexdigest())
 
 
-def _channel_values(motion: Motion) -> np.ndarray:
-    """(F, C) channel values of every joint in file order."""
+def _channel_values(motion: Motion, order: list[int] | None = None) -> np.ndarray:
+    """(F, C) channel values of every joint in file order (``order``: the joints as the hierarchy
+    is written, depth first; the skeleton's index order need not be depth first)."""
     sk = motion.skeleton
     f = motion.n_frames
     cols: list[np.ndarray] = []
-    for k in range(sk.n_joints):
+    for k in (range(sk.n_joints) if order is None else order):
         chans = sk.channels[k]
         if not chans:
             continue
@@ -415,7 +416,10 @@ def format_bvh(motion: Motion, decimals: int = 6) -> str:
     def vec(v: np.ndarray) -> str:
         return " ".join(num.format(x) for x in v)
 
+    written: list[int] = []
+
     def joint(k: int, depth: int) -> None:
+        written.append(k)
         ind = "\t" * depth
         out.append(f"{ind}{'ROOT' if k == 0 else 'JOINT'} {sk.names[k]}")
         out.append(ind + "{")
@@ -436,7 +440,7 @@ def format_bvh(motion: Motion, decimals: int = 6) -> str:
     out.append(f"Frames: {motion.n_frames}")
     out.append(f"Frame Time: {1.0 / motion.fps:.10g}")
     buf = io.StringIO()
-    np.savetxt(buf, _channel_values(motion), fmt=f"%.{decimals}f", delimiter=" ")
+    np.savetxt(buf, _channel_values(motion, written), fmt=f"%.{decimals}f", delimiter=" ")
     # "-0.000000" and "0.000000" are the same value; print one spelling so round trips are exact.
     body = buf.getvalue().replace("-" + num.format(0.0), num.format(0.0))
     return "\n".join(out) + "\n" + body
