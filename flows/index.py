@@ -457,7 +457,7 @@ def _run_on_dask(address: str, fn: Callable, batches: list[list], cfg: Config, s
                    for i, b in enumerate(batches)]
         step = max(1, total // 10)
         last = 0
-        for fut in as_completed(futures):
+        for fut in as_completed(futures, loop=client.loop):
             out.extend(fut.result())
             if PROGRESS is not None:
                 PROGRESS(stage, len(out), total)

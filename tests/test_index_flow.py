@@ -1,0 +1,266 @@
+"""The index flow (SPEC §1, §9, §10): planning as plain functions, then a few real flow runs.
+
+Flow runs use Prefect's test harness once per session with heartbeats off (STACK-NOTES) and a
+small synthetic corpus (two categories, a broken file, one clip with another skeleton).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+os.environ.setdefault("PREFECT_HOME", tempfile.mkdtemp(prefix="prefect-home-"))
+for _k, _v in {
+    "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+    "PREFECT_LOGGING_LEVEL": "WARNING",
+    "PREFECT_LOGGING_TO_API_WHEN_MISSING_FLOW": "ignore",
+    "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90",
+    "DASK_LOGGING__DISTRIBUTED": "warning",
+}.items():
+    os.environ.setdefault(_k, _v)
+
+import numpy as np
+import pytest
+
+from flows.config import Config, resolve_paths
+from flows.index import (
+    Chunk,
+    PairJob,
+    balance_batches,
+    build_generation,
+    format_summary,
+    index_library,
+    plan_chunk,
+    plan_chunks,
+    plan_pairs,
+    skeleton_groups,
+    web_counts,
+)
+from store.bvh import write_bvh
+from store.cache import MotionStore, web_digest
+from store.catalog import Catalog, ClipEntry, ScanError
+from store.motion import Motion, Skeleton
+from tasks.kinematics import quat_from_euler
+
+
+# ------------------------------------------------------------------------------ plain functions
+def entry(path: str, sha: str, category: str = "walk", frames: int = 61, fps: float = 30.0,
+          skeleton: str = "S1") -> ClipEntry:
+    return ClipEntry(path=path, abs_path="/x/" + path, category=category, sha256=sha * 64, format="bvh",
+                     fps=fps, frames=frames, duration=(frames - 1) / fps, skeleton=skeleton, n_joints=3,
+                     unit="m")
+
+
+def test_plan_chunks_by_category_and_unsplit():
+    es = [entry("walk/b.bvh", "2"), entry("run/a.bvh", "1", "run"), entry("walk/a.bvh", "3")]
+    chunks = plan_chunks(es, "category")
+    assert [c.name for c in chunks] == ["run", "walk"]
+    assert [e.path for e in chunks[1].clips] == ["walk/a.bvh", "walk/b.bvh"]
+    (one,) = plan_chunks(es, "none")
+    assert one.name == "all" and len(one.clips) == 3
+    assert plan_chunks([], "none") == []
+
+
+def test_pair_plan_canonical_and_skeleton_compatible():
+    clips = (entry("walk/a.bvh", "3"), entry("walk/b.bvh", "1"), entry("walk/c.bvh", "2"),
+             entry("walk/odd.bvh", "4", skeleton="S2"))
+    chunk = Chunk("walk", clips)
+    rep = skeleton_groups(chunk)
+    assert rep.majority == "S1" and rep.minority == ["walk/odd.bvh"]
+    jobs = plan_pairs(chunk, "wd", 30.0)
+    # 3 compatible clips: 3 self pairs + 3 cross pairs; the odd skeleton only with itself
+    assert len(jobs) == 7
+    for j in jobs:
+        assert j.a.sha256 <= j.b.sha256 and j.a.skeleton == j.b.skeleton
+        assert j.self_pair == (j.a.sha256 == j.b.sha256)
+        assert j.cells == 61 * 61
+    odd = [j for j in jobs if "odd" in j.a.path or "odd" in j.b.path]
+    assert len(odd) == 1 and odd[0].self_pair
+    # keys do not depend on the order of the clips
+    assert {j.key for j in plan_pairs(Chunk("walk", clips[::-1]), "wd", 30.0)} == {j.key for j in jobs}
+
+
+def test_balance_batches_by_cells():
+    rng = np.random.default_rng(0)
+    jobs = [PairJob("c", entry(f"a{i}", "1"), entry(f"b{i}", "2"), f"k{i}", int(c), False)
+            for i, c in enumerate(rng.integers(1_000, 2_000_000, size=200))]
+    batches = balance_batches(jobs, 8)
+    assert len(batches) == 8
+    assert sorted(j.key for b in batches for j in b) == sorted(j.key for j in jobs)
+    loads = [sum(j.cells for j in b) for b in batches]
+    assert max(loads) - min(loads) <= max(j.cells for j in jobs)
+    assert max(loads) / (sum(loads) / 8) < 1.05
+    assert balance_batches(jobs[:3], 8) == [[j] for j in sorted(jobs[:3], key=lambda j: -j.cells)]
+
+
+def test_web_counts_from_ragged_arrays():
+    arrays = {"paths_offsets": np.array([0, 4, 9, 9]), "paths_cells": np.zeros((9, 2)),
+              "bridges_offsets": np.array([0, 3])}
+    assert web_counts(arrays) == {"n_chains": 3, "n_bridges": 1}
+
+
+def test_generation_manifest_lists_broken_and_drops_their_pairs():
+    cfg = Config()
+    es = [entry("walk/a.bvh", "1"), entry("walk/b.bvh", "2"), entry("walk/c.bvh", "3")]
+    cat = Catalog(root="/x", entries=es, errors=[ScanError("walk/bad.bvh", "truncated")])
+    plan = plan_chunk(Chunk("walk", tuple(es)), cfg, has=lambda k: False, has_features=lambda s: False)
+    assert len(plan.todo) == 6 and len(plan.features_todo) == 3
+    results = {j.key: {"key": j.key, "n_chains": 2, "n_bridges": 1} for j in plan.todo}
+    ab = next(j for j in plan.todo if {j.a.path, j.b.path} == {"walk/a.bvh", "walk/b.bvh"})
+    results[ab.key] = {"key": ab.key, "error": "ValueError: boom"}
+    gen = build_generation(cfg, cat, [plan], results, {"3" * 64: "cannot read"}, None, {"catalog_s": 0.1})
+    assert {b["path"] for b in gen.broken} == {"walk/bad.bvh", "walk/c.bvh", "walk/a.bvh x walk/b.bvh"}
+    assert [c["path"] for c in gen.clips] == ["walk/a.bvh", "walk/b.bvh"]
+    assert len(gen.webs) == 2 and gen.stats["chains"] == 4 and gen.stats["bridges"] == 2
+    assert gen.params["webs"] == web_digest(cfg) and gen.versions["numpy"] == np.__version__
+    text = format_summary({**gen.stats, "generation": gen.id, "store": "s", "params": gen.params,
+                           "wall_s": 1.0, "store_bytes": 10, "broken": gen.broken, "skeleton_minority": []})
+    assert "walk/bad.bvh: truncated" in text and "pairs 2" in text
+
+
+# ------------------------------------------------------------------------------- corpus helpers
+def chain_motion(seconds: float, freq: float, phase: float, n_joints: int = 4, fps: float = 30.0) -> Motion:
+    """A swinging chain walking forward: periodic, so webs have chains of local minima."""
+    names = tuple(f"j{i}" for i in range(n_joints))
+    sk = Skeleton(names=names, parents=np.arange(n_joints) - 1,
+                  offsets=np.vstack([[0, 0, 0]] + [[0.0, -0.3, 0.05]] * (n_joints - 1)),
+                  channels=(("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"),)
+                  + (("Zrotation", "Xrotation", "Yrotation"),) * (n_joints - 1))
+    t = np.arange(int(seconds * fps)) / fps
+    ang = np.zeros((len(t), n_joints, 3))
+    for j in range(n_joints):
+        ang[:, j, 1] = 35 * np.sin(2 * np.pi * freq * t + phase + 0.7 * j)
+        ang[:, j, 0] = 10 * np.cos(2 * np.pi * freq * t + phase)
+    rot = quat_from_euler(ang, "ZXY")
+    root = np.stack([0.8 * t, 1.0 + 0.05 * np.sin(4 * np.pi * freq * t), 0.1 * t], axis=1)
+    return Motion(skeleton=sk, fps=fps, root_positions=root, rotations=rot)
+
+
+def write_corpus(root: Path) -> Path:
+    (root / "walk").mkdir(parents=True)
+    (root / "run").mkdir(parents=True)
+    write_bvh(chain_motion(2.0, 1.0, 0.0), root / "walk" / "w1.bvh")
+    write_bvh(chain_motion(2.5, 1.1, 0.5), root / "walk" / "w2.bvh")
+    write_bvh(chain_motion(1.5, 0.9, 1.0), root / "walk" / "w3.bvh")
+    write_bvh(chain_motion(1.5, 1.0, 0.2, n_joints=3), root / "walk" / "odd.bvh")  # other skeleton
+    write_bvh(chain_motion(2.0, 2.0, 0.0), root / "run" / "r1.bvh")
+    write_bvh(chain_motion(1.5, 2.2, 0.3), root / "run" / "r2.bvh")
+    (root / "run" / "broken.bvh").write_text("HIERARCHY\nROOT hips\n{\n  OFFSET 0 0\n")
+    return root
+
+
+def make_config(tmp: Path, corpus: Path, store: str, **overrides) -> Config:
+    data = {
+        "corpus": {"path": str(corpus), "length_unit": "m"},
+        "features": {"rates": [10.0, 20.0]},
+        "store": {"path": store},
+        "dask": {"processes": False, "n_workers": 2},
+        "output": str(tmp / "out"),
+    }
+    for section, values in overrides.items():
+        data[section] = {**data.get(section, {}), **values}
+    return resolve_paths(Config.model_validate(data), tmp)
+
+
+# ----------------------------------------------------------------------------------- flow runs
+@pytest.fixture(scope="session")
+def prefect_harness():
+    from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=90), \
+            temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        yield
+
+
+@pytest.fixture(scope="module")
+def indexed(prefect_harness, tmp_path_factory):
+    """A corpus indexed once: (tmp dir, corpus, config, first summary)."""
+    tmp = tmp_path_factory.mktemp("index")
+    corpus = write_corpus(tmp / "corpus")
+    cfg = make_config(tmp, corpus, str(tmp / "store"))
+    summary = index_library(cfg)
+    return tmp, corpus, cfg, summary
+
+
+def test_flow_end_to_end(indexed):
+    _tmp, _corpus, cfg, s = indexed
+    # walk: 3 compatible clips (6 pairs) + odd skeleton (self pair); run: 2 clips (3 pairs)
+    assert s["chunks"] == 2 and s["clips"] == 6
+    assert s["pairs"] == 10 and s["pairs_computed"] == 10 and s["pairs_cached"] == 0
+    assert s["chains"] > 0
+    assert [b["path"] for b in s["broken"]] == ["run/broken.bvh"]
+    assert s["skeleton_minority"] == ["walk/odd.bvh"]
+    store = MotionStore(cfg.store.path, read_only=True)
+    gen = store.generation()
+    assert gen.id == s["generation"] and store.current_id() == gen.id
+    assert gen.broken[0]["path"] == "run/broken.bvh" and gen.skeleton[0]["minority"] == ["walk/odd.bvh"]
+    assert gen.versions["zarr"] and gen.timings["catalog_s"] >= 0 and gen.config["store"]["path"]
+    rec, _ = gen.web_for("walk/w1.bvh", "walk/w2.bvh")
+    web = store.read_web(rec["key"])
+    assert tuple(int(x) for x in np.ravel(web.shape)) == tuple(rec["shape"])
+    assert gen.web_for("walk/w1.bvh", "run/r1.bvh") is None  # chunks are not crossed
+    assert gen.web_for("walk/w1.bvh", "walk/odd.bvh") is None  # incompatible skeletons
+    assert "run/broken.bvh" in format_summary(s)
+
+
+def test_incremental_rerun_change_remove_and_params(indexed):
+    _tmp, corpus, cfg, first = indexed
+    store = MotionStore(cfg.store.path)
+    # nothing changed: every pair from the cache
+    s2 = index_library(cfg)
+    assert s2["pairs_computed"] == 0 and s2["pairs_cached"] == 10 and s2["features_computed"] == 0
+    assert s2["chains"] == first["chains"]
+    # change one clip (w1) and remove another (r2)
+    write_bvh(chain_motion(2.0, 1.0, 0.4), corpus / "walk" / "w1.bvh")
+    (corpus / "run" / "r2.bvh").unlink()
+    s3 = index_library(cfg)
+    assert s3["pairs_computed"] == 3  # w1×w1, w1×w2, w1×w3
+    assert s3["features_computed"] == 1
+    assert s3["pairs"] == 8 and s3["pairs_cached"] == 5
+    gen = store.generation()
+    assert all("run/r2.bvh" not in (w["a"], w["b"]) for w in gen.webs)
+    assert gen.parent == s2["generation"]
+    # another matchweb config: a new parameter hash, nothing mixed with the old webs
+    cfg2 = cfg.model_copy(update={"matchweb": replace_mw(cfg, valid_a=0.3)})
+    s4 = index_library(cfg2)
+    assert s4["params"]["webs"] != s3["params"]["webs"] and s4["params_changed"]
+    assert s4["pairs_computed"] == s4["pairs"] == 8 and s4["features_computed"] == 0
+    new, old = store.generation(), store.generation(s3["generation"])
+    assert not {w["key"] for w in new.webs} & {w["key"] for w in old.webs}
+    assert all(store.has(w["key"]) for w in old.webs)  # the old generation stays readable
+
+
+def replace_mw(cfg: Config, **kw):
+    return cfg.matchweb.model_copy(update=kw)
+
+
+def test_flow_on_distributed_scheduler(prefect_harness, tmp_path):
+    """The same flow on a real dask.distributed scheduler with a worker process on loopback."""
+    from distributed import LocalCluster
+
+    corpus = tmp_path / "corpus"
+    (corpus / "walk").mkdir(parents=True)
+    write_bvh(chain_motion(1.5, 1.0, 0.0), corpus / "walk" / "a.bvh")
+    write_bvh(chain_motion(1.5, 1.2, 0.3), corpus / "walk" / "b.bvh")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        cfg = make_config(tmp_path, corpus, str(tmp_path / "store"), dask={"address": cluster.scheduler_address})
+        s = index_library(cfg)
+    assert s["pairs"] == s["pairs_computed"] == 3 and s["clips"] == 2
+    gen = MotionStore(cfg.store.path).generation()
+    assert {(w["a"], w["b"]) for w in gen.webs} >= {("walk/a.bvh", "walk/a.bvh"), ("walk/b.bvh", "walk/b.bvh")}
+
+
+def test_flow_with_fsspec_store(prefect_harness, tmp_path):
+    """Store path as an fsspec URL (memory://) instead of a local folder."""
+    corpus = tmp_path / "corpus"
+    (corpus / "walk").mkdir(parents=True)
+    write_bvh(chain_motion(1.0, 1.0, 0.0), corpus / "walk" / "a.bvh")
+    shutil.copy(corpus / "walk" / "a.bvh", corpus / "walk" / "copy.bvh")  # identical bytes: one web key
+    cfg = make_config(tmp_path, corpus, f"memory://mw-{tmp_path.name}/store")
+    s = index_library(cfg)
+    assert s["pairs"] == 3 and s["pairs_computed"] == 1
+    assert MotionStore(cfg.store.path).current_id() == s["generation"]
