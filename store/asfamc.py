@@ -213,12 +213,12 @@ def _parse_bone(lines: _Lines, begin_line: int, deg: bool) -> AsfBone:
             dof = d
         elif key == "limits":
             rest = toks[1:]
-            while True:
-                if len(rest) < 2:
-                    raise SyntaxFormatError(path, line, "a limits pair needs two numbers")
-                lo = _float(rest[0], path, line, "limits", finite=False)
-                hi = _float(rest[1], path, line, "limits", finite=False)
-                limits.append((lo, hi))
+            while True:  # one (lo hi) pair per dof, on this line and the following ones
+                if len(rest) < 2 or len(rest) % 2:
+                    raise SyntaxFormatError(path, line, "limits must be (lo hi) pairs")
+                for a in range(0, len(rest), 2):
+                    limits.append((_float(rest[a], path, line, "limits", finite=False),
+                                   _float(rest[a + 1], path, line, "limits", finite=False)))
                 if len(limits) >= len(dof):
                     break
                 toks, line = lines.next(f"the limits of the bone block from line {begin_line}")

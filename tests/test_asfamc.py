@@ -157,8 +157,7 @@ RICH_ASF = """\
      length 1.5
      axis -30 45 0 ZYX
      dof rz ry
-     limits (-90 90)
-            (-45 45)
+     limits (-90 90) (-45 45)
   end
   begin
      id 4
@@ -168,9 +167,17 @@ RICH_ASF = """\
      axis 0 30 0 XYZ
      dof tx ty tz rx
   end
+  begin
+     id 5
+     name stub
+     direction 0 0 1
+     length 1
+     axis 0 0 0 XYZ
+     bodymass 1.0
+  end
 :hierarchy
   begin
-    root upper side
+    root upper side stub
     upper lower
     side slide
   end
@@ -219,8 +226,30 @@ def test_rich_skeleton_fk_matches_matrix_reference(tmp_path: Path) -> None:
                                    p_lower + g_lower @ (3 * lower_dir), atol=1e-9)
 
 
+def test_asf_metadata(tmp_path: Path) -> None:
+    asf = read_asf(_write(tmp_path, "rich.asf", RICH_ASF))
+    assert asf.name == "rich" and asf.version == "1.10" and asf.angle_unit == "deg"
+    side = asf.bones["side"]
+    assert side.dof == ("rz", "ry") and side.axis_order == "ZYX" and side.id == 3
+    np.testing.assert_allclose(side.limits, np.deg2rad([[-90, 90], [-45, 45]]))
+    np.testing.assert_allclose(asf.bones["lower"].direction, [0, 0.6, 0.8])
+    assert np.all(np.isinf(asf.bones["upper"].limits))  # no limits given
+    assert asf.hierarchy["root"] == ("upper", "side", "stub")
+    sk = asf.skeleton
+    assert sk.names == ("root", "upper", "lower", "side", "slide", "stub")
+    assert sk.channels[sk.index("stub")] == ()  # no dof: not listed in the AMC either
+    np.testing.assert_allclose(sk.end_sites[sk.index("stub")], [0, 0, 1])
+    assert sk.channels[sk.index("side")] == ("Yrotation", "Zrotation", "Xrotation")
+    assert sk.channels[sk.index("slide")] == ("Xposition", "Yposition", "Zposition",
+                                              "Xrotation", "Yrotation", "Zrotation")
+    np.testing.assert_allclose(sk.offsets[sk.index("slide")], [0, -1.5, 0])
+    np.testing.assert_allclose(sk.end_sites[sk.index("slide")], np.array([1, 1, 0]) / np.sqrt(2))
+    assert asf.documentation == ""
+
+
 def test_units_scale(tmp_path: Path) -> None:
     sk = read_asf(_write(tmp_path, "arm.asf", CHAIN_ASF))
+    assert sk.documentation.startswith("upper points along +X")
     assert sk.length_multiplier == 0.5
     assert sk.scale_to_m == pytest.approx(0.0254 / 0.5)
     m = read_asfamc(tmp_path / "arm.asf", _write(tmp_path, "arm_01.amc", CHAIN_AMC), fps=60)
