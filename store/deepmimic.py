@@ -155,7 +155,8 @@ class HumanoidModel:
     Attributes:
         skeleton: joints ``root`` (free) then the movable URDF joints, parents first; offsets in
             metres; end sites: head top (neck), wrists (elbows), toe tips on the sole (ankles).
-        joint_types: 'free', 'spherical', 'revolute' (or 'fixed') per joint.
+        joint_types: 'free' (root), 'spherical' or 'revolute' per joint; URDF 'fixed' joints do not
+            become skeleton joints: their links merge into the parent's body (``joints`` keeps them).
         axes: (J, 3) revolute axes in the joint frame (0 elsewhere).
         limits: (J, 2) revolute limits (rad), NaN where none.
         masses: (J,) kg, each joint's body including links fixed to it.
@@ -186,6 +187,19 @@ class HumanoidModel:
     @property
     def total_mass(self) -> float:
         return float(self.masses.sum())
+
+    # singular aliases, the interface tasks.dynamics.humanoid_inertias reads
+    @property
+    def mass(self) -> np.ndarray:
+        return self.masses
+
+    @property
+    def com(self) -> np.ndarray:
+        return self.coms
+
+    @property
+    def inertia(self) -> np.ndarray:
+        return self.inertias
 
 
 def _vec(el: ET.Element | None, attr: str, default: str, path: str | None, n: int = 3) -> np.ndarray:

@@ -111,6 +111,7 @@ def test_handmade_urdf(urdf_path: Path) -> None:
     np.testing.assert_allclose(sk.offsets[sk.index("right_knee")], [0, -1.6 * s, 0])
     np.testing.assert_allclose(sk.offsets[sk.index("left_shoulder")], [0, 0.8 * s, -0.8 * s])
     assert model.total_mass == pytest.approx(_ROOT_MASS + _BASE_MASS + sum(r[4] for r in _BODY))
+    assert model.mass is model.masses and model.com is model.coms and model.inertia is model.inertias
     # the wrist is fixed to the elbow: one body, COM between them, the wrist as end site
     e = sk.index("right_elbow")
     assert model.bodies[e] == ("right_elbow", "right_wrist")
