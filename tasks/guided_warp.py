@@ -568,6 +568,7 @@ def smooth_warp(times: np.ndarray, width: int, anchors: Sequence[int] = ()) -> n
         padded = np.concatenate([left, seg, right])
         kernel = np.ones(2 * h + 1) / (2 * h + 1)
         out[c0:c1 + 1] = np.convolve(padded, kernel, mode="valid")
+    out[cuts] = t[cuts]  # equal in exact arithmetic; remove the round-off
     return out
 
 
@@ -575,15 +576,16 @@ def apply_warp(motion: Motion, times: np.ndarray, adaptive: bool = True, max_tap
     """Resample ``motion`` at fractional source frames ``times`` (slerp), HDP07 §3.4.
 
     With ``adaptive``, output frame p is the average of the input over a source window as wide as
-    the local compression c_p = (t_{p+1} - t_{p-1}) / 2 (no smoothing where c_p <= 1): each window
-    is sampled at evenly spaced taps (normalised quaternion mean, hemisphere-aligned).
+    the local compression c_p = (t_{p+1} - t_{p-1}) / 2 frames (a box spanning c_p - 1 frame
+    intervals, so nothing changes where c_p <= 1): each window is sampled at evenly spaced taps
+    (normalised quaternion mean, hemisphere-aligned).
     """
     times = np.asarray(times, dtype=np.float64)
     base = sample_motion(motion, times)
     if not adaptive or len(times) < 3:
         return base
     c = np.abs(np.gradient(times))
-    width = np.where(c > 1.0, c, 0.0)
+    width = np.maximum(c - 1.0, 0.0)  # a box of c frames spans c - 1 frame intervals
     taps = int(min(max_taps, max(1, math.ceil(width.max()) + 1)))
     if taps <= 1:
         return base
@@ -692,8 +694,7 @@ def guided_warp(
         lo, hi = feasible_windows(red.n, red.m, skip, red.keys)
         path, cost = np.zeros(0, dtype=np.int64), np.inf
         if fast:
-            coarse = coarse_solution(track0, ref_track, red, skip, neighbours, weights, normalize, root_motion,
-                                     heuristic_rate, filter_width)
+            coarse = coarse_solution(table, red, skip, heuristic_rate)
             if coarse is not None:
                 blo, bhi = band_windows(coarse, red.m, band, lo, hi)
                 if np.all(blo <= bhi):
@@ -734,30 +735,53 @@ class CoarseSolution:
     step_out: float
 
 
-def coarse_solution(track0: Track, ref_track: Track, red: Reduction, skip: int, neighbours: int = 3,
-                    weights: Sequence[float] = (1.0, 1.0, 1.0), normalize: bool = True, root_motion: bool = True,
-                    rate: int = 8, filter_width: int = 5) -> CoarseSolution | None:
-    """HDP07 §3.3 heuristic: the same problem with input, output and reference sampled 1/``rate``.
+def coarse_table(table: np.ndarray, nc: int, step_in: float, step_out: float, skip_c: int) -> np.ndarray:
+    """(nc, s_c, s_c) scores of the coarse graph over every ``step_in``-th working frame.
 
-    ``track0`` is the original input's track. The coarse input and reference are prefiltered over
-    one coarse step; the reference keeps every frame but differences over the coarse output step.
-    Returns None when the coarse problem is infeasible.
+    A coarse edge (J-a', J, J+b') plays ~``step_out`` output frames at the constant speeds
+    a' step_in / step_out and b' step_in / step_out (working frames per output frame); it costs
+    ``step_out`` times the full-rate score at frame J for those speeds, bilinearly interpolated
+    between integer steps. Speeds outside [1, s] and triples off the input are +inf.
     """
-    m, n, n0 = red.m, red.n, len(track0)
+    n, s, _ = table.shape
+    big = 1e300
+    finite = np.where(np.isfinite(table), table, big)
+    centre = np.minimum(np.round(np.arange(nc) * step_in).astype(np.int64), n - 1)
+    speed = np.arange(1, skip_c + 1) * (step_in / step_out)
+    ok = (speed >= 1.0 - 1e-9) & (speed <= s + 1e-9)
+    v = np.clip(speed, 1.0, s)
+    lo = np.floor(v).astype(np.int64)
+    hi = np.minimum(lo + 1, s)
+    w = v - lo
+    rows = finite[centre]  # (nc, s, s)
+    # interpolate over a (axis 1) then b (axis 2)
+    ra = (1.0 - w)[None, :, None] * rows[:, lo - 1, :] + w[None, :, None] * rows[:, hi - 1, :]
+    rb = (1.0 - w)[None, None, :] * ra[:, :, lo - 1] + w[None, None, :] * ra[:, :, hi - 1]
+    out = step_out * rb
+    out[out >= big * 1e-3] = np.inf
+    out[:, ~ok, :] = np.inf
+    out[:, :, ~ok] = np.inf
+    jc = np.arange(nc)[:, None, None]
+    ac = np.arange(1, skip_c + 1)[None, :, None]
+    bc = np.arange(1, skip_c + 1)[None, None, :]
+    out[(jc - ac < 0) | (jc + bc > nc - 1)] = np.inf
+    return out
+
+
+def coarse_solution(table: np.ndarray, red: Reduction, skip: int, rate: int = 8) -> CoarseSolution | None:
+    """HDP07 §3.3 heuristic: solve the warp on the input and output subsampled by ``rate``.
+
+    The coarse graph's vertices are pairs of every ``rate``-th working frame and its edge weights
+    come from the full-rate score table (:func:`coarse_table`), so the coarse objective approximates
+    the full one by piecewise-constant speeds. Returns None when the coarse problem is infeasible.
+    """
+    m, n = red.m, red.n
     if m is None:
         raise ValueError("the heuristic needs an output length")
     mc = max(2, math.ceil((m - 1) / rate) + 1)
     nc = max(2, math.ceil((n - 1) / rate) + 1)
     step_out = (m - 1) / (mc - 1)
     step_in = (n - 1) / (nc - 1)
-    wide = track0.smoothed(max(1, round(step_in / red.upsample) - filter_width + 1))
-    ref_wide = ref_track.smoothed(max(1, round(step_out) - filter_width + 1))
-    coarse = wide.sample(red.to_source(np.arange(nc) * step_in, n0))
-    try:
-        spec = feature_spec(ref_wide, weights, normalize, root_motion, step=step_out)
-        ref_c = reference_features(ref_wide, spec, step=step_out)
-    except ValueError:
-        return None
     skip_c = max(math.ceil((nc - 1) / (mc - 1)), min(127, math.floor(skip * step_out / step_in)))
     keys_c = [(round(i / step_in), round(o / step_out)) for i, o in red.keys]
     keys_c = [keys_c[0]] + [kc for kc in keys_c[1:-1] if 0 < kc[1] < mc - 1] + [(nc - 1, mc - 1)]
@@ -765,8 +789,7 @@ def coarse_solution(track0: Track, ref_track: Track, red: Reduction, skip: int, 
         lo, hi = feasible_windows(nc, mc, skip_c, keys_c)
     except ValueError:
         lo, hi = feasible_windows(nc, mc, skip_c, [keys_c[0], keys_c[-1]])
-    table = local_scores(coarse, ref_c, skip_c, spec, neighbours)
-    path, cost = fixed_length_path(table, mc, lo, hi)
+    path, cost = fixed_length_path(coarse_table(table, nc, step_in, step_out, skip_c), mc, lo, hi)
     return CoarseSolution(path, step_in, step_out) if np.isfinite(cost) else None
 
 
@@ -816,6 +839,7 @@ __all__ = [
     "band_windows",
     "check_compatible",
     "coarse_solution",
+    "coarse_table",
     "dag_path",
     "feasible_windows",
     "feature_spec",

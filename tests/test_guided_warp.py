@@ -1,0 +1,382 @@
+"""Guided time warping (HDP07 §3, SPEC §7).
+
+Every fast kernel is checked against a slow, obviously correct reference written here: the local
+scores against a per-triple loop with a full sort, the constrained and unconstrained shortest
+paths against enumeration of all subsequences on tiny inputs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import tempfile
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from store.motion import Motion, Skeleton
+from tasks.guided_warp import (
+    Track,
+    dag_path,
+    feasible_windows,
+    feature_spec,
+    fixed_length_path,
+    guided_warp,
+    linear_warp,
+    local_scores,
+    motion_track,
+    path_cost,
+    pose_error,
+    reduce_to_compression,
+    reference_features,
+    smooth_warp,
+)
+from tasks.kinematics import quat_from_euler, sample_motion
+
+ROT = ("Zrotation", "Xrotation", "Yrotation")
+POS = ("Xposition", "Yposition", "Zposition")
+
+
+# ------------------------------------------------------------------------------------ test data
+def small_skeleton(extra_joint: bool = False) -> Skeleton:
+    names = ["hips", "spine", "head", "lhip", "lknee", "lfoot", "rhip", "rknee", "rfoot", "lsh", "lelb",
+             "rsh", "relb"]
+    parents = [-1, 0, 1, 0, 3, 4, 0, 6, 7, 1, 9, 1, 11]
+    offsets = [[0, 0, 0], [0, 20, 0], [0, 25, 0], [9, 0, 0], [0, -42, 0], [0, -40, 0], [-9, 0, 0],
+               [0, -42, 0], [0, -40, 0], [15, 20, 0], [0, -28, 0], [-15, 20, 0], [0, -28, 0]]
+    if extra_joint:
+        names.append("tail")
+        parents.append(0)
+        offsets.append([0, 0, -10])
+    return Skeleton(tuple(names), np.array(parents), np.array(offsets, float),
+                    tuple([POS + ROT] + [ROT] * (len(names) - 1)), {2: np.array([0, 10.0, 0])})
+
+
+def walk_then_jump(fps: float = 60.0, walk_s: float = 3.0, flight_s: float = 0.5) -> tuple[Motion, tuple[int, int]]:
+    """A walk (1 Hz gait, forward 1.2 m/s), crouch, ballistic flight, landing, stand (cm).
+
+    Returns the motion and the first and last frames of the flight.
+    """
+    g = 981.0
+    crouch_s, land_s, stand_s = 0.35, 0.35, 0.5
+    n = int(round((walk_s + crouch_s + flight_s + land_s + stand_s) * fps)) + 1
+    t = np.arange(n) / fps
+    eul = np.zeros((n, 13, 3))
+    root = np.zeros((n, 3))
+    root[:, 1] = 82.0
+    w = t < walk_s
+    ph = 2 * np.pi * t
+    eul[w, 3, 1], eul[w, 6, 1] = 30 * np.sin(ph[w]), -30 * np.sin(ph[w])
+    eul[w, 4, 1] = 35 * np.maximum(0, np.sin(ph[w] + 1.2))
+    eul[w, 7, 1] = 35 * np.maximum(0, -np.sin(ph[w] + 1.2))
+    eul[w, 9, 1], eul[w, 11, 1] = -20 * np.sin(ph[w]), 20 * np.sin(ph[w])
+    root[w, 1] += 2.5 * np.cos(2 * ph[w])
+    root[:, 2] = np.where(w, 120 * t, 120 * walk_s + 60 * (t - walk_s))
+
+    def bend(mask: np.ndarray, u: np.ndarray, arms: np.ndarray) -> None:
+        b = np.sin(np.pi * u)
+        eul[mask, 3, 1] = eul[mask, 6, 1] = -40 * b
+        eul[mask, 4, 1] = eul[mask, 7, 1] = 70 * b
+        eul[mask, 9, 1] = eul[mask, 11, 1] = arms
+        root[mask, 1] -= 20 * b
+
+    t1 = walk_s + crouch_s
+    c = (t >= walk_s) & (t < t1)
+    bend(c, (t[c] - walk_s) / crouch_s, 60 * (t[c] - walk_s) / crouch_s)
+    t2 = t1 + flight_s
+    f = (t >= t1) & (t < t2)
+    tf = t[f] - t1
+    root[f, 1] = 82.0 + g * flight_s / 2 * tf - 0.5 * g * tf ** 2
+    tuck = np.sin(np.pi * tf / flight_s)
+    eul[f, 3, 1] = eul[f, 6, 1] = -50 * tuck
+    eul[f, 4, 1] = eul[f, 7, 1] = 80 * tuck
+    eul[f, 9, 1] = eul[f, 11, 1] = 60 + 90 * tuck
+    t3 = t2 + land_s
+    land = (t >= t2) & (t < t3)
+    bend(land, (t[land] - t2) / land_s, 60 * (1 - (t[land] - t2) / land_s))
+    motion = Motion(small_skeleton(), fps, root, quat_from_euler(eul, "ZXY"), name="walkjump", unit="cm")
+    fl = np.flatnonzero(f)
+    return motion, (int(fl[0]), int(fl[-1]))
+
+
+@pytest.fixture(scope="module")
+def walkjump() -> tuple[Motion, tuple[int, int]]:
+    return walk_then_jump()
+
+
+def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
+    """Mean playback speed (source frames per output frame) while the source goes f0 -> f1."""
+    out = np.arange(len(times))
+    return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))
+
+
+def check_path(path: np.ndarray, n: int, m: int | None, skip: int, keys=()) -> None:
+    assert path[0] == 0 and path[-1] == n - 1
+    if m is not None:
+        assert len(path) == m
+    steps = np.diff(path)
+    assert steps.min() >= 1 and steps.max() <= skip
+    for f, o in keys:
+        assert path[o] == f
+
+
+# ------------------------------------------------------------------------------- slow references
+def slow_scores(track: Track, ref: Track, skip: int, k: int, spec) -> np.ndarray:
+    """f(i, j, k) one triple at a time: explicit rotation matrices and a full sort (eq. 2)."""
+
+    def rot_y(a: float) -> np.ndarray:  # right-handed rotation about +y by angle a
+        return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+    def feat(tr: Track, i: int, j: int, kk: int) -> np.ndarray:
+        inv = rot_y(tr.angle[j]).T
+        pose = (tr.positions[j] - tr.origin[j]) @ inv.T
+        vel = 0.5 * (tr.positions[kk] - tr.positions[i]) @ inv.T
+        acc = (tr.positions[kk] - 2 * tr.positions[j] + tr.positions[i]) @ inv.T
+        parts = [w / s * p.ravel() for w, s, p in zip(spec.weights, spec.scales, (pose, vel, acc), strict=True)]
+        return np.concatenate(parts)
+
+    refs = [feat(ref, t - 1, t, t + 1) for t in range(1, len(ref) - 1)]
+    n = len(track)
+    out = np.full((n, skip, skip), np.inf)
+    for j in range(n):
+        for a in range(1, skip + 1):
+            for b in range(1, skip + 1):
+                if j - a >= 0 and j + b < n:
+                    q = feat(track, j - a, j, j + b)
+                    d = sorted(float(np.linalg.norm(q - z)) for z in refs)
+                    out[j, a - 1, b - 1] = sum(d[:k]) / k
+    return out
+
+
+def brute_force(table: np.ndarray, m: int | None, keys=()) -> tuple[float, tuple[int, ...] | None]:
+    """Cheapest subsequence by enumeration (m None: any length)."""
+    n, s, _ = table.shape
+    best, arg = np.inf, None
+    sizes = range(0, n - 1) if m is None else [m - 2]
+    for size in sizes:
+        for mid in itertools.combinations(range(1, n - 1), size):
+            y = (0, *mid, n - 1)
+            if any(b - a > s for a, b in itertools.pairwise(y)):
+                continue
+            if any(o >= len(y) or y[o] != f for f, o in keys):
+                continue
+            c = sum(table[y[p], y[p] - y[p - 1] - 1, y[p + 1] - y[p] - 1] for p in range(1, len(y) - 1))
+            if c < best:
+                best, arg = c, y
+    return best, arg
+
+
+# ---------------------------------------------------------------------------------------- kernels
+def test_local_scores_match_slow_loop(walkjump):
+    motion, _ = walkjump
+    track = motion_track(motion.slice(170, 184), 3)
+    ref = motion_track(motion.slice(195, 215), 3)
+    spec = feature_spec(ref, (1.0, 2.0, 0.5))
+    fast = local_scores(track, reference_features(ref, spec), 3, spec, neighbours=3, batch=7)
+    slow = slow_scores(track, ref, 3, 3, spec)
+    assert np.array_equal(np.isinf(fast), np.isinf(slow))
+    np.testing.assert_allclose(fast[np.isfinite(fast)], slow[np.isfinite(slow)], rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("n,m,s,seed", [(9, 5, 3, 0), (10, 4, 4, 1), (8, 8, 2, 2), (11, 6, 3, 3), (7, 2, 6, 4)])
+def test_fixed_length_dp_matches_brute_force(n, m, s, seed):
+    table = np.random.default_rng(seed).random((n, s, s))
+    path, cost = fixed_length_path(table, m)
+    best, arg = brute_force(table, m)
+    assert cost == pytest.approx(best)
+    assert tuple(path) == arg
+    assert path_cost(table, path) == pytest.approx(cost)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_keytimes_dp_matches_brute_force(seed):
+    rng = np.random.default_rng(10 + seed)
+    n, m, s = 12, 7, 3
+    table = rng.random((n, s, s))
+    keys = [(0, 0), (int(rng.integers(3, 6)), 3), (n - 1, m - 1)]
+    lo, hi = feasible_windows(n, m, s, keys)
+    path, cost = fixed_length_path(table, m, lo, hi)
+    best, arg = brute_force(table, m, keys[1:2])
+    assert cost == pytest.approx(best) and tuple(path) == arg
+    check_path(path, n, m, s, keys)
+
+
+@pytest.mark.parametrize("n,s,seed", [(9, 3, 0), (11, 4, 1), (6, 2, 2)])
+def test_unconstrained_dag_matches_brute_force(n, s, seed):
+    table = np.random.default_rng(seed).random((n, s, s)) + 0.01
+    path, cost = dag_path(table)
+    best, arg = brute_force(table, None)
+    assert cost == pytest.approx(best) and tuple(path) == arg
+    check_path(path, n, None, s)
+
+
+def test_smooth_warp_keeps_anchors_and_monotonicity():
+    rng = np.random.default_rng(5)
+    raw = np.cumsum(rng.integers(1, 6, 60)).astype(float)
+    raw -= raw[0]
+    sm = smooth_warp(raw, 7, anchors=[20, 41])
+    assert np.all(np.diff(sm) > 0)
+    for a in (0, 20, 41, 59):
+        assert sm[a] == raw[a]
+    lin = np.linspace(0, 30, 25)
+    np.testing.assert_allclose(smooth_warp(lin, 5), lin, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------ warps
+def test_identity_when_lengths_match(walkjump):
+    motion, _ = walkjump
+    r = guided_warp(motion, n_out=motion.n_frames)
+    assert np.array_equal(r.frames, np.arange(motion.n_frames))
+    np.testing.assert_allclose(r.times, np.arange(motion.n_frames), atol=1e-12)
+    assert pose_error(r.motion, motion) < 1e-9
+
+
+@pytest.mark.parametrize("frac,keys,fast", [(0.7, (), False), (0.5, ((100.0, 50.0), (200.0, 110.0)), False),
+                                              (0.6, ((150.0, 80.0),), True), (0.3, (), True)])
+def test_results_are_complete_monotone_and_hit_keytimes(walkjump, frac, keys, fast):
+    motion, _ = walkjump
+    n = motion.n_frames
+    m = int(round(frac * (n - 1))) + 1
+    r = guided_warp(motion, n_out=m, keytimes=keys, skip=8, fast=fast)
+    check_path(r.frames, n, m, 8, [(int(i), int(o)) for i, o in keys])
+    assert r.motion.n_frames == m and r.motion.fps == motion.fps
+    assert np.all(np.diff(r.times) > 0) and r.times[0] == 0 and r.times[-1] == n - 1
+    for i, o in keys:
+        assert r.times[int(o)] == i and r.raw_times[int(o)] == i
+
+
+def test_heuristic_close_to_optimal(walkjump):
+    motion, _ = walkjump
+    m = int(round(0.6 * (motion.n_frames - 1))) + 1
+    full = guided_warp(motion, n_out=m, resample_motion=False)
+    fast = guided_warp(motion, n_out=m, fast=True, resample_motion=False)
+    assert fast.heuristic
+    assert full.cost <= fast.cost <= 1.05 * full.cost + 1e-9
+
+
+def test_known_nonlinear_warp_is_undone(walkjump):
+    motion, _ = walkjump
+    original = motion.slice(0, 180)  # the walk
+    n = original.n_frames
+    # a slowed-down copy with a speed varying between 0.45x and 0.95x
+    speed = 0.7 + 0.25 * np.sin(np.linspace(0, 3 * np.pi, 400))
+    src = np.concatenate([[0.0], np.cumsum(speed)])
+    src = src[src <= n - 1]
+    src = np.append(src, n - 1.0)
+    warped = replace(sample_motion(original, src), name="slowed")
+    r = guided_warp(warped, reference=original, n_out=n)
+    lin = linear_warp(warped, n)
+    err, err_lin = pose_error(r.motion, original), pose_error(lin.motion, original)
+    # the recovered warp maps output frames back to the original's frames
+    drift = np.abs(np.interp(r.times, np.arange(len(src)), src) - np.arange(n))
+    drift_lin = np.abs(np.interp(lin.times, np.arange(len(src)), src) - np.arange(n))
+    assert drift.mean() < 3.0 and drift.mean() < 0.3 * drift_lin.mean(), (drift.mean(), drift_lin.mean())
+    assert err < 0.25 * err_lin, (err, err_lin)
+
+
+def test_walk_then_jump_keeps_flight_at_natural_speed(walkjump):
+    motion, (f0, f1) = walkjump
+    n = motion.n_frames
+    m = int(round(0.6 * (n - 1))) + 1
+    r = guided_warp(motion, n_out=m)
+    lin = linear_warp(motion, m)
+    walk_end = f0 - 40
+    assert speed_over(r.times, f0, f1) == pytest.approx(1.0, abs=0.1)
+    assert speed_over(r.times, 0, walk_end) >= 1.4
+    assert speed_over(lin.times, f0, f1) == pytest.approx((n - 1) / (m - 1))  # linear speeds the jump up
+    assert speed_over(lin.times, f0, f1) > 1.6
+
+
+def test_expansion_by_upsampling(walkjump):
+    motion, (f0, f1) = walkjump
+    n = motion.n_frames
+    m = int(round(1.5 * (n - 1))) + 1
+    r = guided_warp(motion, n_out=m, keytimes=[(f0, 290.0)])
+    assert r.upsample >= 2
+    check_path(r.frames, r.upsample * (n - 1) + 1, m, 8, [(r.upsample * f0, 290)])
+    assert r.motion.n_frames == m and np.all(np.diff(r.times) > 0)
+    assert r.times[0] == 0 and r.times[-1] == n - 1 and r.times[290] == f0
+    steps = np.diff(r.raw_times)
+    assert steps.min() >= 1.0 / r.upsample - 1e-12 and steps.max() <= 8.0 / r.upsample + 1e-12
+    # the flight keeps its own timing while the rest slows down
+    assert speed_over(r.times, f0, f1) == pytest.approx(1.0, abs=0.15)
+    assert speed_over(r.times, 0, f0 - 40) < 0.8
+
+
+def test_backward_warp_reverses(walkjump):
+    motion, _ = walkjump
+    n = motion.n_frames
+    r = guided_warp(motion, n_out=200, keytimes=[(150.0, 90.0)], backward=True)
+    assert r.backward and r.raw_times[0] == n - 1 and r.raw_times[-1] == 0
+    assert np.all(np.diff(r.times) < 0) and r.times[90] == 150.0
+
+
+def test_unconstrained_warp(walkjump):
+    motion, _ = walkjump
+    r = guided_warp(motion, n_out=None, skip=4)
+    check_path(r.frames, motion.n_frames, None, 4)
+    assert r.motion.n_frames == len(r.frames)
+
+
+# ------------------------------------------------------------------------------------ bad input
+def test_bad_inputs_raise(walkjump):
+    motion, _ = walkjump
+    n = motion.n_frames
+    other = Motion(small_skeleton(extra_joint=True), motion.fps, motion.root_positions,
+                   np.concatenate([motion.rotations, motion.rotations[:, :1]], axis=1))
+    with pytest.raises(ValueError, match="different skeletons"):
+        guided_warp(motion, other, n_out=200)
+    with pytest.raises(ValueError, match="below n/s"):
+        guided_warp(motion, n_out=(n - 1) // 8)
+    with pytest.raises(ValueError, match="at least 3 frames"):
+        guided_warp(motion, motion.slice(0, 2), n_out=200)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        reduce_to_compression(n, 200, [(100.0, 50.0), (80.0, 120.0)], 8)
+    with pytest.raises(ValueError, match="strictly increasing output"):
+        reduce_to_compression(n, 200, [(100.0, 50.0), (120.0, 50.0)], 8)
+    with pytest.raises(ValueError, match="outside the input"):
+        reduce_to_compression(n, 200, [(n + 5.0, 50.0)], 8)
+    with pytest.raises(ValueError, match="outside the output"):
+        reduce_to_compression(n, 200, [(100.0, 250.0)], 8)
+    with pytest.raises(ValueError, match="need an output length"):
+        reduce_to_compression(n, None, [(100.0, 50.0)], 8)
+    with pytest.raises(ValueError, match="range of speeds"):
+        reduce_to_compression(n, 200, [(270.0, 10.0)], 8)
+
+
+# ------------------------------------------------------------------------------------ flow + CLI
+def test_cli_warp_end_to_end(walkjump, tmp_path):
+    """One real flow run through the CLI: BVH and plot written; then errors without a flow run."""
+    os.environ.setdefault("PREFECT_HOME", tempfile.mkdtemp(prefix="prefect-home-"))
+    for key, value in {"PREFECT_SERVER_ANALYTICS_ENABLED": "false", "PREFECT_LOGGING_LEVEL": "WARNING",
+                       "PREFECT_LOGGING_TO_API_WHEN_MISSING_FLOW": "ignore",
+                       "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90"}.items():
+        os.environ.setdefault(key, value)
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+    from store.bvh import read_bvh, write_bvh
+
+    motion, (f0, _) = walkjump
+    src = tmp_path / "walkjump.bvh"
+    write_bvh(motion, src)
+    out, plot = tmp_path / "out.bvh", tmp_path / "warp.png"
+    runner = CliRunner()
+    res = runner.invoke(app, ["warp", str(src), "--duration", "2.8", "--keytime", f"{f0 / 60:.4f}:1.6",
+                              "--out", str(out), "--plot", str(plot)])
+    assert res.exit_code == 0, res.output
+    warped = read_bvh(out)
+    assert warped.n_frames == 169 and warped.skeleton.channels == motion.skeleton.channels
+    assert warped.unit == motion.unit or warped.unit is None
+    assert plot.stat().st_size > 1000
+
+    res = runner.invoke(app, ["warp", str(src), "--frames", "20", "--out", str(out)])
+    assert res.exit_code != 0 and "below n/s" in res.output and "Traceback" not in res.output
+    res = runner.invoke(app, ["warp", str(src), "--frames", "200", "--keytime", "1.0:2.0", "--keytime",
+                              "0.5:2.5", "--out", str(out)])
+    assert res.exit_code != 0 and "strictly increasing" in res.output
+    res = runner.invoke(app, ["warp", str(src), "--out", str(out)])
+    assert res.exit_code != 0 and "--duration" in res.output
+    res = runner.invoke(app, ["warp", str(src), "--frames", "200", "--keytime", "oops", "--out", str(out)])
+    assert res.exit_code != 0 and "IN_S:OUT_S" in res.output
