@@ -60,7 +60,7 @@ def walk_then_jump(fps: float = 60.0, walk_s: float = 3.0, flight_s: float = 0.5
     """
     g = 981.0
     crouch_s, land_s, stand_s = 0.35, 0.35, 0.5
-    n = int(round((walk_s + crouch_s + flight_s + land_s + stand_s) * fps)) + 1
+    n = round((walk_s + crouch_s + flight_s + land_s + stand_s) * fps) + 1
     t = np.arange(n) / fps
     eul = np.zeros((n, 13, 3))
     root = np.zeros((n, 3))
@@ -153,7 +153,7 @@ def brute_force(table: np.ndarray, m: int | None, keys=()) -> tuple[float, tuple
     """Cheapest subsequence by enumeration (m None: any length)."""
     n, s, _ = table.shape
     best, arg = np.inf, None
-    sizes = range(0, n - 1) if m is None else [m - 2]
+    sizes = range(n - 1) if m is None else [m - 2]
     for size in sizes:
         for mid in itertools.combinations(range(1, n - 1), size):
             y = (0, *mid, n - 1)
@@ -237,7 +237,7 @@ def test_identity_when_lengths_match(walkjump):
 def test_results_are_complete_monotone_and_hit_keytimes(walkjump, frac, keys, fast):
     motion, _ = walkjump
     n = motion.n_frames
-    m = int(round(frac * (n - 1))) + 1
+    m = round(frac * (n - 1)) + 1
     r = guided_warp(motion, n_out=m, keytimes=keys, skip=8, fast=fast)
     check_path(r.frames, n, m, 8, [(int(i), int(o)) for i, o in keys])
     assert r.motion.n_frames == m and r.motion.fps == motion.fps
@@ -248,7 +248,7 @@ def test_results_are_complete_monotone_and_hit_keytimes(walkjump, frac, keys, fa
 
 def test_heuristic_close_to_optimal(walkjump):
     motion, _ = walkjump
-    m = int(round(0.6 * (motion.n_frames - 1))) + 1
+    m = round(0.6 * (motion.n_frames - 1)) + 1
     full = guided_warp(motion, n_out=m, resample_motion=False)
     fast = guided_warp(motion, n_out=m, fast=True, resample_motion=False)
     assert fast.heuristic
@@ -278,7 +278,7 @@ def test_known_nonlinear_warp_is_undone(walkjump):
 def test_walk_then_jump_keeps_flight_at_natural_speed(walkjump):
     motion, (f0, f1) = walkjump
     n = motion.n_frames
-    m = int(round(0.6 * (n - 1))) + 1
+    m = round(0.6 * (n - 1)) + 1
     r = guided_warp(motion, n_out=m)
     lin = linear_warp(motion, m)
     walk_end = f0 - 40
@@ -291,7 +291,7 @@ def test_walk_then_jump_keeps_flight_at_natural_speed(walkjump):
 def test_expansion_by_upsampling(walkjump):
     motion, (f0, f1) = walkjump
     n = motion.n_frames
-    m = int(round(1.5 * (n - 1))) + 1
+    m = round(1.5 * (n - 1)) + 1
     r = guided_warp(motion, n_out=m, keytimes=[(f0, 290.0)])
     assert r.upsample >= 2
     check_path(r.frames, r.upsample * (n - 1) + 1, m, 8, [(r.upsample * f0, 290)])
