@@ -31,6 +31,7 @@ Facts checked against the data (tests/test_deepmimic.py):
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import re
@@ -416,9 +417,19 @@ def _end_site(links: dict[str, UrdfLink], body: list[tuple[str, np.ndarray]], k:
 
 
 def read_humanoid_urdf(path: str | Path, *, scale: float = URDF_SCALE) -> HumanoidModel:
-    """Read DeepMimic's humanoid.urdf, lengths scaled by ``scale`` (0.25 → metres)."""
-    raw = _read_bytes(path)
-    return parse_humanoid_urdf(raw.decode("utf-8", errors="replace"), str(path), scale=scale,
+    """Read DeepMimic's humanoid.urdf, lengths scaled by ``scale`` (0.25 → metres).
+
+    Parsed once per (file, size, mtime, scale): every clip of a corpus shares the same URDF.
+    """
+    st = Path(path).stat() if Path(path).is_file() else None
+    key = (str(Path(path).resolve()), st.st_size, st.st_mtime_ns) if st else (str(path), -1, -1)
+    return _read_humanoid_urdf_cached(key, scale)
+
+
+@functools.lru_cache(maxsize=8)
+def _read_humanoid_urdf_cached(key: tuple[str, int, int], scale: float) -> HumanoidModel:
+    raw = _read_bytes(key[0])
+    return parse_humanoid_urdf(raw.decode("utf-8", errors="replace"), key[0], scale=scale,
                                content_hash=hashlib.sha256(raw).hexdigest())
 
 
