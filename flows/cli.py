@@ -111,5 +111,47 @@ def demo(
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
 
 
+@app.command()
+def warp(
+    input_path: Annotated[Path, typer.Argument(metavar="INPUT", help="Clip to warp (.bvh, .amc, DeepMimic .txt).")],
+    out: Annotated[Path, typer.Option(help="Output BVH.")],
+    reference: Annotated[Path | None, typer.Option(help="Timing reference (default: the input).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Output duration, seconds.")] = None,
+    frames: Annotated[int | None, typer.Option(help="Output length, frames.")] = None,
+    unconstrained: Annotated[bool, typer.Option(help="No output length: plain DAG shortest path.")] = False,
+    keytime: Annotated[list[str] | None, typer.Option(help="IN_S:OUT_S, input time shown at output time.")] = None,
+    skip: Annotated[int | None, typer.Option(help="Skip limit s (default from the config, 8).")] = None,
+    fast: Annotated[bool, typer.Option(help="HDP07 §3.3 heuristic: coarse solve, then a band.")] = False,
+    backward: Annotated[bool, typer.Option(help="Play the input backwards.")] = False,
+    plot: Annotated[Path | None, typer.Option(help="Warp curve PNG (HDP07 Fig. 2 style).")] = None,
+    config: Annotated[Path | None, typer.Option(help="Config file (warp section).")] = None,
+) -> None:
+    """Guided time warp (HDP07): retime a clip to a duration and keytimes, mimicking a reference's timing."""
+    if sum([duration is not None, frames is not None, unconstrained]) != 1:
+        fail("give exactly one of --duration SECONDS, --frames M or --unconstrained")
+    keys = []
+    for text in keytime or []:
+        parts = text.split(":")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            keys.append((float(parts[0]), float(parts[1])))
+        except ValueError:
+            fail(f"--keytime {text!r}: expected IN_S:OUT_S (seconds), e.g. 1.5:1.0")
+    cfg = config_or_fail(config)
+    from flows.warp import WarpRequest, format_summary, plan_warp
+    from flows.warp import warp as warp_flow
+
+    request = WarpRequest(input=str(input_path), out=str(out), reference=str(reference) if reference else None,
+                          duration=duration, frames=frames, unconstrained=unconstrained, keytimes=tuple(keys),
+                          skip=skip, fast=fast, backward=backward, plot=str(plot) if plot else None)
+    try:
+        plan_warp(cfg, request)  # every check before a flow run starts
+        summary = warp_flow(cfg, request)
+    except (MotionFormatError, ValueError, OSError) as exc:
+        fail(str(exc))
+    typer.echo(format_summary(summary))
+
+
 if __name__ == "__main__":
     app()

@@ -104,6 +104,16 @@ class WarpConfig(_Section):
     filter_width: int = 5
     weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     heuristic_rate: int = 8
+    #: half-width (working frames) of the full-rate band around the coarse solution (--fast)
+    band: int = 16
+    #: moving-average width of the warp, output frames (HDP07 §3.4)
+    smooth_width: int = 5
+    #: average each output frame over the local compression (HDP07 §3.4)
+    adaptive_smoothing: bool = True
+    #: divide pose/velocity/acceleration features by the reference's RMS spread of each
+    normalize: bool = True
+    #: velocities include the root's travel and turning (differences in the middle frame's torso frame)
+    root_motion: bool = True
 
 
 class RetimeConfig(_Section):
