@@ -1,0 +1,777 @@
+"""A seeded, procedural, synthetic demo corpus: the project's own data (no downloads).
+
+Every clip is built from a plan (root path, foot plants, upper-body angles, effector targets) and
+turned into joint rotations by analytic two-bone IK for legs and arms, so the ground truth (foot
+stance intervals, exact ballistic flights, effector targets at apex frames) holds by construction.
+Units are metres, Y is up, the character faces +Z in its rest pose, quaternions are (w, x, y, z).
+
+Public API: :func:`humanoid_skeleton`, :data:`CATEGORIES`, :func:`generate_clip`,
+:func:`walk_then_jump`, :func:`time_warp_clip`, :func:`random_warp`, :func:`write_demo_corpus`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from store.bvh import write_bvh
+from store.motion import Motion, Skeleton
+from tasks.kinematics import (
+    forward_kinematics,
+    heading_angle,
+    quat_from_axis_angle,
+    quat_from_matrix,
+    quat_inv,
+    quat_mul,
+    quat_rotate,
+    quat_to_matrix,
+    sample_motion,
+)
+
+#: gravity (m/s²) used by every ballistic flight.
+G = 9.81
+#: the clip categories of the demo corpus.
+CATEGORIES: tuple[str, ...] = ("walk", "run", "jump", "kick", "punch", "reach", "hop", "sit", "idle")
+SIDES = ("left", "right")
+
+_ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
+_ROT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
+_X = np.array([1.0, 0.0, 0.0])
+_Y = np.array([0.0, 1.0, 0.0])
+_Z = np.array([0.0, 0.0, 1.0])
+
+# name, parent, offset (m, for a 1.75 m adult), end-site offset
+_LAYOUT: tuple[tuple[str, str | None, tuple[float, float, float], tuple[float, float, float] | None], ...] = (
+    ("Hips", None, (0.0, 0.0, 0.0), None),
+    ("Spine", "Hips", (0.0, 0.10, 0.0), None),
+    ("Spine1", "Spine", (0.0, 0.12, 0.0), None),
+    ("Spine2", "Spine1", (0.0, 0.12, 0.0), None),
+    ("Neck", "Spine2", (0.0, 0.16, 0.0), None),
+    ("Head", "Neck", (0.0, 0.10, 0.0), (0.0, 0.16, 0.0)),
+    ("LeftShoulder", "Spine2", (0.03, 0.12, 0.0), None),
+    ("LeftArm", "LeftShoulder", (0.15, 0.0, 0.0), None),
+    ("LeftForeArm", "LeftArm", (0.0, -0.29, 0.0), None),
+    ("LeftHand", "LeftForeArm", (0.0, -0.26, 0.0), (0.0, -0.09, 0.0)),
+    ("RightShoulder", "Spine2", (-0.03, 0.12, 0.0), None),
+    ("RightArm", "RightShoulder", (-0.15, 0.0, 0.0), None),
+    ("RightForeArm", "RightArm", (0.0, -0.29, 0.0), None),
+    ("RightHand", "RightForeArm", (0.0, -0.26, 0.0), (0.0, -0.09, 0.0)),
+    ("LeftUpLeg", "Hips", (0.09, -0.06, 0.0), None),
+    ("LeftLeg", "LeftUpLeg", (0.0, -0.43, 0.0), None),
+    ("LeftFoot", "LeftLeg", (0.0, -0.42, 0.0), None),
+    ("LeftToeBase", "LeftFoot", (0.0, -0.06, 0.13), (0.0, 0.0, 0.05)),
+    ("RightUpLeg", "Hips", (-0.09, -0.06, 0.0), None),
+    ("RightLeg", "RightUpLeg", (0.0, -0.43, 0.0), None),
+    ("RightFoot", "RightLeg", (0.0, -0.42, 0.0), None),
+    ("RightToeBase", "RightFoot", (0.0, -0.06, 0.13), (0.0, 0.0, 0.05)),
+)
+_NOMINAL_HEIGHT = 1.75
+#: height of the toe joint (ball of the foot) above the ground when the foot is flat, at 1.75 m.
+_TOE_RADIUS = 0.02
+
+
+def humanoid_skeleton(height: float = _NOMINAL_HEIGHT) -> Skeleton:
+    """A 22-joint humanoid in metres (Y up, facing +Z, arms hanging), scaled to ``height``.
+
+    The root ``Hips`` has 6 channels, every other joint ``Zrotation Xrotation Yrotation``; end sites
+    sit on the head, the hands and the toes. At zero rotations the figure stands with straight
+    legs, flat feet (toe joints 2 cm above the ground once the root is at standing height).
+    """
+    s = height / _NOMINAL_HEIGHT
+    names = tuple(n for n, *_ in _LAYOUT)
+    parents = np.array([-1 if p is None else names.index(p) for _, p, _, _ in _LAYOUT])
+    offsets = np.array([o for _, _, o, _ in _LAYOUT]) * s
+    channels = tuple(_ROOT_CHANNELS if p is None else _ROT_CHANNELS for _, p, _, _ in _LAYOUT)
+    ends = {k: np.array(e) * s for k, (_, _, _, e) in enumerate(_LAYOUT) if e is not None}
+    return Skeleton(names=names, parents=parents, offsets=offsets, channels=channels, end_sites=ends)
+
+
+# --------------------------------------------------------------------------------------------------
+# small math helpers (vectorized over frames)
+
+
+def _smooth(u: np.ndarray | float) -> np.ndarray:
+    """Cubic ease 3u² - 2u³ on [0, 1] (clamped): C1 with zero end slopes."""
+    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def _hermite(t: np.ndarray, kt: Any, kp: Any, kv: Any = None) -> np.ndarray:
+    """C1 cubic Hermite through knots (times kt (K,), values kp (K, D), slopes kv (K, D), zero by
+    default), constant outside the knot range. Returns (F, D)."""
+    t = np.asarray(t, dtype=np.float64)
+    kt = np.asarray(kt, dtype=np.float64)
+    kp = np.asarray(kp, dtype=np.float64).reshape(len(kt), -1)
+    kv = np.zeros_like(kp) if kv is None else np.asarray(kv, dtype=np.float64).reshape(kp.shape)
+    if len(kt) == 1:
+        return np.broadcast_to(kp[0], (len(t), kp.shape[1])).copy()
+    i = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, len(kt) - 2)
+    h = (kt[i + 1] - kt[i])[:, None]
+    s = np.clip((t - kt[i])[:, None] / h, 0.0, 1.0)
+    s2, s3 = s * s, s * s * s
+    return ((2 * s3 - 3 * s2 + 1) * kp[i] + (s3 - 2 * s2 + s) * h * kv[i]
+            + (-2 * s3 + 3 * s2) * kp[i + 1] + (s3 - s2) * h * kv[i + 1])
+
+
+def _qaxis(axis: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
+    angle = np.asarray(angle, dtype=np.float64)
+    return quat_from_axis_angle(np.broadcast_to(axis, angle.shape + (3,)), angle)
+
+
+def _qypr(yaw: Any, pitch: Any = 0.0, roll: Any = 0.0) -> np.ndarray:
+    """Ry(yaw) · Rx(pitch) · Rz(roll) (radians, broadcast). Positive pitch leans +Y toward +Z."""
+    yaw, pitch, roll = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (yaw, pitch, roll)))
+    return quat_mul(_qaxis(_Y, yaw), quat_mul(_qaxis(_X, pitch), _qaxis(_Z, roll)))
+
+
+def _rot_y(yaw: Any, v: np.ndarray) -> np.ndarray:
+    return quat_rotate(_qaxis(_Y, yaw), v)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 1e-12, n, 1.0)
+
+
+def _wrap(a: np.ndarray | float) -> np.ndarray:
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+# --------------------------------------------------------------------------------------------------
+# rig geometry and analytic IK
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Lengths derived from a :func:`humanoid_skeleton` that the generators and IK need."""
+
+    skeleton: Skeleton
+    thigh: float
+    shin: float
+    upper_arm: float
+    forearm: float
+    hip_offset: dict[str, np.ndarray]
+    toe_offset: np.ndarray
+    ankle_height: float
+    stand_height: float
+
+    @classmethod
+    def from_skeleton(cls, sk: Skeleton) -> Rig:
+        o = sk.offsets
+        scale = float(np.linalg.norm(o[sk.index("LeftLeg")])) / 0.43
+        ankle_h = -o[sk.index("LeftToeBase")][1] + _TOE_RADIUS * scale
+        thigh = float(np.linalg.norm(o[sk.index("LeftLeg")]))
+        shin = float(np.linalg.norm(o[sk.index("LeftFoot")]))
+        return cls(
+            skeleton=sk, thigh=thigh, shin=shin,
+            upper_arm=float(np.linalg.norm(o[sk.index("LeftForeArm")])),
+            forearm=float(np.linalg.norm(o[sk.index("LeftHand")])),
+            hip_offset={"left": o[sk.index("LeftUpLeg")].copy(), "right": o[sk.index("RightUpLeg")].copy()},
+            toe_offset=o[sk.index("LeftToeBase")].copy(),
+            ankle_height=float(ankle_h),
+            stand_height=float(ankle_h + thigh + shin - o[sk.index("LeftUpLeg")][1]),
+        )
+
+    @property
+    def leg(self) -> float:
+        return self.thigh + self.shin
+
+    @property
+    def arm(self) -> float:
+        return self.upper_arm + self.forearm
+
+
+def two_bone_ik(base: np.ndarray, target: np.ndarray, l1: float, l2: float, pole: np.ndarray,
+                rest_dir: np.ndarray, rest_pole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Analytic two-bone IK (hinge middle joint), vectorized over frames.
+
+    Returns the global rotation matrices (F, 3, 3) of the upper and lower bones and the distance
+    (F,) by which the end misses ``target`` (0 unless the target is out of reach). In the rest pose
+    the bones point along ``rest_dir`` and the middle joint bends toward ``rest_pole``; the solved
+    middle joint bends toward ``pole``.
+    """
+    d_vec = target - base
+    d = np.linalg.norm(d_vec, axis=-1)
+    u = d_vec / np.where(d > 1e-12, d, 1.0)[:, None]
+    dc = np.clip(d, abs(l1 - l2) + 1e-6, (l1 + l2) * (1.0 - 1e-9))
+    cos_a = np.clip((l1 * l1 + dc * dc - l2 * l2) / (2.0 * l1 * dc), -1.0, 1.0)
+    sin_a = np.sqrt(1.0 - cos_a * cos_a)
+    p = _unit(pole - np.sum(pole * u, axis=-1, keepdims=True) * u)
+    n = np.cross(u, p)
+    knee = base + l1 * (cos_a[:, None] * u + sin_a[:, None] * p)
+    end = base + dc[:, None] * u
+    b1 = (knee - base) / l1
+    b2 = (end - knee) / l2
+    r0 = np.stack([rest_dir, np.cross(np.cross(rest_dir, rest_pole), rest_dir), np.cross(rest_dir, rest_pole)], -1)
+
+    def frame(b: np.ndarray) -> np.ndarray:
+        return np.stack([b, np.cross(n, b), n], axis=-1) @ r0.T
+
+    return frame(b1), frame(b2), np.abs(d - dc)
+
+
+# --------------------------------------------------------------------------------------------------
+# foot plants and tracks
+
+
+@dataclass(frozen=True)
+class Plant:
+    """One foot contact: flat with the ankle fixed on [t_on, t_heel], then the heel rises (the
+    foot pivots about the fixed toe joint) to ``heel_pitch`` radians at t_off."""
+
+    t_on: float
+    t_off: float
+    ankle: np.ndarray
+    yaw: float
+    t_heel: float | None = None
+    heel_pitch: float = 0.0
+
+    def toe(self, rig: Rig) -> np.ndarray:
+        return self.ankle + _rot_y(self.yaw, rig.toe_offset)
+
+    def pivot_ankle(self, rig: Rig, alpha: np.ndarray) -> np.ndarray:
+        """Ankle positions (n, 3) with the heel raised by ``alpha`` about the toe joint."""
+        alpha = np.atleast_1d(np.asarray(alpha, dtype=np.float64))
+        return self.toe(rig) - quat_rotate(_qypr(self.yaw, alpha), rig.toe_offset)
+
+    def end_state(self, rig: Rig) -> tuple[np.ndarray, float]:
+        if self.t_heel is None:
+            return self.ankle, 0.0
+        return self.pivot_ankle(rig, np.array([self.heel_pitch]))[0], self.heel_pitch
+
+
+@dataclass
+class FootTrack:
+    """Per-frame ankle position (F, 3), foot yaw and pitch (F,) radians, stance mask (F,)."""
+
+    ankle: np.ndarray
+    yaw: np.ndarray
+    pitch: np.ndarray
+    stance: np.ndarray
+
+
+def foot_track(rig: Rig, t: np.ndarray, plants: list[Plant], lift: float) -> FootTrack:
+    """Ankle/foot trajectory through a time-ordered list of plants; swings ease between them with a
+    sin² lift of ``lift`` metres. The toe joint is fixed over every [t_on, t_off]."""
+    f = len(t)
+    ankle = np.empty((f, 3))
+    yaw = np.empty(f)
+    pitch = np.zeros(f)
+    stance = np.zeros(f, dtype=bool)
+    first = plants[0]
+    m = t < first.t_on
+    ankle[m], yaw[m] = first.ankle, first.yaw
+    for k, p in enumerate(plants):
+        th = p.t_off if p.t_heel is None else p.t_heel
+        m = (t >= p.t_on) & (t <= th)
+        ankle[m], yaw[m], pitch[m], stance[m] = p.ankle, p.yaw, 0.0, True
+        m = (t > th) & (t <= p.t_off)
+        if m.any():
+            a = p.heel_pitch * _smooth((t[m] - th) / (p.t_off - th))
+            ankle[m], yaw[m], pitch[m], stance[m] = p.pivot_ankle(rig, a), p.yaw, a, True
+        end_ankle, end_pitch = p.end_state(rig)
+        if k + 1 < len(plants):
+            q = plants[k + 1]
+            m = (t > p.t_off) & (t < q.t_on)
+            u = (t[m] - p.t_off) / (q.t_on - p.t_off)
+            s = _smooth(u)[:, None]
+            ankle[m] = end_ankle + s * (q.ankle - end_ankle) + (lift * np.sin(np.pi * u) ** 2)[:, None] * _Y
+            pitch[m] = end_pitch * (1.0 - s[:, 0])
+            yaw[m] = p.yaw + s[:, 0] * _wrap(q.yaw - p.yaw)
+        else:
+            m = t > p.t_off
+            ankle[m], yaw[m], pitch[m] = end_ankle, p.yaw, end_pitch
+    return FootTrack(ankle, yaw, pitch, stance)
+
+
+def _override(track: FootTrack, w: np.ndarray, ankle: np.ndarray, pitch: np.ndarray | None = None) -> None:
+    """Blend a free (non-planted) ankle path into a track with per-frame weight w (in place)."""
+    wc = w[:, None]
+    track.ankle = (1.0 - wc) * track.ankle + wc * ankle
+    if pitch is not None:
+        track.pitch = (1.0 - w) * track.pitch + w * pitch
+    track.stance = track.stance & (w <= 0.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# the plan: what a generator produces, turned into a Motion by `build_motion`
+
+
+@dataclass
+class Plan:
+    """Everything that drives one clip, in the clip's local frame (start heading +Z).
+
+    Angles are radians. ``spine`` is (F, 3) total torso pitch/yaw/roll spread over the three
+    spine joints; ``head`` (F, 3) pitch/yaw/roll split over neck and head; ``arms`` per side (F, 3)
+    shoulder flexion, abduction, elbow flexion used by FK; ``hands`` per side (blend (F,), target
+    (F, 3)) pulls the wrist onto a target by IK where the blend is 1.
+    """
+
+    t: np.ndarray
+    root_pos: np.ndarray
+    root_rot: np.ndarray
+    feet: dict[str, FootTrack]
+    spine: np.ndarray
+    head: np.ndarray
+    arms: dict[str, np.ndarray]
+    hands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+@dataclass
+class ClipSpec:
+    """A generator's output: the plan plus the ground truth it knows (times in seconds, local frame)."""
+
+    plan: Plan
+    actions: list[dict[str, Any]]
+    targets: list[dict[str, Any]]
+    flights: list[tuple[float, float]]
+    plants: dict[str, list[Plant]]
+    params: dict[str, Any]
+
+
+def _arm_quats(angles: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    sign = 1.0 if side == "left" else -1.0
+    shoulder = quat_mul(_qaxis(_Z, sign * angles[:, 1]), _qaxis(_X, -angles[:, 0]))
+    elbow = _qaxis(_X, -angles[:, 2])
+    return shoulder, elbow
+
+
+def build_motion(rig: Rig, plan: Plan, fps: float, name: str = "") -> tuple[Motion, float]:
+    """Joint rotations for a plan (leg and arm IK); returns the motion and the worst IK miss (m)."""
+    sk = rig.skeleton
+    idx = sk.index
+    f = len(plan.t)
+    rot = np.zeros((f, sk.n_joints, 4))
+    rot[..., 0] = 1.0
+    rot[:, 0] = plan.root_rot
+    third = _qypr(plan.spine[:, 1] / 3, plan.spine[:, 0] / 3, plan.spine[:, 2] / 3)
+    for j in ("Spine", "Spine1", "Spine2"):
+        rot[:, idx(j)] = third
+    half = _qypr(plan.head[:, 1] / 2, plan.head[:, 0] / 2, plan.head[:, 2] / 2)
+    rot[:, idx("Neck")] = half
+    rot[:, idx("Head")] = half
+    for side, prefix in zip(SIDES, ("Left", "Right"), strict=True):
+        shoulder, elbow = _arm_quats(plan.arms[side], side)
+        rot[:, idx(prefix + "Arm")] = shoulder
+        rot[:, idx(prefix + "ForeArm")] = elbow
+    worst = 0.0
+    r_root = quat_to_matrix(plan.root_rot)
+    lateral = quat_rotate(plan.root_rot, _X)
+    for side, prefix in zip(SIDES, ("Left", "Right"), strict=True):
+        foot = plan.feet[side]
+        hip = plan.root_pos + quat_rotate(plan.root_rot, rig.hip_offset[side])
+        ankle = _soft_reach(hip, foot.ankle, 0.9 * rig.leg, 0.985 * rig.leg, ~foot.stance)
+        u = _unit(ankle - hip)
+        out = lateral if side == "left" else -lateral
+        pole = np.cross(u, lateral) + 0.08 * out
+        r1, r2, miss = two_bone_ik(hip, ankle, rig.thigh, rig.shin, pole, -_Y, _Z)
+        worst = max(worst, float(np.max(miss[foot.stance], initial=0.0)))
+        rot[:, idx(prefix + "UpLeg")] = quat_from_matrix(np.swapaxes(r_root, -1, -2) @ r1)
+        rot[:, idx(prefix + "Leg")] = quat_from_matrix(np.swapaxes(r1, -1, -2) @ r2)
+        q_shin = quat_from_matrix(r2)
+        rot[:, idx(prefix + "Foot")] = quat_mul(quat_inv(q_shin), _qypr(foot.yaw, foot.pitch))
+        # the toes stay level while the heel is up (they bend at the ball of the foot)
+        rot[:, idx(prefix + "ToeBase")] = _qaxis(_X, -np.maximum(foot.pitch, 0.0))
+    motion = Motion(skeleton=sk, fps=fps, root_positions=plan.root_pos, rotations=rot, name=name,
+                    unit="m", scale_to_m=1.0)
+    if plan.hands:
+        gpos, grot = forward_kinematics(motion)
+        for side, prefix in zip(SIDES, ("Left", "Right"), strict=True):
+            if side not in plan.hands:
+                continue
+            blend, target = plan.hands[side]
+            shoulder = gpos[:, idx(prefix + "Arm")]
+            wrist = gpos[:, idx(prefix + "Hand")]
+            goal = wrist + blend[:, None] * (target - wrist)
+            q_clav = grot[:, idx(prefix + "Shoulder")]
+            lat = quat_rotate(grot[:, idx("Spine2")], _X)
+            out = lat if side == "left" else -lat
+            u = _unit(goal - shoulder)
+            pole = np.cross(lat, u) + 0.6 * out - 0.3 * _Y
+            r1, r2, miss = two_bone_ik(shoulder, goal, rig.upper_arm, rig.forearm, pole, -_Y, -_Z)
+            worst = max(worst, float(np.max(miss[blend >= 1.0], initial=0.0)))
+            rot[:, idx(prefix + "Arm")] = quat_from_matrix(np.swapaxes(quat_to_matrix(q_clav), -1, -2) @ r1)
+            rot[:, idx(prefix + "ForeArm")] = quat_from_matrix(np.swapaxes(r1, -1, -2) @ r2)
+        motion = replace(motion, rotations=rot)
+    return motion, worst
+
+
+def _soft_reach(base: np.ndarray, target: np.ndarray, r0: float, r1: float, mask: np.ndarray) -> np.ndarray:
+    """Pull targets (where ``mask``) smoothly toward ``base`` so that their distance never exceeds
+    r1: distances above r0 are squashed by a tanh (C1 at r0)."""
+    d_vec = target - base
+    d = np.linalg.norm(d_vec, axis=-1)
+    squashed = np.where(d > r0, r0 + (r1 - r0) * np.tanh((d - r0) / (r1 - r0)), d)
+    scale = np.where(mask & (d > 1e-12), squashed / np.where(d > 1e-12, d, 1.0), 1.0)
+    return base + d_vec * scale[:, None]
+
+
+def _max_root_heights(rig: Rig, root_xz_pos: np.ndarray, root_rot: np.ndarray, feet: dict[str, FootTrack],
+                      reach: float) -> np.ndarray:
+    """(F,) highest root height keeping every planted ankle within ``reach`` of its hip (inf if none)."""
+    lim = np.full(len(root_rot), np.inf)
+    for side in SIDES:
+        off = quat_rotate(root_rot, rig.hip_offset[side])
+        hip = root_xz_pos + off
+        ft = feet[side]
+        dh2 = (hip[:, 0] - ft.ankle[:, 0]) ** 2 + (hip[:, 2] - ft.ankle[:, 2]) ** 2
+        h = ft.ankle[:, 1] + np.sqrt(np.maximum(reach * reach - dh2, 0.0)) - off[:, 1]
+        lim = np.where(ft.stance, np.minimum(lim, h), lim)
+    return lim
+
+
+def _root_height_for(rig: Rig, root_xz: np.ndarray, rot: np.ndarray, ankles: dict[str, np.ndarray],
+                     reach: float) -> float:
+    """Highest root height at one instant keeping the given ankles within ``reach`` of the hips."""
+    best = np.inf
+    for side, a in ankles.items():
+        off = quat_rotate(rot, rig.hip_offset[side])
+        hip = np.array([root_xz[0], 0.0, root_xz[2]]) + off
+        dh2 = (hip[0] - a[0]) ** 2 + (hip[2] - a[2]) ** 2
+        best = min(best, a[1] + math.sqrt(max(reach * reach - dh2, 0.0)) - off[1])
+    return float(best)
+
+
+def _neutral_plan(rig: Rig, t: np.ndarray, feet: dict[str, FootTrack]) -> Plan:
+    f = len(t)
+    return Plan(t=t, root_pos=np.zeros((f, 3)), root_rot=_qypr(np.zeros(f)), feet=feet,
+                spine=np.zeros((f, 3)), head=np.zeros((f, 3)),
+                arms={s: np.tile([0.0, math.radians(6.0), math.radians(12.0)], (f, 1)) for s in SIDES})
+
+
+def _level_head(plan: Plan, pelvis_pitch: np.ndarray, gain: float = 0.8) -> None:
+    plan.head[:, 0] = -gain * (plan.spine[:, 0] + pelvis_pitch)
+    plan.head[:, 1] += -0.5 * plan.spine[:, 1]
+
+
+def _times(duration: float, fps: float) -> np.ndarray:
+    return np.arange(round(duration * fps) + 1) / fps
+
+
+def _lat(side: str) -> float:
+    return 1.0 if side == "left" else -1.0
+
+
+# --------------------------------------------------------------------------------------------------
+# locomotion: walk and run
+
+
+@dataclass(frozen=True)
+class Gait:
+    """Parameters of a steady gait along an arc (speed m/s, turn rad/s, cadence steps/s)."""
+
+    speed: float
+    turn: float
+    cadence: float
+    duty: float
+    width: float
+    lift: float
+    bob: float
+    sway: float
+    lean: float
+    pelvis_yaw: float
+    heel_frac: float
+    heel_pitch: float
+    arm_swing: float
+    elbow: float
+    run: bool
+    phase: float = 0.0
+    anchor: float = 0.42
+    toe_out: float = math.radians(4.0)
+
+    @property
+    def period(self) -> float:
+        return 2.0 / self.cadence
+
+    def path(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Root ground path (n, 3) and heading (n,) at times t."""
+        t = np.asarray(t, dtype=np.float64)
+        yaw = self.turn * t
+        if abs(self.turn) < 1e-9:
+            x, z = np.zeros_like(t), self.speed * t
+        else:
+            x = self.speed * (1.0 - np.cos(yaw)) / self.turn
+            z = self.speed * np.sin(yaw) / self.turn
+        return np.stack([x, np.zeros_like(t), z], -1), yaw
+
+    def left_on(self) -> float:
+        """A left touchdown time."""
+        return self.phase * self.period
+
+    def plants(self, rig: Rig, t_lo: float, t_hi: float) -> dict[str, list[Plant]]:
+        per, stance = self.period, self.duty * self.period
+        out: dict[str, list[Plant]] = {}
+        for side, shift in (("left", 0.0), ("right", 0.5 * per)):
+            k0 = math.floor((t_lo - self.left_on() - shift) / per) - 1
+            k1 = math.ceil((t_hi - self.left_on() - shift) / per) + 1
+            lst = []
+            for k in range(k0, k1 + 1):
+                on = self.left_on() + shift + k * per
+                ta = on + self.anchor * stance
+                p, yaw = self.path(np.array([ta]))
+                pos = p[0] + _rot_y(yaw[0], _X * _lat(side) * self.width / 2) + _Y * rig.ankle_height
+                lst.append(Plant(t_on=on, t_off=on + stance, ankle=pos, yaw=float(yaw[0] - _lat(side) * self.toe_out),
+                                 t_heel=on + self.heel_frac * stance, heel_pitch=self.heel_pitch))
+            out[side] = lst
+        return out
+
+    def cycle(self, t: np.ndarray) -> np.ndarray:
+        """Gait phase angle, 0 at a left touchdown."""
+        return 2.0 * np.pi * (t - self.left_on()) / self.period
+
+    def root(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Root ground position with sway (n, 3), bob (n,), rotation (n, 4); height excluded."""
+        p, yaw = self.path(t)
+        ph = self.cycle(t)
+        mid = ph - np.pi * self.duty  # 0 at left mid-stance
+        p = p + (self.sway * np.cos(mid))[:, None] * _rot_y(yaw, _X)
+        bob = (-1.0 if self.run else 1.0) * self.bob * np.cos(2.0 * mid)
+        rot = _qypr(yaw - self.pelvis_yaw * np.cos(ph), self.lean * 0.5, 0.0)
+        return p, bob, rot
+
+    def upper(self, plan: Plan, t: np.ndarray) -> None:
+        ph = self.cycle(t)
+        c = np.cos(ph)
+        plan.spine[:, 0] = self.lean * 0.6
+        plan.spine[:, 1] = 1.3 * self.pelvis_yaw * c
+        for side in SIDES:
+            sw = -_lat(side) * self.arm_swing * c
+            plan.arms[side][:, 0] = math.radians(4.0) + sw
+            plan.arms[side][:, 1] = math.radians(10.0 if self.run else 6.0)
+            plan.arms[side][:, 2] = self.elbow + 0.4 * np.maximum(sw, 0.0)
+
+
+def _gait_clip(rig: Rig, gait: Gait, duration: float, fps: float, label: str) -> ClipSpec:
+    t = _times(duration, fps)
+    plants = gait.plants(rig, 0.0, t[-1])
+    feet = {s: foot_track(rig, t, plants[s], gait.lift) for s in SIDES}
+    plan = _neutral_plan(rig, t, feet)
+    ground, bob, rot = gait.root(t)
+    lim = _max_root_heights(rig, ground, rot, feet, 0.975 * rig.leg)
+    base = float(min(np.min(lim - bob), rig.stand_height - 0.01))
+    plan.root_pos = ground + (base + bob)[:, None] * _Y
+    plan.root_rot = rot
+    gait.upper(plan, t)
+    _level_head(plan, np.full(len(t), gait.lean * 0.5))
+    flights = _flight_gaps(plants, 0.0, float(t[-1]))
+    params = {"speed": gait.speed, "turn_rate_deg_s": math.degrees(gait.turn), "cadence": gait.cadence,
+              "duty_factor": gait.duty, "step_width": gait.width, "stride_length": gait.speed * gait.period,
+              "root_height": base, "bob": gait.bob}
+    return ClipSpec(plan, [{"label": label, "t0": 0.0, "t1": float(t[-1])}], [], flights, plants, params)
+
+
+def _flight_gaps(plants: dict[str, list[Plant]], t_lo: float, t_hi: float) -> list[tuple[float, float]]:
+    """Time intervals inside (t_lo, t_hi) where no foot is planted."""
+    iv = sorted((p.t_on, p.t_off) for s in SIDES for p in plants[s])
+    gaps, reach = [], -np.inf
+    for a, b in iv:
+        if a > reach > t_lo and a < t_hi:
+            gaps.append((float(reach), float(a)))
+        reach = max(reach, b)
+    return gaps
+
+
+def _walk_gait(v: int, rng: np.random.Generator) -> Gait:
+    speed = (0.95, 1.3, 1.6)[v % 3] * (1.0 + 0.04 * rng.uniform(-1, 1)) * (1.0 + 0.05 * (v // 3))
+    turn = math.radians((0.0, 30.0, -22.0, 40.0, -40.0, 12.0)[v % 6] + rng.uniform(-4, 4))
+    return Gait(speed=speed, turn=turn, cadence=1.45 + 0.38 * speed, duty=0.63 - 0.03 * (speed - 1.0),
+                width=0.2 + 0.02 * rng.uniform(-1, 1), lift=0.07 + 0.02 * speed, bob=0.012 + 0.008 * speed,
+                sway=0.02, lean=math.radians(3.0 + 3.0 * speed), pelvis_yaw=math.radians(4.0 + 2.0 * speed),
+                heel_frac=0.62, heel_pitch=math.radians(28.0 + 6.0 * speed), arm_swing=math.radians(9.0 + 9.0 * speed),
+                elbow=math.radians(14.0), run=False, phase=float(rng.uniform(0, 1)))
+
+
+def _run_gait(v: int, rng: np.random.Generator) -> Gait:
+    speed = (2.6, 3.2, 3.8)[v % 3] * (1.0 + 0.04 * rng.uniform(-1, 1)) * (1.0 + 0.05 * (v // 3))
+    turn = math.radians((0.0, -24.0, 30.0, 45.0, -45.0, 15.0)[v % 6] + rng.uniform(-4, 4))
+    return Gait(speed=speed, turn=turn, cadence=2.55 + 0.12 * speed, duty=0.40 - 0.02 * (speed - 3.0),
+                width=0.14, lift=0.16 + 0.03 * speed, bob=0.035, sway=0.01, lean=math.radians(8.0 + 2.0 * speed),
+                pelvis_yaw=math.radians(7.0), heel_frac=0.4, heel_pitch=math.radians(38.0),
+                arm_swing=math.radians(28.0), elbow=math.radians(85.0), run=True, phase=float(rng.uniform(0, 1)))
+
+
+def _gen_walk(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    return _gait_clip(rig, _walk_gait(v, rng), 4.0 + 0.5 * rng.uniform(0, 1), fps, "walk")
+
+
+def _gen_run(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    return _gait_clip(rig, _run_gait(v, rng), 3.0 + 0.5 * rng.uniform(0, 1), fps, "run")
+
+
+# --------------------------------------------------------------------------------------------------
+# putting it together
+
+
+def _rng(category: str, variant: int, seed: int) -> np.random.Generator:
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, zlib.crc32(category.encode()), int(variant)])
+
+
+def _frame_interval(t0: float, t1: float, fps: float, n: int) -> tuple[int, int]:
+    return int(np.clip(round(t0 * fps), 0, n - 1)), int(np.clip(round(t1 * fps), 0, n - 1))
+
+
+def _finish(rig: Rig, spec: ClipSpec, category: str, variant: int, seed: int, fps: float,
+            rng: np.random.Generator, name: str) -> tuple[Motion, dict[str, Any]]:
+    """Place the clip in the world (random start heading and position), build it, write the truth."""
+    motion, ik_miss = build_motion(rig, spec.plan, fps, name)
+    yaw0 = float(rng.uniform(-np.pi, np.pi))
+    shift = np.array([rng.uniform(-2.0, 2.0), 0.0, rng.uniform(-2.0, 2.0)])
+    q0 = _qaxis(_Y, np.array(yaw0))
+    root = quat_rotate(q0, motion.root_positions) + shift
+    rots = motion.rotations.copy()
+    rots[:, 0] = quat_mul(q0, rots[:, 0])
+    motion = replace(motion, root_positions=root, rotations=rots)
+    n = motion.n_frames
+    h0 = float(heading_angle(rots[0, 0]))
+    origin = root[0] * np.array([1.0, 0.0, 1.0])
+
+    def to_start(p: np.ndarray) -> np.ndarray:
+        return _rot_y(-h0, p - origin)
+
+    actions = []
+    for a in spec.actions:
+        s, e = _frame_interval(a["t0"], a["t1"], fps, n)
+        item = {"label": a["label"], "start_s": a["t0"], "end_s": a["t1"], "start_frame": s, "end_frame": e}
+        if "apex" in a:
+            item["apex_s"] = a["apex"]
+            item["apex_frame"] = round(float(a["apex"]) * fps)
+        actions.append(item)
+    targets = []
+    for tg in spec.targets:
+        world = quat_rotate(q0, tg["local"]) + shift
+        targets.append({"name": tg["name"], "effector": tg["effector"], "apex_s": tg["t"],
+                        "apex_frame": round(float(tg["t"]) * fps), "position": to_start(world), "world": world})
+    flights = []
+    for a, b in spec.flights:
+        s, e = math.ceil(a * fps - 1e-9), math.floor(b * fps + 1e-9)
+        if s <= e and s < n and e >= 0:
+            flights.append({"start_s": a, "end_s": b, "start_frame": max(s, 0), "end_frame": min(e, n - 1),
+                            "duration": b - a})
+    contacts: dict[str, list[list[int]]] = {}
+    heel: dict[str, list[list[int]]] = {}
+    for side in SIDES:
+        contacts[side], heel[side] = [], []
+        for p in spec.plants[side]:
+            s, e = max(math.ceil(p.t_on * fps - 1e-9), 0), min(math.floor(p.t_off * fps + 1e-9), n - 1)
+            if s <= e:
+                contacts[side].append([s, e])
+                th = p.t_off if p.t_heel is None else p.t_heel
+                eh = min(math.floor(th * fps + 1e-9), n - 1)
+                if s <= eh:
+                    heel[side].append([s, eh])
+    truth = {
+        "category": category, "variant": variant, "seed": seed, "fps": fps, "unit": "m", "up": "y",
+        "frames": n, "duration": motion.duration, "gravity": G,
+        "actions": actions, "targets": targets, "flight": flights,
+        "contacts": contacts, "heel_contacts": heel,
+        "start": {"yaw_deg": math.degrees(h0), "position": origin},
+        "ik_max_miss_m": ik_miss,
+        "params": spec.params,
+    }
+    return motion, truth
+
+
+_GENERATORS: dict[str, Callable[[Rig, int, np.random.Generator, float], ClipSpec]] = {
+    "walk": _gen_walk,
+    "run": _gen_run,
+}
+
+
+def generate_clip(category: str, variant: int, seed: int, fps: float = 60.0) -> tuple[Motion, dict[str, Any]]:
+    """One synthetic clip of ``category`` and its ground truth; deterministic in (category, variant,
+    seed, fps). Targets are in the clip's start heading frame (origin: root at frame 0 on the
+    ground, axes turned by the heading at frame 0); ``world`` gives them in the file's frame."""
+    if category not in _GENERATORS:
+        raise ValueError(f"unknown category {category!r}; expected one of {', '.join(CATEGORIES)}")
+    rig = Rig.from_skeleton(humanoid_skeleton())
+    rng = _rng(category, variant, seed)
+    spec = _GENERATORS[category](rig, variant, rng, fps)
+    return _finish(rig, spec, category, variant, seed, fps, rng, f"{category}_{variant:02d}")
+
+
+# --------------------------------------------------------------------------------------------------
+# time warps
+
+
+def time_warp_clip(motion: Motion, warp_frames: np.ndarray) -> Motion:
+    """The clip sampled at fractional source frames ``warp_frames`` (slerp rotations, lerp root)."""
+    out = sample_motion(motion, np.asarray(warp_frames, dtype=np.float64))
+    return replace(out, name=f"{motion.name}_warped", source=None, content_hash="")
+
+
+def random_warp(n_out: int, n_in: int, rng: np.random.Generator,
+                speed_range: tuple[float, float] = (0.7, 1.5)) -> np.ndarray:
+    """A smooth, strictly increasing, non-linear warp: source frame index per output frame, from 0
+    to n_in - 1 exactly, with local speed (source frames per output frame) inside speed_range."""
+    lo, hi = speed_range
+    if n_out < 2 or n_in < 2:
+        raise ValueError("random_warp needs at least 2 frames on each side")
+    mean = (n_in - 1) / (n_out - 1)
+    if not (0 < lo < mean < hi):
+        raise ValueError(f"mean speed {mean:.3f} (= (n_in-1)/(n_out-1)) must lie strictly inside {speed_range}")
+    x = (np.arange(n_out - 1) + 0.5) / (n_out - 1)
+    z = np.zeros_like(x)
+    for _ in range(3):
+        z += rng.uniform(0.3, 1.0) * np.sin(2 * np.pi * rng.uniform(0.5, 2.5) * x + rng.uniform(0, 2 * np.pi))
+    z -= z.mean()
+    amp = 0.9 * min(hi - mean, mean - lo) / max(float(np.max(np.abs(z))), 1e-12)
+    speed = mean + amp * z
+    warp = np.concatenate([[0.0], np.cumsum(speed)])
+    warp *= (n_in - 1) / warp[-1]
+    warp[-1] = n_in - 1
+    return warp
+
+
+# --------------------------------------------------------------------------------------------------
+# writing
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        v = round(float(x), 6)
+        return 0.0 if v == 0 else v
+    return x
+
+
+def truth_json(truth: dict[str, Any]) -> str:
+    """Canonical JSON text of a ground-truth dict (sorted keys, floats rounded to 6 decimals)."""
+    return json.dumps(_jsonable(truth), sort_keys=True, indent=1) + "\n"
+
+
+def write_clip(motion: Motion, truth: dict[str, Any], stem: Path) -> Path:
+    """Write ``<stem>.bvh`` and ``<stem>.json``; returns the BVH path."""
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    bvh = stem.with_suffix(".bvh")
+    write_bvh(motion, bvh)
+    stem.with_suffix(".json").write_text(truth_json(truth))
+    return bvh
+
+
+def write_demo_corpus(out_dir: str | Path, seed: int = 7, variants_per_category: int = 3,
+                      fps: float = 60.0) -> list[Path]:
+    """Write ``<out_dir>/<category>/<category>_<variant:02d>.bvh`` and ``.json`` ground truth for
+    every category; returns the BVH paths. Same inputs give the same bytes."""
+    out = Path(out_dir)
+    paths = []
+    for cat in CATEGORIES:
+        for v in range(variants_per_category):
+            motion, truth = generate_clip(cat, v, seed, fps)
+            paths.append(write_clip(motion, truth, out / cat / f"{cat}_{v:02d}"))
+    return paths
