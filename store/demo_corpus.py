@@ -606,6 +606,245 @@ def _gen_run(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec
 
 
 # --------------------------------------------------------------------------------------------------
+# shared pose helpers for the stationary and jumping clips
+
+
+def _keys(t: np.ndarray, knots: list[tuple[float, Any]]) -> np.ndarray:
+    """Values eased between (time, value) knots (zero slopes), (F, D)."""
+    kt = np.array([k for k, _ in knots])
+    kp = np.array([np.atleast_1d(np.asarray(v, dtype=np.float64)) for _, v in knots])
+    return _hermite(t, kt, kp)
+
+
+def _pulse(t: np.ndarray, t_a: float, t_apex: float, t_b: float, hold: float = 0.0) -> np.ndarray:
+    """0 -> 1 (eased) on [t_a, t_apex], 1 for ``hold`` seconds, back to 0 by t_b."""
+    up = _smooth((t - t_a) / (t_apex - t_a))
+    down = 1.0 - _smooth((t - t_apex - hold) / (t_b - t_apex - hold))
+    return np.where(t <= t_apex, up, np.where(t <= t_apex + hold, 1.0, down))
+
+
+def _snap(t: float, fps: float) -> float:
+    """The frame time nearest to t."""
+    return round(t * fps) / fps
+
+
+def _standing_plants(rig: Rig, feet: dict[str, tuple[float, float, float]], t_end: float) -> dict[str, list[Plant]]:
+    """One plant per foot lasting the whole clip; feet[side] = (x, z, yaw)."""
+    return {s: [Plant(t_on=-1.0, t_off=t_end + 1.0, ankle=np.array([x, rig.ankle_height, z]), yaw=yaw)]
+            for s, (x, z, yaw) in feet.items()}
+
+
+def _apply_root(plan: Plan, pos: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, roll: Any = 0.0) -> None:
+    plan.root_pos = pos
+    plan.root_rot = _qypr(yaw, pitch, roll)
+
+
+def _hip(rig: Rig, plan: Plan, side: str, i: int) -> np.ndarray:
+    return plan.root_pos[i] + quat_rotate(plan.root_rot[i], rig.hip_offset[side])
+
+
+def _dir(elev: float, azim: float) -> np.ndarray:
+    return np.array([math.sin(azim) * math.cos(elev), math.sin(elev), math.cos(azim) * math.cos(elev)])
+
+
+# --------------------------------------------------------------------------------------------------
+# jumps: crouch, take-off, exact ballistic flight, landing, recovery
+
+
+@dataclass
+class Jump:
+    """A two-footed jump planned from a still, ready stance."""
+
+    root_t: list[float]
+    root_p: list[np.ndarray]
+    root_v: list[np.ndarray]
+    t0: float
+    t1: float
+    p0: np.ndarray
+    v0: np.ndarray
+    plants: dict[str, list[Plant]]
+    carry: dict[str, tuple[list[float], list[np.ndarray]]]
+    pose: list[tuple[float, np.ndarray]]  # (time, [pelvis pitch, spine pitch, arm flex, elbow])
+    actions: list[dict[str, Any]]
+    t_end: float
+    params: dict[str, Any]
+
+    def root(self, t: np.ndarray) -> np.ndarray:
+        """Root positions; on [t0, t1] exactly the parabola under gravity."""
+        out = _hermite(t, self.root_t, np.array(self.root_p), np.array(self.root_v))
+        m = (t >= self.t0) & (t <= self.t1)
+        dt = (t[m] - self.t0)[:, None]
+        out[m] = self.p0 + self.v0 * dt - 0.5 * G * dt * dt * _Y
+        return out
+
+
+def plan_jump(rig: Rig, t_ready: float, root_ready: np.ndarray, stance: dict[str, Plant], apex: float,
+              distance: float, width: float = 0.2) -> Jump:
+    """Plan a jump: ``apex`` metres of root rise after take-off, ``distance`` metres of flight
+    along +Z. ``stance`` holds each foot's current plant (its t_off is replaced by the take-off)."""
+    t_c = t_ready + 0.45
+    t0 = t_c + 0.25
+    crouch = 0.2 + 0.1 * apex
+    heel = math.radians(30.0)
+    feet_z = float(np.mean([p.ankle[2] for p in stance.values()]))
+    feet_x = float(np.mean([p.ankle[0] for p in stance.values()]))
+    take = {s: replace(p, t_off=t0, t_heel=t0 - 0.13, heel_pitch=heel) for s, p in stance.items()}
+    pitch0, pitch1 = math.radians(5.0), math.radians(12.0)
+    z0 = feet_z + 0.04 + 0.07 * distance
+    ank0 = {s: p.pivot_ankle(rig, np.array([heel]))[0] for s, p in take.items()}
+    y0 = _root_height_for(rig, np.array([feet_x, 0.0, z0]), _qypr(0.0, pitch0), ank0, 0.965 * rig.leg)
+    ahead = 0.10
+    rel_land = {s: np.array([_lat(s) * width / 2, rig.ankle_height, ahead]) for s in SIDES}
+    y1 = _root_height_for(rig, np.zeros(3), _qypr(0.0, pitch1), rel_land, 0.95 * rig.leg)
+    vy = math.sqrt(2.0 * G * apex)
+    tf = (vy + math.sqrt(vy * vy + 2.0 * G * (y0 - y1))) / G
+    vh = distance / tf
+    p0 = np.array([feet_x, y0, z0])
+    v0 = np.array([0.0, vy, vh])
+    t1 = t0 + tf
+    p1 = p0 + v0 * tf - 0.5 * G * tf * tf * _Y
+    v1 = v0 - G * tf * _Y
+    land = {s: Plant(t_on=t1, t_off=t1 + 100.0, ankle=np.array([p1[0], 0.0, p1[2]]) + rel_land[s] * [1, 0, 1]
+                     + rig.ankle_height * _Y, yaw=stance[s].yaw) for s in SIDES}
+    t_abs = 0.25
+    depth = max(0.16 + 0.2 * apex, abs(v1[1]) * t_abs / 3.0)
+    t_a = t1 + t_abs
+    p_a = np.array([p1[0], y1 - depth, p1[2] + 0.4 * vh * t_abs])
+    t_r = t_a + 0.6 + 0.3 * apex
+    land_z = p1[2] + ahead
+    p_r = np.array([p1[0], root_ready[1], land_z - 0.01])
+    zero = np.zeros(3)
+    root_t = [t_ready, t_c, t0, t1, t_a, t_r]
+    root_p = [root_ready, root_ready + np.array([0.0, -crouch, -0.05]), p0, p1, p_a, p_r]
+    root_v = [zero, zero, v0, v1, zero, zero]
+    mid = 0.5 * (t0 + t1)
+    rel0 = {s: ank0[s] - p0 for s in SIDES}
+    rel1 = {s: land[s].ankle - p1 for s in SIDES}
+    carry = {s: ([t0, mid, t1], [rel0[s], 0.5 * (rel0[s] + rel1[s]) + (0.15 + 0.3 * apex) * _Y, rel1[s]])
+             for s in SIDES}
+    pose = [
+        (t_ready, np.array([0.0, 0.0, 0.07, 0.2])),
+        (t_c, np.array([0.45, 0.35, -0.8, 0.3])),
+        (t0, np.array([pitch0, 0.05, 1.6, 0.5])),
+        (mid, np.array([pitch0, 0.1, 1.7, 0.5])),
+        (t1, np.array([pitch1, 0.15, 0.7, 0.4])),
+        (t_a, np.array([0.4, 0.35, 0.3, 0.4])),
+        (t_r, np.array([0.0, 0.0, 0.07, 0.2])),
+    ]
+    actions = [{"label": "crouch", "t0": t_ready, "t1": t_c}, {"label": "takeoff", "t0": t_c, "t1": t0},
+               {"label": "flight", "t0": t0, "t1": t1}, {"label": "landing", "t0": t1, "t1": t_a},
+               {"label": "recover", "t0": t_a, "t1": t_r}]
+    plants = {s: [take[s], land[s]] for s in SIDES}
+    params = {"apex_height": apex, "distance": distance, "flight_time": tf, "takeoff_velocity": v0,
+              "landing_velocity": v1, "takeoff_height": y0, "landing_height": y1}
+    return Jump(root_t, root_p, root_v, t0, t1, p0, v0, plants, carry, pose, actions, t_r, params)
+
+
+def _apply_jump(rig: Rig, plan: Plan, jump: Jump, weight: np.ndarray | None = None) -> None:
+    """Drive root, flight feet and jump poses of ``plan`` from the jump (poses blended in by weight)."""
+    t = plan.t
+    root = jump.root(t)
+    pose = _keys(t, jump.pose)
+    w = np.ones(len(t)) if weight is None else weight
+    m = (t > jump.t0) & (t < jump.t1)
+    for s in SIDES:
+        kt, rel = jump.carry[s]
+        ankle = root + _hermite(t, kt, np.array(rel))
+        _override(plan.feet[s], m.astype(np.float64), ankle)
+    plan.root_pos = np.where(t[:, None] >= jump.root_t[0], root, plan.root_pos)
+    yaw = np.zeros(len(t))
+    rot = _qypr(yaw, pose[:, 0])
+    blend = (w[:, None] > 0)
+    plan.root_rot = np.where(blend & (t[:, None] >= jump.root_t[0]), rot, plan.root_rot)
+    plan.spine[:, 0] = (1 - w) * plan.spine[:, 0] + w * pose[:, 1]
+    for s in SIDES:
+        plan.arms[s][:, 0] = (1 - w) * plan.arms[s][:, 0] + w * pose[:, 2]
+        plan.arms[s][:, 2] = (1 - w) * plan.arms[s][:, 2] + w * pose[:, 3]
+    _level_head(plan, pose[:, 0], 0.6)
+
+
+def _gen_jump(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    apex = (0.25, 0.35, 0.45)[v % 3] + 0.03 * rng.uniform(-1, 1)
+    distance = (0.0, 0.6, 1.1)[(v + v // 3) % 3] + 0.1 * rng.uniform(0, 1)
+    width = 0.2 + 0.02 * rng.uniform(-1, 1)
+    t_ready = 0.4 + 0.2 * rng.uniform(0, 1)
+    stance = {s: Plant(t_on=-1.0, t_off=100.0, ankle=np.array([_lat(s) * width / 2, rig.ankle_height, 0.0]),
+                       yaw=-_lat(s) * math.radians(5.0)) for s in SIDES}
+    ready = np.array([0.0, rig.stand_height - 0.02, 0.0])
+    jump = plan_jump(rig, t_ready, ready, stance, apex, distance, width)
+    t = _times(jump.t_end + 0.5, fps)
+    feet = {s: foot_track(rig, t, jump.plants[s], 0.0) for s in SIDES}
+    plan = _neutral_plan(rig, t, feet)
+    plan.root_pos = np.broadcast_to(ready, (len(t), 3)).copy()
+    _apply_jump(rig, plan, jump)
+    actions = [{"label": "stand", "t0": 0.0, "t1": t_ready}, *jump.actions,
+               {"label": "stand", "t0": jump.t_end, "t1": float(t[-1])}]
+    return ClipSpec(plan, actions, [], [(jump.t0, jump.t1)], jump.plants, jump.params)
+
+
+def walk_then_jump(seed: int = 0, fps: float = 60.0) -> tuple[Motion, dict[str, Any]]:
+    """About 2-3 s of straight walking, a stop, then a forward jump with an exact ballistic flight
+    of at least 0.5 s and a landing (the guided-warp test clip)."""
+    rig = Rig.from_skeleton(humanoid_skeleton())
+    rng = _rng("walk_then_jump", 0, seed)
+    gait = replace(_walk_gait(1, rng), turn=0.0)
+    plants = gait.plants(rig, 0.0, 8.0)
+    t_min = 1.9 + 0.3 * rng.uniform(0, 1)
+    _, side_a, ia = min((p.t_on, s, i) for s in SIDES for i, p in enumerate(plants[s]) if p.t_on >= t_min)
+    side_b = "right" if side_a == "left" else "left"
+    a_plant = plants[side_a][ia]
+    t_a = a_plant.t_on
+    b_list = [p for p in plants[side_b] if p.t_on < t_a]
+    b_next = next(p for p in plants[side_b] if p.t_on > t_a)
+    b_final = Plant(t_on=b_next.t_on, t_off=100.0, yaw=b_next.yaw,
+                    ankle=np.array([-a_plant.ankle[0], rig.ankle_height, a_plant.ankle[2]]))
+    a_final = replace(a_plant, t_off=100.0, t_heel=None, heel_pitch=0.0)
+    stop_plants = {side_a: [p for p in plants[side_a] if p.t_on < t_a] + [a_final], side_b: b_list + [b_final]}
+    ground_a, _, _ = gait.root(np.array([t_a]))
+    z_stop = a_plant.ankle[2] + 0.05
+    t_d = 2.0 * (z_stop - ground_a[0, 2]) / gait.speed
+    t_ready = max(t_a + t_d, b_final.t_on) + 0.25
+    stance = {side_a: a_final, side_b: b_final}
+    ready_y = rig.stand_height - 0.03
+    jump = plan_jump(rig, t_ready, np.array([0.0, ready_y, z_stop]), stance, 0.42 + 0.02 * rng.uniform(0, 1),
+                     0.5 + 0.2 * rng.uniform(0, 1), gait.width)
+    all_plants = {s: stop_plants[s][:-1] + jump.plants[s] for s in SIDES}
+    t = _times(jump.t_end + 0.6, fps)
+    feet = {s: foot_track(rig, t, all_plants[s], gait.lift) for s in SIDES}
+    plan = _neutral_plan(rig, t, feet)
+    # walking root, then an eased stop (velocity v(1 - smooth(u)) along +Z), then the jump
+    ground, bob, rot = gait.root(t)
+    pre = t <= t_a
+    lim = _max_root_heights(rig, ground[pre], rot[pre], {s: FootTrack(f.ankle[pre], f.yaw[pre], f.pitch[pre],
+                                                                       f.stance[pre]) for s, f in feet.items()},
+                            0.975 * rig.leg)
+    base = float(min(np.min(lim - bob[pre]), rig.stand_height - 0.01))
+    u = np.clip((t - t_a) / t_d, 0.0, 1.0)
+    s_u = _smooth(u)
+    fade = 1.0 - s_u
+    ga, _, _ = gait.root(np.array([t_a]))
+    z = np.where(pre, ground[:, 2], ga[0, 2] + gait.speed * t_d * (u - u ** 3 + 0.5 * u ** 4))
+    x = np.where(pre, ground[:, 0], ground[:, 0] * fade)
+    y = np.where(pre, base + bob, (base + bob) * fade + ready_y * s_u)
+    plan.root_pos = np.stack([x, y, z], -1)
+    ph = gait.cycle(t)
+    wfade = np.where(pre, 1.0, fade)
+    plan.root_rot = _qypr(-gait.pelvis_yaw * np.cos(ph) * wfade, gait.lean * 0.5 * wfade)
+    gait.upper(plan, t)
+    plan.spine *= wfade[:, None]
+    for s in SIDES:
+        plan.arms[s] = plan.arms[s] * wfade[:, None] + np.array([0.07, math.radians(6.0), 0.2]) * (1 - wfade[:, None])
+    _level_head(plan, gait.lean * 0.5 * wfade)
+    _apply_jump(rig, plan, jump, weight=(t >= t_ready).astype(np.float64))
+    actions = [{"label": "walk", "t0": 0.0, "t1": t_a}, {"label": "stop", "t0": t_a, "t1": t_ready}, *jump.actions,
+               {"label": "stand", "t0": jump.t_end, "t1": float(t[-1])}]
+    flights = [(jump.t0, jump.t1)]
+    params = {"speed": gait.speed, "cadence": gait.cadence, "walk_root_height": base, **jump.params}
+    spec = ClipSpec(plan, actions, [], flights, all_plants, params)
+    return _finish(rig, spec, "walk_then_jump", 0, seed, fps, rng, "walk_then_jump")
+
+
+# --------------------------------------------------------------------------------------------------
 # putting it together
 
 
@@ -681,6 +920,7 @@ def _finish(rig: Rig, spec: ClipSpec, category: str, variant: int, seed: int, fp
 _GENERATORS: dict[str, Callable[[Rig, int, np.random.Generator, float], ClipSpec]] = {
     "walk": _gen_walk,
     "run": _gen_run,
+    "jump": _gen_jump,
 }
 
 
