@@ -592,7 +592,7 @@ def _run_gait(v: int, rng: np.random.Generator) -> Gait:
     speed = (2.6, 3.2, 3.8)[v % 3] * (1.0 + 0.04 * rng.uniform(-1, 1)) * (1.0 + 0.05 * (v // 3))
     turn = math.radians((0.0, -24.0, 30.0, 45.0, -45.0, 15.0)[v % 6] + rng.uniform(-4, 4))
     return Gait(speed=speed, turn=turn, cadence=2.55 + 0.12 * speed, duty=0.40 - 0.02 * (speed - 3.0),
-                width=0.14, lift=0.16 + 0.03 * speed, bob=0.035, sway=0.01, lean=math.radians(8.0 + 2.0 * speed),
+                width=0.14, lift=0.16 + 0.03 * speed, bob=G / (2.0 * np.pi * (2.55 + 0.12 * speed)) ** 2, sway=0.01, lean=math.radians(8.0 + 2.0 * speed),
                 pelvis_yaw=math.radians(7.0), heel_frac=0.4, heel_pitch=math.radians(38.0),
                 arm_swing=math.radians(28.0), elbow=math.radians(85.0), run=True, phase=float(rng.uniform(0, 1)))
 
@@ -845,6 +845,317 @@ def walk_then_jump(seed: int = 0, fps: float = 60.0) -> tuple[Motion, dict[str, 
 
 
 # --------------------------------------------------------------------------------------------------
+# stationary clips: kick, punch, reach, sit, idle
+
+
+def _stationary(rig: Rig, duration: float, fps: float, feet: dict[str, tuple[float, float, float]]
+                ) -> tuple[np.ndarray, Plan, dict[str, list[Plant]]]:
+    t = _times(duration, fps)
+    plants = _standing_plants(rig, feet, float(t[-1]))
+    plan = _neutral_plan(rig, t, {s: foot_track(rig, t, plants[s], 0.0) for s in SIDES})
+    return t, plan, plants
+
+
+def _gen_kick(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    side = ("right", "left")[v % 2]
+    sup = "left" if side == "right" else "right"
+    elev = math.radians((-32.0, -14.0, 4.0)[v % 3] + rng.uniform(-4, 4))
+    azim = math.radians(-_lat(side) * rng.uniform(-6.0, 12.0))
+    t_shift = 0.4 + 0.2 * rng.uniform(0, 1)
+    t_lift = t_shift + 0.3
+    t_apex = _snap(t_lift + 0.42 + 0.1 * rng.uniform(0, 1), fps)
+    t_down = t_apex + 0.5
+    t_end = t_down + 0.9
+    t, plan, plants = _stationary(rig, t_end + 0.4, fps, {s: (_lat(s) * 0.1, 0.0, -_lat(s) * 0.08) for s in SIDES})
+    stand = np.array([0.0, rig.stand_height - 0.02, 0.0])
+    shifted = stand + np.array([_lat(sup) * 0.06, -0.04, 0.0])
+    leaned = shifted + np.array([0.0, -0.02, -0.04])
+    root = _keys(t, [(0.0, stand), (t_shift, shifted), (t_lift, shifted), (t_apex, leaned), (t_down, shifted),
+                     (t_end, stand)])
+    pitch = _keys(t, [(t_lift, 0.0), (t_apex, -0.18), (t_down, 0.0)])[:, 0]
+    _apply_root(plan, root, np.zeros(len(t)), pitch)
+    plan.spine[:, 0] = _keys(t, [(t_lift, 0.0), (t_apex, 0.1), (t_down, 0.0)])[:, 0]
+    guard = _keys(t, [(0.0, [0.07, 0.1, 0.2]), (t_shift, [0.6, 0.35, 1.7]), (t_down, [0.6, 0.35, 1.7]),
+                      (t_end, [0.07, 0.1, 0.2])])
+    for s in SIDES:
+        plan.arms[s] = guard.copy()
+    _level_head(plan, pitch)
+    i = round(t_apex * fps)
+    target = _hip(rig, plan, side, i) + 0.88 * rig.leg * _dir(elev, azim)
+    start = plants[side][0].ankle
+    b = _pulse(t, t_lift, t_apex, t_down)
+    chamber = np.array([0.0, 0.28, 0.12])
+    ankle = start + b[:, None] * (target - start) + (4.0 * b * (1.0 - b))[:, None] * chamber
+    w = ((t > t_lift) & (t < t_down)).astype(np.float64)
+    _override(plan.feet[side], w, ankle, math.radians(25.0) * b)
+    effector = ("Left" if side == "left" else "Right") + "Foot"
+    targets = [{"name": "kick", "effector": effector, "t": t_apex, "local": target}]
+    actions = [{"label": "shift", "t0": t_shift - 0.4, "t1": t_lift},
+               {"label": "kick", "t0": t_lift, "t1": t_down, "apex": t_apex},
+               {"label": "recover", "t0": t_down, "t1": t_end}]
+    plants[side] = [replace(plants[side][0], t_off=t_lift), replace(plants[side][0], t_on=t_down)]
+    params = {"side": side, "elevation_deg": math.degrees(elev), "azimuth_deg": math.degrees(azim),
+              "target_height": float(target[1])}
+    return ClipSpec(plan, actions, targets, [], plants, params)
+
+
+def _hand_targets(rig: Rig, plan: Plan, fps: float,
+                  strikes: list[tuple[str, float, float, float, np.ndarray, float]]) -> list[dict[str, Any]]:
+    """Pull wrists onto targets: strikes are (side, t_start, t_apex, t_end, direction, hold); each
+    target sits at 0.92 arm lengths from the shoulder at the apex frame. Sets plan.hands."""
+    motion, _ = build_motion(rig, plan, fps)
+    gpos, _ = forward_kinematics(motion)
+    t = plan.t
+    blend = {s: np.zeros(len(t)) for s in SIDES}
+    goal = {s: np.zeros((len(t), 3)) for s in SIDES}
+    out = []
+    for side, t_a, t_apex, t_b, direction, hold in strikes:
+        prefix = "Left" if side == "left" else "Right"
+        i = round(t_apex * fps)
+        target = gpos[i, rig.skeleton.index(prefix + "Arm")] + 0.92 * rig.arm * direction
+        b = _pulse(t, t_a, t_apex, t_b, hold)
+        m = (t >= t_a) & (t <= t_b)
+        blend[side][m] = b[m]
+        goal[side][m] = target
+        out.append({"name": "strike", "effector": prefix + "Hand", "t": t_apex, "local": target})
+    plan.hands = {s: (blend[s], goal[s]) for s in SIDES if np.any(blend[s] > 0)}
+    return out
+
+
+def _gen_punch(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    lead = ("left", "right")[v % 2]
+    back = "right" if lead == "left" else "left"
+    feet = {lead: (_lat(lead) * 0.11, 0.14, 0.25), back: (_lat(back) * 0.11, -0.14, 0.35)}
+    n = 3
+    t_first = 0.8 + 0.2 * rng.uniform(0, 1)
+    gap = 0.65 + 0.1 * rng.uniform(0, 1)
+    t_end = t_first + gap * (n - 1) + 1.0
+    t, plan, plants = _stationary(rig, t_end, fps, feet)
+    ready = np.array([0.0, rig.stand_height - 0.06, 0.0])
+    plan.root_pos = ready + (0.01 * np.sin(2 * np.pi * 1.5 * t))[:, None] * _Y
+    sides = [lead, back, lead] if v % 3 != 2 else [back, lead, back]
+    elevs = rng.permutation(np.radians([6.0, -6.0, -18.0])) + np.radians(rng.uniform(-3, 3, n))
+    twist = np.zeros(len(t))
+    strikes = []
+    for k, side in enumerate(sides):
+        t_apex = _snap(t_first + k * gap, fps)
+        t_a, t_b = t_apex - 0.14, t_apex + 0.26
+        azim = -_lat(side) * math.radians(8.0 + 6.0 * rng.uniform(0, 1))
+        strikes.append((side, t_a, t_apex, t_b, _dir(float(elevs[k]), azim), 0.0))
+        twist += -_lat(side) * 0.3 * _pulse(t, t_a, t_apex, t_b)
+    _apply_root(plan, plan.root_pos, 0.35 * twist, np.full(len(t), 0.08))
+    plan.spine[:, 0] = 0.12
+    plan.spine[:, 1] = 0.65 * twist
+    for s in SIDES:
+        plan.arms[s] = np.tile([0.55, 0.3, 2.0], (len(t), 1))
+    _level_head(plan, np.full(len(t), 0.08))
+    plan.head[:, 1] = -twist
+    targets = _hand_targets(rig, plan, fps, strikes)
+    for tg in targets:
+        tg["name"] = "punch"
+    actions = [{"label": "guard", "t0": 0.0, "t1": strikes[0][1]}]
+    actions += [{"label": "punch", "t0": a, "t1": b, "apex": ap, "side": sd} for sd, a, ap, b, _, _ in strikes]
+    params = {"lead": lead, "punch_sides": sides, "elevations_deg": np.degrees(elevs)}
+    return ClipSpec(plan, actions, targets, [], plants, params)
+
+
+def _gen_reach(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    level = ("low", "mid", "high")[v % 3]
+    side = ("right", "left")[int(rng.integers(0, 2))]
+    t_a = 0.5 + 0.2 * rng.uniform(0, 1)
+    t_apex = _snap(t_a + 0.9 + 0.2 * rng.uniform(0, 1), fps)
+    hold = 0.3
+    t_b = t_apex + hold + 0.9
+    t, plan, plants = _stationary(rig, t_b + 0.7, fps, {s: (_lat(s) * 0.11, 0.0, -_lat(s) * 0.1) for s in SIDES})
+    b = _pulse(t, t_a, t_apex, t_b, hold)
+    pose = {"low": (0.3, 0.7, -0.26, -0.1, -70.0), "mid": (0.08, 0.25, -0.03, -0.02, -12.0),
+            "high": (0.0, -0.1, 0.0, 0.0, 62.0)}[level]
+    pelvis, spine, dy, dz, elev = pose
+    stand = np.array([0.0, rig.stand_height - 0.02, 0.0])
+    root = stand + b[:, None] * np.array([_lat(side) * 0.03, dy, dz])
+    yaw = -_lat(side) * 0.15 * b
+    _apply_root(plan, root, yaw, pelvis * b)
+    plan.spine[:, 0] = spine * b
+    plan.spine[:, 1] = -_lat(side) * 0.2 * b
+    other = "left" if side == "right" else "right"
+    plan.arms[other][:, 0] += 0.3 * b
+    _level_head(plan, pelvis * b, 0.5)
+    azim = -_lat(side) * math.radians(rng.uniform(-15.0, 25.0))
+    direction = _dir(math.radians(elev + rng.uniform(-5, 5)), azim)
+    targets = _hand_targets(rig, plan, fps, [(side, t_a, t_apex, t_b, direction, hold)])
+    targets[0]["name"] = f"reach_{level}"
+    actions = [{"label": "stand", "t0": 0.0, "t1": t_a},
+               {"label": "reach", "t0": t_a, "t1": t_b, "apex": t_apex, "hold_end": t_apex + hold},
+               {"label": "stand", "t0": t_b, "t1": float(t[-1])}]
+    params = {"level": level, "side": side, "target_height": float(targets[0]["local"][1])}
+    return ClipSpec(plan, actions, targets, [], plants, params)
+
+
+def _gen_sit(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    seat = (0.42, 0.47, 0.52)[v % 3] + 0.02 * rng.uniform(-1, 1)
+    t1 = 0.5 + 0.3 * rng.uniform(0, 1)
+    t2 = t1 + 1.3 + 0.2 * rng.uniform(0, 1)
+    t3 = t2 + 1.0 + 0.4 * rng.uniform(0, 1)
+    t4 = t3 + 1.3 + 0.2 * rng.uniform(0, 1)
+    t, plan, plants = _stationary(rig, t4 + 0.5, fps, {s: (_lat(s) * 0.12, 0.05, -_lat(s) * 0.1) for s in SIDES})
+    stand = np.array([0.0, rig.stand_height - 0.015, 0.0])
+    seated = np.array([0.0, seat + 0.1, -0.32])
+    mid_down = np.array([0.0, 0.5 * (stand[1] + seated[1]) + 0.04, -0.2])
+    mid_up = np.array([0.0, 0.5 * (stand[1] + seated[1]) + 0.02, -0.12])
+    root = _keys(t, [(t1, stand), (0.5 * (t1 + t2), mid_down), (t2, seated), (t3, seated),
+                     (0.5 * (t3 + t4), mid_up), (t4, stand)])
+    lean = _keys(t, [(t1, 0.0), (0.5 * (t1 + t2), 0.55), (t2, 0.1), (t3, 0.1), (t3 + 0.45 * (t4 - t3), 0.7),
+                     (t4, 0.0)])[:, 0]
+    _apply_root(plan, root, np.zeros(len(t)), 0.5 * lean)
+    plan.spine[:, 0] = 0.6 * lean
+    seated_w = _keys(t, [(t1, 0.0), (t2, 1.0), (t3, 1.0), (t4, 0.0)])[:, 0]
+    for s in SIDES:
+        plan.arms[s][:, 0] += 0.5 * seated_w
+        plan.arms[s][:, 2] += 0.5 * seated_w
+    _level_head(plan, 0.5 * lean, 0.6)
+    actions = [{"label": "stand", "t0": 0.0, "t1": t1}, {"label": "sit_down", "t0": t1, "t1": t2},
+               {"label": "seated", "t0": t2, "t1": t3}, {"label": "stand_up", "t0": t3, "t1": t4},
+               {"label": "stand", "t0": t4, "t1": float(t[-1])}]
+    targets = [{"name": "seat", "effector": "Hips", "t": t2, "local": seated}]
+    return ClipSpec(plan, actions, targets, [], plants, {"seat_height": seat})
+
+
+def _gen_idle(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    duration = 4.0 + rng.uniform(0, 1)
+    w = 0.11 + 0.02 * rng.uniform(-1, 1)
+    t, plan, plants = _stationary(rig, duration, fps, {s: (_lat(s) * w, 0.02 * rng.uniform(-1, 1),
+                                                           -_lat(s) * 0.12) for s in SIDES})
+    f_sway = rng.uniform(0.2, 0.35)
+    f_breath = rng.uniform(0.22, 0.32)
+    ph = rng.uniform(0, 2 * np.pi, 4)
+    x = 0.035 * np.sin(2 * np.pi * f_sway * t + ph[0])
+    y = rig.stand_height - 0.015 - 0.008 * (1 + np.sin(2 * np.pi * f_sway * 2 * t + ph[1])) \
+        + 0.003 * np.sin(2 * np.pi * f_breath * t)
+    root = np.stack([x, y, 0.01 * np.sin(2 * np.pi * 0.5 * f_sway * t + ph[2])], -1)
+    _apply_root(plan, root, 0.05 * np.sin(2 * np.pi * 0.5 * f_sway * t + ph[3]), np.full(len(t), 0.03),
+                -1.2 * x)
+    plan.spine[:, 0] = 0.02 * np.sin(2 * np.pi * f_breath * t)
+    plan.spine[:, 2] = 1.0 * x
+    looks = np.sort(rng.uniform(0.5, duration - 0.5, 3))
+    plan.head[:, 1] = _keys(t, [(k, rng.uniform(-0.5, 0.5)) for k in looks])[:, 0]
+    for s in SIDES:
+        plan.arms[s][:, 0] += 0.04 * np.sin(2 * np.pi * f_sway * t + ph[0] + _lat(s))
+    actions = [{"label": "idle", "t0": 0.0, "t1": float(t[-1])}]
+    return ClipSpec(plan, actions, [], [], plants, {"sway_hz": f_sway, "breath_hz": f_breath})
+
+
+# --------------------------------------------------------------------------------------------------
+# hop: one-legged hops with exact ballistic flights
+
+
+def _ballistic_root(t: np.ndarray, knots: list[tuple[float, np.ndarray, np.ndarray]],
+                    flights: list[tuple[float, np.ndarray, np.ndarray, float]]) -> np.ndarray:
+    """Hermite through (time, position, velocity) knots, exactly ballistic on each (t0, p0, v0, t1)."""
+    out = _hermite(t, [k[0] for k in knots], np.array([k[1] for k in knots]), np.array([k[2] for k in knots]))
+    for t0, p0, v0, t1 in flights:
+        m = (t >= t0) & (t <= t1)
+        dt = (t[m] - t0)[:, None]
+        out[m] = p0 + v0 * dt - 0.5 * G * dt * dt * _Y
+    return out
+
+
+def _gen_hop(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
+    sup = ("left", "right")[v % 2]
+    free = "right" if sup == "left" else "left"
+    n_hops = 3
+    vh = (0.0, 0.45, 0.8)[v % 3] + 0.05 * rng.uniform(0, 1)
+    apex = 0.09 + 0.04 * rng.uniform(0, 1)
+    vy = math.sqrt(2.0 * G * apex)
+    ts = 0.3
+    heel = math.radians(25.0)
+    width = 0.2
+    xs = _lat(sup) * 0.07
+    ready_y = rig.stand_height - 0.03
+    low_y = ready_y - 0.12
+    t_lift = 0.4 + 0.2 * rng.uniform(0, 1)
+    t_b = t_lift + 0.6
+    sup_plant = Plant(t_on=-1.0, t_off=100.0, ankle=np.array([_lat(sup) * width / 2, rig.ankle_height, 0.0]),
+                      yaw=-_lat(sup) * math.radians(5.0))
+    zero = np.zeros(3)
+    knots = [(0.0, np.array([0.0, ready_y + 0.01, 0.0]), zero), (t_b - 0.25, np.array([xs, ready_y, 0.0]), zero),
+             (t_b, np.array([xs, low_y, 0.0]), zero)]
+    plants_sup: list[Plant] = []
+    flights: list[tuple[float, np.ndarray, np.ndarray, float]] = []
+    actions: list[dict[str, Any]] = [{"label": "lift_leg", "t0": t_lift, "t1": t_b - 0.25}]
+    pitch = math.radians(6.0)
+    rot = _qypr(0.0, pitch)
+    cur, t_bottom, dz = sup_plant, t_b, vh * ts / 4.0
+    for k in range(n_hops):
+        t0 = t_bottom + ts / 2.0
+        take = replace(cur, t_off=t0, t_heel=t0 - 0.1, heel_pitch=heel)
+        plants_sup.append(take)
+        z0 = knots[-1][1][2] + dz
+        y0 = _root_height_for(rig, np.array([xs, 0.0, z0]), rot, {sup: take.pivot_ankle(rig, np.array([heel]))[0]},
+                              0.96 * rig.leg)
+        ahead = vh * ts / 2.0
+        rel = {sup: np.array([_lat(sup) * width / 2 - xs, rig.ankle_height, ahead])}
+        y1 = _root_height_for(rig, np.zeros(3), rot, rel, 0.95 * rig.leg)
+        tf = (vy + math.sqrt(vy * vy + 2.0 * G * (y0 - y1))) / G
+        p0, v0 = np.array([xs, y0, z0]), np.array([0.0, vy, vh])
+        t1 = t0 + tf
+        p1, v1 = p0 + v0 * tf - 0.5 * G * tf * tf * _Y, v0 - G * tf * _Y
+        knots += [(t0, p0, v0), (t1, p1, v1)]
+        flights.append((t0, p0, v0, t1))
+        actions.append({"label": "hop", "t0": t_bottom, "t1": t1})
+        cur = Plant(t_on=t1, t_off=100.0, ankle=np.array([_lat(sup) * width / 2, rig.ankle_height, p1[2] + ahead]),
+                    yaw=sup_plant.yaw)
+        if k + 1 < n_hops:
+            t_bottom = t1 + ts / 2.0
+            knots.append((t_bottom, np.array([xs, low_y, p1[2] + ahead]), np.array([0.0, 0.0, vh])))
+            dz = ahead
+    plants_sup.append(cur)
+    t_abs = 0.25
+    depth = max(0.12, abs(v1[1]) * t_abs / 3.0)
+    t_a = t1 + t_abs
+    knots.append((t_a, np.array([xs, y1 - depth, p1[2] + 0.4 * vh * t_abs]), zero))
+    t_rec = t_a + 0.5
+    knots.append((t_rec, np.array([xs, ready_y, cur.ankle[2]]), zero))
+    t_down = t_rec + 0.4
+    knots.append((t_down + 0.3, np.array([0.0, ready_y + 0.01, cur.ankle[2]]), zero))
+    t_end = t_down + 0.7
+    actions += [{"label": "landing", "t0": t1, "t1": t_a}, {"label": "recover", "t0": t_a, "t1": t_rec},
+                {"label": "lower_leg", "t0": t_rec, "t1": t_down}]
+    t = _times(t_end, fps)
+    free_plants = [Plant(t_on=-1.0, t_off=t_lift, ankle=np.array([_lat(free) * width / 2, rig.ankle_height, 0.0]),
+                         yaw=-_lat(free) * math.radians(5.0)),
+                   Plant(t_on=t_down, t_off=t_end + 1.0, yaw=-_lat(free) * math.radians(5.0),
+                         ankle=np.array([_lat(free) * width / 2, rig.ankle_height, cur.ankle[2]]))]
+    plants = {sup: plants_sup, free: free_plants}
+    feet = {s: foot_track(rig, t, plants[s], 0.05) for s in SIDES}
+    plan = _neutral_plan(rig, t, feet)
+    plan.root_pos = _ballistic_root(t, knots, flights)
+    carried = plan.root_pos + np.array([_lat(free) * 0.1 - xs, -0.52, -0.22])
+    w = _smooth((t - t_lift) / (t_b - 0.25 - t_lift)) * (1.0 - _smooth((t - t_rec) / (t_down - t_rec)))
+    _override(plan.feet[free], w, carried, 0.3 * w)
+    for fl in flights:  # the support foot follows the root in the air
+        t0, p0, _, t1 = fl
+        i0 = next(p for p in plants_sup if abs(p.t_off - t0) < 1e-12)
+        i1 = next(p for p in plants_sup if abs(p.t_on - t1) < 1e-12)
+        r0 = i0.pivot_ankle(rig, np.array([heel]))[0] - p0
+        p1 = _ballistic_root(np.array([t1]), knots, flights)[0]
+        r1 = i1.ankle - p1
+        rel = _hermite(t, [t0, 0.5 * (t0 + t1), t1], np.array([r0, 0.5 * (r0 + r1) + 0.08 * _Y, r1]))
+        m = ((t > t0) & (t < t1)).astype(np.float64)
+        _override(plan.feet[sup], m, plan.root_pos + rel)
+    plan.root_rot = _qypr(np.zeros(len(t)), np.full(len(t), pitch))
+    plan.spine[:, 0] = 0.08
+    lift = _smooth((t - t_lift) / 0.4) * (1.0 - _smooth((t - t_rec) / 0.5))
+    for s in SIDES:
+        plan.arms[s][:, 0] += lift * (0.25 + 0.15 * np.sin(2 * np.pi * t / (ts + 0.35)))
+        plan.arms[s][:, 1] += 0.35 * lift
+        plan.arms[s][:, 2] += 0.6 * lift
+    _level_head(plan, np.full(len(t), pitch))
+    params = {"support": sup, "hops": n_hops, "horizontal_speed": vh, "apex_height": apex,
+              "flight_times": [fl[3] - fl[0] for fl in flights]}
+    return ClipSpec(plan, actions, [], [(fl[0], fl[3]) for fl in flights], plants, params)
+
+
+# --------------------------------------------------------------------------------------------------
 # putting it together
 
 
@@ -892,7 +1203,7 @@ def _finish(rig: Rig, spec: ClipSpec, category: str, variant: int, seed: int, fp
         s, e = math.ceil(a * fps - 1e-9), math.floor(b * fps + 1e-9)
         if s <= e and s < n and e >= 0:
             flights.append({"start_s": a, "end_s": b, "start_frame": max(s, 0), "end_frame": min(e, n - 1),
-                            "duration": b - a})
+                            "duration": b - a, "ballistic": category in _BALLISTIC})
     contacts: dict[str, list[list[int]]] = {}
     heel: dict[str, list[list[int]]] = {}
     for side in SIDES:
@@ -917,10 +1228,19 @@ def _finish(rig: Rig, spec: ClipSpec, category: str, variant: int, seed: int, fp
     return motion, truth
 
 
+#: categories whose flights are exact parabolas under G (runs only approximate them).
+_BALLISTIC = ("jump", "hop", "walk_then_jump")
+
 _GENERATORS: dict[str, Callable[[Rig, int, np.random.Generator, float], ClipSpec]] = {
     "walk": _gen_walk,
     "run": _gen_run,
     "jump": _gen_jump,
+    "kick": _gen_kick,
+    "punch": _gen_punch,
+    "reach": _gen_reach,
+    "sit": _gen_sit,
+    "hop": _gen_hop,
+    "idle": _gen_idle,
 }
 
 
