@@ -34,13 +34,14 @@ def _hermite(y0: float, v0: float, y1: float, v1: float, T: float, t: np.ndarray
     return h00 * y0 + h10 * T * v0 + h01 * y1 + h11 * T * v1
 
 
-def synthetic_jump(fps: float = 40.0, g: float = G, v0: float = 2.0) -> tuple[Motion, tuple[float, float]]:
+def synthetic_jump(fps: float = 40.0, g: float = G, v0: float = 2.0, stand: float = 0.4, bend: float = 0.4
+                   ) -> tuple[Motion, tuple[float, float]]:
     """An in-place jump whose flight is exactly ballistic under gravity ``g`` (pose frozen in flight).
 
     Returns the motion and the flight interval (take-off, landing) in seconds.
     """
     y_stand, y_low, y_off = 0.95, 0.75, 0.98
-    phases = [0.4, 0.4, 0.3, 2 * v0 / g, 0.3, 0.4, 0.4]
+    phases = [stand, bend, 0.3, 2 * v0 / g, 0.3, bend, stand]
     ends = np.cumsum(phases)
     n = int(np.floor(ends[-1] * fps)) + 1
     t = np.arange(n) / fps

@@ -1,0 +1,157 @@
+"""Physics-based retiming (MPS06 §3.3-3.6) on the synthetic jumper of test_dynamics."""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.optimize import linprog
+
+from tasks.retime import (
+    N_ROOT,
+    FrameLP,
+    PolygonOptions,
+    RetimeError,
+    RetimeOptions,
+    check_keytimes,
+    evaluate,
+    evaluate_numpy,
+    objective_function,
+    prepare,
+    retime_plan,
+)
+
+_spec = importlib.util.spec_from_file_location("_retime_jumper", Path(__file__).with_name("test_dynamics.py"))
+_helpers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_helpers)
+synthetic_jump = _helpers.synthetic_jump
+
+OPTS = RetimeOptions(alpha=1000.0, beta=1e-4, knots_per_second=8.0)
+
+
+@pytest.fixture(scope="module")
+def jump():
+    motion, flight = synthetic_jump(fps=30, stand=1.2, bend=0.6)
+    return motion, flight, prepare(motion, OPTS)
+
+
+def _flight_speed(res, t0: float, t1: float) -> tuple[np.ndarray, float]:
+    tt = np.linspace(0, res.t[-1], 4000)
+    p, pd, _ = res.spline.evaluate(res.z, tt)
+    m = (p > t0 + 0.02) & (p < t1 - 0.02)
+    return pd[m], float(tt[m][-1] - tt[m][0])
+
+
+def test_lp_vertices_match_a_slow_reference(jump) -> None:
+    _motion, _, plan = jump
+    opts = PolygonOptions(speed_max=OPTS.speed_max, pdd_max=OPTS.pdd_max)
+    for i in (10, 45, 60, 80):  # standing, crouch, flight, landing
+        cols = plan.contacts.columns(i)
+        N = plan.contacts.basis[i][:, cols]
+        A, B, C = plan.A[i], plan.B[i], plan.C[i]
+        tol = plan.polygons.tolerance[i]
+        lim = plan.original.limits[N_ROOT:]
+        # reference: scipy linprog, x = [p̈, ṗ², λ], root rows |·| ≤ tol, joints |·| ≤ limits
+        G = np.hstack([A[:, None], B[:, None], -N])
+        a_ub = np.vstack([G[:N_ROOT], -G[:N_ROOT], G[N_ROOT:], -G[N_ROOT:]])
+        b_ub = np.concatenate([tol - C[:N_ROOT], tol + C[:N_ROOT], lim - C[N_ROOT:], lim + C[N_ROOT:]])
+        bounds = [(-opts.pdd_max, opts.pdd_max), (0, opts.speed_max**2)] + [(0, None)] * len(cols)
+        verts = plan.polygons.vertices[i]
+        for ang in np.linspace(0, 2 * np.pi, 9)[:-1]:
+            d = np.array([np.cos(ang), np.sin(ang)])
+            ref = linprog(-np.concatenate([d, np.zeros(len(cols))]), A_ub=a_ub, b_ub=b_ub, bounds=bounds,
+                          method="highs")
+            assert ref.status == 0
+            best = -ref.fun
+            # every polygon vertex is feasible: none exceeds the true support value
+            assert (verts @ d).max() <= best + 1e-6 * (1 + abs(best))
+            # the sweep found the extreme in these directions (up to the refinement threshold)
+            assert (verts @ d).max() >= best - opts.edge_tol
+        lp = FrameLP(A, B, C, N, plan.original.limits, opts)
+        lp.set_residual_bound(tol)
+        x = lp.solve(np.concatenate([[0.0, 1.0, 0.0], np.zeros(len(cols))]))
+        ref = linprog(-np.concatenate([[0.0, 1.0], np.zeros(len(cols))]), A_ub=a_ub, b_ub=b_ub, bounds=bounds,
+                      method="highs")
+        assert abs(x[1] + ref.fun) < 1e-6 * (1 + abs(ref.fun))
+
+
+def test_standing_polygon_contains_original_timing(jump) -> None:
+    _motion, _, plan = jump
+    v = plan.polygons.vertices[5]  # static standing pose
+    assert len(v) >= 3
+    # (0, 1) strictly inside with margin: every edge's inward distance > 0.5
+    e = np.roll(v, -1, axis=0) - v
+    rel = np.array([0.0, 1.0]) - v
+    cross = (e[:, 0] * rel[:, 1] - e[:, 1] * rel[:, 0]) / np.linalg.norm(e, axis=1)
+    assert cross.min() > 0.5
+    assert plan.polygons.original_inside.all()
+
+
+def test_halving_keeps_flight_at_normal_speed(jump) -> None:
+    motion, (t0, t1), plan = jump
+    _, res = retime_plan(plan, motion.duration / 2, None, OPTS)
+    pd, _ = _flight_speed(res, t0, t1)
+    assert np.abs(pd - 1).max() < 0.10
+    assert np.all(np.diff(res.p) > 0) and res.p[0] == 0 and abs(res.p[-1] - motion.duration) < 1e-9
+    # the ground phases absorbed the change: somewhere much faster than 2x
+    assert res.pd.max() > 2.5
+
+
+def test_half_gravity_lengthens_flight_by_sqrt2(jump) -> None:
+    motion, (t0, t1), plan = jump
+    low = prepare(motion, OPTS, gravity=plan.body.default_gravity() * 0.5)
+    _, res = retime_plan(low, motion.duration, None, OPTS)
+    _, flight = _flight_speed(res, t0, t1)
+    expected = (t1 - t0 - 0.04) * np.sqrt(2)
+    assert abs(flight / expected - 1) < 0.05
+
+
+def test_keytimes_met_and_monotone(jump) -> None:
+    _motion, _, plan = jump
+    keys = [(1.5, 1.0), (3.0, 2.6)]
+    _, res = retime_plan(plan, 3.5, keys, OPTS)
+    for s, o in keys:
+        p, _, _ = res.spline.evaluate(res.z, np.array([o]))
+        assert abs(p[0] - s) < 1e-9
+    tt = np.linspace(0, 3.5, 5000)
+    p, pd, _ = res.spline.evaluate(res.z, tt)
+    assert np.all(np.diff(p) > 0) and pd.min() > 0
+
+
+def test_impossible_requests_are_explained() -> None:
+    with pytest.raises(RetimeError, match="speed"):
+        check_keytimes(4.0, 0.5, [], 6.0)
+    with pytest.raises(RetimeError, match="increase"):
+        check_keytimes(4.0, 3.0, [(1.0, 2.0), (2.0, 1.0)], 6.0)
+    with pytest.raises(RetimeError, match="outside"):
+        check_keytimes(4.0, 3.0, [(5.0, 1.0)], 6.0)
+
+
+def test_no_contact_is_a_clear_error() -> None:
+    motion, _ = synthetic_jump(fps=20)
+    lifted = replace(motion, root_positions=motion.root_positions + [0.0, 2.0, 0.0])
+    with pytest.raises(RetimeError, match="flight"):
+        prepare(lifted, OPTS)
+
+
+def test_objective_gradient_and_compiled_kernel(jump) -> None:
+    motion, _, plan = jump
+    rng = np.random.default_rng(1)
+    u = rng.uniform(0, motion.n_frames - 1, 300)
+    x = rng.uniform([-20, 0], [20, 10], (300, 2))
+    for a, b in zip(evaluate(plan.baked, u, x), evaluate_numpy(plan.baked, u, x), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+    from tasks.retime import TimingSpline
+    sp = TimingSpline.make(np.array([0.0, 3.0]), np.array([0.0, motion.duration]), 8.0)
+    fun = objective_function(plan.baked, sp, motion.fps, 3.0, 800)
+    z = rng.normal(0, 0.3, sp.n_params)
+    f0, g = fun(z)
+    for k in rng.choice(sp.n_params, 5, replace=False):
+        h = 1e-6
+        e = np.zeros_like(z)
+        e[k] = h
+        num = (fun(z + e)[0] - fun(z - e)[0]) / (2 * h)
+        assert abs(num - g[k]) <= 1e-3 * (abs(num) + abs(g[k])) + 1e-4 * abs(f0)
