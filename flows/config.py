@@ -105,7 +105,7 @@ class WarpConfig(_Section):
     weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     heuristic_rate: int = 8
     #: half-width (working frames) of the full-rate band around the coarse solution (--fast)
-    band: int = 16
+    band: int = 48
     #: moving-average width of the warp, output frames (HDP07 §3.4)
     smooth_width: int = 5
     #: average each output frame over the local compression (HDP07 §3.4)
@@ -129,6 +129,15 @@ class RetimeConfig(_Section):
     alpha: float = 1.0
     beta: float = 1e-4
     objective: Literal["match", "minimize"] = "match"
+    #: α is multiplied by this: (p̈, ṗ²) distances are tiny next to torque errors in N·m
+    feasibility_scale: float = 1000.0
+    ground_height: float = 0.0
+    #: per clip name: {foot joint: [[start_s, end_s], ...]} replacing detected contacts
+    contact_intervals: dict[str, dict[str, list[tuple[float, float]]]] = Field(default_factory=dict)
+    #: retime clips with no ground contact as pure flight instead of failing
+    allow_flight_only: bool = False
+    speed_max: float = 6.0
+    knots_per_second: float = 8.0
 
 
 class Config(_Section):

@@ -636,7 +636,7 @@ def guided_warp(
     weights: Sequence[float] = (1.0, 1.0, 1.0),
     fast: bool = False,
     heuristic_rate: int = 8,
-    band: int = 16,
+    band: int = 48,
     smooth_width: int = 5,
     adaptive: bool = True,
     backward: bool = False,
@@ -738,26 +738,49 @@ class CoarseSolution:
 def coarse_table(table: np.ndarray, nc: int, step_in: float, step_out: float, skip_c: int) -> np.ndarray:
     """(nc, s_c, s_c) scores of the coarse graph over every ``step_in``-th working frame.
 
-    A coarse edge (J-a', J, J+b') plays ~``step_out`` output frames at the constant speeds
-    a' step_in / step_out and b' step_in / step_out (working frames per output frame); it costs
-    ``step_out`` times the full-rate score at frame J for those speeds, bilinearly interpolated
-    between integer steps. Speeds outside [1, s] and triples off the input are +inf.
+    A coarse edge (J-a', J, J+b') turns at frame J from speed a' step_in / step_out to speed
+    b' step_in / step_out (working frames per output frame), then plays ``step_out`` - 1 output
+    frames at the second speed: it costs the full-rate score of the turn plus ``step_out`` - 1
+    times the mean constant-speed score over the frames up to the next coarse vertex, scores at
+    fractional speeds bilinearly interpolated between integer steps. Speeds above s and triples off the input are +inf; speeds below 1 (the
+    grids' rounding) are read at 1.
     """
     n, s, _ = table.shape
     big = 1e300
     finite = np.where(np.isfinite(table), table, big)
     centre = np.minimum(np.round(np.arange(nc) * step_in).astype(np.int64), n - 1)
     speed = np.arange(1, skip_c + 1) * (step_in / step_out)
-    ok = (speed >= 1.0 - 1e-9) & (speed <= s + 1e-9)
+    ok = speed <= s + 1e-9  # speeds just below 1 come from rounding the grids: read them at 1
     v = np.clip(speed, 1.0, s)
     lo = np.floor(v).astype(np.int64)
     hi = np.minimum(lo + 1, s)
     w = v - lo
-    rows = finite[centre]  # (nc, s, s)
-    # interpolate over a (axis 1) then b (axis 2)
-    ra = (1.0 - w)[None, :, None] * rows[:, lo - 1, :] + w[None, :, None] * rows[:, hi - 1, :]
-    rb = (1.0 - w)[None, None, :] * ra[:, :, lo - 1] + w[None, None, :] * ra[:, :, hi - 1]
-    out = step_out * rb
+    # interpolate the whole table over a (axis 1) then b (axis 2) at the coarse speeds
+    ra = (1.0 - w)[None, :, None] * finite[:, lo - 1, :] + w[None, :, None] * finite[:, hi - 1, :]
+    rb = (1.0 - w)[None, None, :] * ra[:, :, lo - 1] + w[None, None, :] * ra[:, :, hi - 1]  # (n, sc, sc)
+    # the turn at J, then step_out - 1 output frames at the constant speed b' until the next vertex,
+    # costed by the mean constant-speed score over the frames they cover
+    steady = rb[:, np.arange(skip_c), np.arange(skip_c)]  # (n, sc): f(j - v, j, j + v)
+    good = steady < big * 1e-3  # undefined near the ends of the input: left out of the means
+    zero = np.zeros((1, skip_c))
+    cum = np.concatenate([zero, np.cumsum(np.where(good, steady, 0.0), axis=0)])
+    cnt = np.concatenate([zero, np.cumsum(good, axis=0)])
+    cols = np.arange(skip_c)
+
+    def mean_over(start: np.ndarray, stop: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """Mean of the defined steady scores over frames start..stop-1 (inf when none)."""
+        stop = np.maximum(stop, start)
+        c = cnt[stop, col] - cnt[start, col]
+        return np.where(c > 0, (cum[stop, col] - cum[start, col]) / np.maximum(c, 1), np.inf)
+
+    ends = np.minimum(np.round((np.arange(nc)[:, None] + np.arange(1, skip_c + 1)[None, :]) * step_in)
+                      .astype(np.int64), n - 1)  # (nc, sc) fine frame of the next coarse vertex
+    mean = mean_over(np.broadcast_to(centre[:, None] + 1, ends.shape), ends, cols[None, :])
+    out = np.minimum(rb[centre], big) + (step_out - 1.0) * np.minimum(mean, big)[:, None, :]
+    # edges leaving the first vertex (0, J) also pay for the stretch from frame 0 to J
+    first = np.arange(1, min(skip_c, nc - 1) + 1)
+    head = mean_over(np.ones_like(first), centre[first] + 1, first - 1)
+    out[first, first - 1, :] += (step_out - 1.0) * np.minimum(head, big)[:, None]
     out[out >= big * 1e-3] = np.inf
     out[:, ~ok, :] = np.inf
     out[:, :, ~ok] = np.inf
