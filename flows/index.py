@@ -410,13 +410,12 @@ def compute_web_batch(jobs: list[PairJob], cfg: Config, store_url: str) -> list[
             fb = fa if job.self_pair else store.read_features(job.b.sha256, fdig)[0]
             web = build_web(fa, fb, weights, cfg.matchweb, job.self_pair)
             arrays = web.to_arrays()
+            grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
             meta = {"a_sha": job.a.sha256, "b_sha": job.b.sha256, "rate": rate,
                     "shape": [int(fa[rate].shape[0]), int(fb[rate].shape[0])], **web_counts(arrays)}
             store.write_web(job.key, arrays, meta)
-            if cfg.matchweb.keep_grids:
-                from tasks.distance import distance_grid
-
-                store.write_grid(job.key, distance_grid(fa[rate], fb[rate], weights))
+            if grid is not None:
+                store.write_grid(job.key, grid)
             out.append({"key": job.key, "seconds": time.perf_counter() - t, **meta})
         except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
             out.append({"key": job.key, "error": f"{type(exc).__name__}: {exc}"})

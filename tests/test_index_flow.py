@@ -189,7 +189,7 @@ def test_flow_end_to_end(indexed):
     _tmp, _corpus, cfg, s = indexed
     # walk: 3 compatible clips (6 pairs) + odd skeleton (self pair); run: 2 clips (3 pairs)
     assert s["chunks"] == 2 and s["clips"] == 6
-    assert s["pairs"] == 10 and s["pairs_computed"] == 10 and s["pairs_cached"] == 0
+    assert s["pairs"] == 10 and s["pairs_computed"] == 10 and s["pairs_cached"] == 0, s["broken"]
     assert s["chains"] > 0
     assert [b["path"] for b in s["broken"]] == ["run/broken.bvh"]
     assert s["skeleton_minority"] == ["walk/odd.bvh"]
