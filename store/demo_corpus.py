@@ -866,7 +866,7 @@ def _gen_kick(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpe
     t_apex = _snap(t_lift + 0.42 + 0.1 * rng.uniform(0, 1), fps)
     t_down = t_apex + 0.5
     t_end = t_down + 0.9
-    t, plan, plants = _stationary(rig, t_end + 0.4, fps, {s: (_lat(s) * 0.1, 0.0, -_lat(s) * 0.08) for s in SIDES})
+    t, plan, plants = _stationary(rig, t_end + 0.6, fps, {s: (_lat(s) * 0.1, 0.0, -_lat(s) * 0.08) for s in SIDES})
     stand = np.array([0.0, rig.stand_height - 0.02, 0.0])
     shifted = stand + np.array([_lat(sup) * 0.06, -0.04, 0.0])
     leaned = shifted + np.array([0.0, -0.02, -0.04])
@@ -994,7 +994,7 @@ def _gen_reach(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSp
 def _gen_sit(rig: Rig, v: int, rng: np.random.Generator, fps: float) -> ClipSpec:
     seat = (0.42, 0.47, 0.52)[v % 3] + 0.02 * rng.uniform(-1, 1)
     t1 = 0.5 + 0.3 * rng.uniform(0, 1)
-    t2 = t1 + 1.3 + 0.2 * rng.uniform(0, 1)
+    t2 = _snap(t1 + 1.3 + 0.2 * rng.uniform(0, 1), fps)
     t3 = t2 + 1.0 + 0.4 * rng.uniform(0, 1)
     t4 = t3 + 1.3 + 0.2 * rng.uniform(0, 1)
     t, plan, plants = _stationary(rig, t4 + 0.5, fps, {s: (_lat(s) * 0.12, 0.05, -_lat(s) * 0.1) for s in SIDES})
