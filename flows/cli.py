@@ -153,5 +153,64 @@ def warp(
     typer.echo(format_summary(summary))
 
 
+@app.command()
+def retime(
+    input_path: Annotated[Path, typer.Argument(metavar="INPUT", help="Clip to retime (.bvh, .amc, DeepMimic .txt).")],
+    out: Annotated[Path, typer.Option(help="Output BVH (a JSON report is written beside it).")],
+    duration: Annotated[float | None, typer.Option(help="Output duration, seconds.")] = None,
+    keytime: Annotated[list[str] | None, typer.Option(help="SRC_S:OUT_S, source time shown at output time.")] = None,
+    gravity: Annotated[str | None, typer.Option(help="Gravity vector X,Y,Z in m/s² (default 0,-9.81,0 for Y up).")] = None,
+    mass: Annotated[list[str] | None, typer.Option(help="JOINT=FACTOR, multiply a body's mass.")] = None,
+    objective: Annotated[str | None, typer.Option(help="match (original torques) or minimize (effort).")] = None,
+    plot: Annotated[Path | None, typer.Option(help="Folder for p(t) and feasible-polygon plots.")] = None,
+    config: Annotated[Path | None, typer.Option(help="Config file (retime section).")] = None,
+) -> None:
+    """Physics-based retiming (MPS06): change duration, keytimes, gravity or limb masses."""
+    if duration is None and not keytime:
+        fail("give --duration SECONDS and/or --keytime SRC_S:OUT_S")
+    if objective is not None and objective not in ("match", "minimize"):
+        fail(f"--objective {objective!r}: expected match or minimize")
+    keys = []
+    for text in keytime or []:
+        try:
+            a, b = text.split(":")
+            keys.append((float(a), float(b)))
+        except ValueError:
+            fail(f"--keytime {text!r}: expected SRC_S:OUT_S (seconds), e.g. 1.5:1.0")
+    g = None
+    if gravity is not None:
+        try:
+            g = [float(v) for v in gravity.split(",")]
+            if len(g) != 3:
+                raise ValueError
+        except ValueError:
+            fail(f"--gravity {gravity!r}: expected X,Y,Z, e.g. 0,-4.9,0")
+    factors = {}
+    for text in mass or []:
+        name, _, val = text.partition("=")
+        try:
+            factors[name] = float(val)
+            if not factors[name] > 0:
+                raise ValueError
+        except ValueError:
+            fail(f"--mass {text!r}: expected JOINT=FACTOR with a positive factor, e.g. left_hip=10")
+    cfg = config_or_fail(config)
+    from flows.retime import retime_flow
+
+    try:
+        rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
+                          mass=factors, objective=objective, plot_dir=str(plot) if plot else None)
+    except (MotionFormatError, ValueError, OSError) as exc:
+        fail(str(exc))
+    typer.echo(f"{rep['clip']}: {rep['duration_in']:.3f} s -> {rep['duration_out']:.3f} s, "
+               f"{rep['frames_out']} frames written to {rep['output']}")
+    for fl in rep["flights"]:
+        typer.echo(f"  flight {fl['source_duration']:.3f} s -> {fl['output_duration']:.3f} s (x{fl['ratio']:.2f})")
+    if rep["infeasible_source_frames"]:
+        typer.echo(f"  source frames the contact model cannot explain: {rep['infeasible_source_frames']}")
+    if rep["infeasible_output_frames"]:
+        typer.echo(f"  output frames outside their feasible polygon: {len(rep['infeasible_output_frames'])}")
+
+
 if __name__ == "__main__":
     app()

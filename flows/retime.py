@@ -1,0 +1,121 @@
+"""Physics-based retiming flow (SPEC §8): a thin Prefect wrapper over ``tasks.retime``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from prefect import flow, task
+
+from flows.config import Config, RetimeConfig
+from store.bvh import write_bvh
+from store.formats import read_motion
+from store.motion import Motion
+from tasks.retime import RetimeOptions, RetimePlan, RetimeResult, prepare, report, retime_plan
+
+
+def options_from_config(cfg: RetimeConfig, objective: str | None = None, up_axis: str = "y") -> RetimeOptions:
+    """``RetimeOptions`` from the config section (α scaled by ``feasibility_scale``)."""
+    return RetimeOptions(
+        body_model=cfg.body_model, total_mass=cfg.total_mass, friction=cfg.friction,
+        contact_height=cfg.contact_height, contact_speed=cfg.contact_speed, ground_height=cfg.ground_height,
+        torque_margin=cfg.torque_margin, samples_per_frame=cfg.samples_per_frame,
+        knots_per_second=cfg.knots_per_second, alpha=cfg.alpha * cfg.feasibility_scale, beta=cfg.beta,
+        objective=objective or cfg.objective, speed_max=cfg.speed_max, allow_flight_only=cfg.allow_flight_only,
+        up_axis="xyz".index(up_axis))
+
+
+def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
+    """The clip and, for DeepMimic clips, the URDF humanoid with its real masses."""
+    motion = read_motion(path, unit=cfg.corpus.length_unit, scale_to_m=cfg.corpus.scale_to_m)
+    humanoid = None
+    if Path(path).suffix.lower() == ".txt":
+        from store.deepmimic import default_urdf, read_humanoid_urdf
+
+        humanoid = read_humanoid_urdf(default_urdf(path))
+    return motion, humanoid
+
+
+@task
+def prepare_task(motion: Motion, opts: RetimeOptions, gravity: np.ndarray | None, mass: dict[str, float],
+                 humanoid: object | None, intervals: dict | None) -> RetimePlan:
+    return prepare(motion, opts, gravity=gravity, mass=mass, humanoid=humanoid, contact_intervals=intervals)
+
+
+@task
+def retime_task(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]], opts: RetimeOptions
+                ) -> tuple[Motion, RetimeResult]:
+    return retime_plan(plan, duration, keytimes, opts)
+
+
+def plot_retiming(plan: RetimePlan, res: RetimeResult, out_dir: str | Path, n_polygons: int = 6) -> list[Path]:
+    """p(t) against linear timing, and polygons with the solution's (p̈, ṗ²) at chosen frames."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    m = plan.motion
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(res.t, res.p, label="p(t) retimed")
+    ax.plot(res.t, res.t * m.duration / res.t[-1], "--", label="linear")
+    for s0, s1 in [(f["source"][0], f["source"][1]) for f in report_flights(plan, res)]:
+        ax.axhspan(s0, s1, color="0.9")
+    ax.set_xlabel("output time (s)")
+    ax.set_ylabel("source time (s)")
+    ax.legend()
+    paths = [out_dir / "timing.png"]
+    fig.savefig(paths[0], dpi=100)
+    plt.close(fig)
+    idx = np.linspace(0, len(res.t) - 1, n_polygons).round().astype(int)
+    fig, axes = plt.subplots(1, n_polygons, figsize=(3 * n_polygons, 3))
+    for ax, k in zip(np.atleast_1d(axes), idx, strict=True):
+        i = int(np.clip(np.rint(res.p[k] * m.fps), 0, m.n_frames - 1))
+        v = plan.polygons.vertices[i]
+        if len(v):
+            vv = np.vstack([v, v[:1]])
+            ax.fill(vv[:, 0], vv[:, 1], alpha=0.3)
+        ax.plot([0], [1], "k+", label="original")
+        ax.plot([res.pdd[k]], [res.pd[k] ** 2], "ro", label="retimed")
+        ax.set_title(f"src frame {i}{' (infeasible)' if plan.polygons.infeasible[i] else ''}", fontsize=8)
+        ax.set_xlabel("p̈")
+        ax.set_ylabel("ṗ²")
+    paths.append(out_dir / "polygons.png")
+    fig.tight_layout()
+    fig.savefig(paths[1], dpi=100)
+    plt.close(fig)
+    return paths
+
+
+def report_flights(plan: RetimePlan, res: RetimeResult) -> list[dict]:
+    from tasks.retime import flight_intervals
+
+    return [{"source": [a, b]} for a, b in flight_intervals(plan.contacts.active, plan.motion.fps)]
+
+
+@flow(name="retime")
+def retime_flow(input_path: str, cfg: Config, out: str, duration: float | None = None,
+                keytimes: list[tuple[float, float]] | None = None, gravity: list[float] | None = None,
+                mass: dict[str, float] | None = None, objective: str | None = None,
+                plot_dir: str | None = None) -> dict:
+    """Retime one clip: write the BVH, a JSON report beside it, and optional plots."""
+    motion, humanoid = load_clip(input_path, cfg)
+    opts = options_from_config(cfg.retime, objective, cfg.corpus.up_axis)
+    intervals = cfg.retime.contact_intervals.get(motion.name) or None
+    plan = prepare_task(motion, opts, None if gravity is None else np.asarray(gravity, float), mass or {},
+                        humanoid, intervals)
+    keytimes = list(keytimes or [])
+    total = duration if duration is not None else motion.duration
+    retimed, res = retime_task(plan, total, keytimes, opts)
+    out_path = Path(out)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    write_bvh(retimed, out_path)
+    rep = report(plan, res)
+    rep["output"] = str(out_path)
+    if plot_dir:
+        rep["plots"] = [str(p) for p in plot_retiming(plan, res, plot_dir)]
+    out_path.with_suffix(".json").write_text(json.dumps(rep, indent=1))
+    return rep
