@@ -212,5 +212,78 @@ def retime(
         typer.echo(f"  output frames outside their feasible polygon: {len(rep['infeasible_output_frames'])}")
 
 
+def _quiet_services() -> None:
+    """Defaults that keep an index run's output readable (no telemetry, terse Dask logs)."""
+    import os
+
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+
+
+@app.command()
+def index(
+    config: Annotated[Path, typer.Argument(help="Config file (corpus, features, matchweb, dask, store, index).")],
+    progress: Annotated[bool, typer.Option(help="Show a progress counter on stderr.")] = True,
+) -> None:
+    """Index the corpus into match webs (Prefect flow); print the run summary."""
+    cfg = config_or_fail(config)
+    _quiet_services()
+    import flows.index as idx
+
+    if progress:
+        def show(stage: str, done: int, total: int) -> None:
+            end = "\n" if done == total else ""
+            typer.echo(f"\r  {stage}: {done}/{total}", err=True, nl=False)
+            if end:
+                typer.echo("", err=True)
+
+        idx.PROGRESS = show
+    try:
+        summary = idx.index_library(cfg)
+    except (FileNotFoundError, MotionFormatError, ValueError) as exc:
+        fail(str(exc))
+    finally:
+        idx.PROGRESS = None
+    typer.echo(idx.format_summary(summary))
+
+
+@app.command()
+def serve(
+    config: Annotated[Path, typer.Argument(help="Config file; its index.schedule is the cron.")],
+    name: Annotated[str, typer.Option(help="Deployment name.")] = "nightly",
+) -> None:
+    """Serve the index flow as a Prefect deployment on the config's nightly cron (blocks)."""
+    import os
+
+    cfg = config_or_fail(config)
+    _quiet_services()
+    from flows.index import index_library
+
+    if not os.environ.get("PREFECT_API_URL"):
+        typer.secho("warning: PREFECT_API_URL is not set; scheduled runs need a Prefect server "
+                    "(`prefect server start`, then export PREFECT_API_URL)", err=True, fg=typer.colors.YELLOW)
+    typer.echo(f"serving index-library/{name} on cron {cfg.index.schedule!r} for {config.resolve()}")
+    index_library.serve(name=name, cron=cfg.index.schedule, parameters={"config": str(config.resolve())})
+
+
+@app.command("plot-web")
+def plot_web(
+    config: Annotated[Path, typer.Argument(help="Config file (corpus, features, matchweb).")],
+    clip_a: Annotated[str, typer.Argument(help="Clip on the vertical axis (corpus path or stem).")],
+    clip_b: Annotated[str, typer.Argument(help="Clip on the horizontal axis (corpus path or stem).")],
+    out: Annotated[Path, typer.Option(help="Output image (PNG, PDF, SVG).")] = Path("web.png"),
+) -> None:
+    """Draw the distance grid of two clips with minima, valid region, chains and bridges (KG04 Fig. 4/7)."""
+    from flows.plots import plot_web as draw
+
+    cfg = config_or_fail(config)
+    try:
+        rep = draw(cfg, clip_a, clip_b, out)
+    except (KeyError, FileNotFoundError, MotionFormatError, ValueError) as exc:
+        fail(str(exc).strip("'\""))
+    typer.echo(f"wrote {rep.out}: {rep.clip_a} x {rep.clip_b} at {rep.rate:g} Hz, grid {rep.shape[0]}x{rep.shape[1]}, "
+               f"{rep.minima} minima, {rep.chains} chains, {rep.bridges} bridges")
+
+
 if __name__ == "__main__":
     app()

@@ -585,5 +585,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
         skeleton_minority=[m for p in plans for m in p.skeleton.minority],
         params_changed=prev is not None and prev.params.get("webs") != gen.params["webs"],
     )
-    logger.info("\n%s", format_summary(summary))
+    logger.info("generation %s: %d clips, %d pairs (%d computed, %d cached), %d broken files, %.1f s",
+                gen.id, summary.clips, summary.pairs, summary.pairs_computed, summary.pairs_cached,
+                len(summary.broken), wall)
     return summary.to_dict()

@@ -264,3 +264,16 @@ def test_flow_with_fsspec_store(prefect_harness, tmp_path):
     s = index_library(cfg)
     assert s["pairs"] == 3 and s["pairs_computed"] == 1
     assert MotionStore(cfg.store.path).current_id() == s["generation"]
+
+
+def test_plot_web_figure(tmp_path):
+    """plot-web: the grid at the working rate with chains and bridges, written to a PNG."""
+    from flows.plots import plot_web
+
+    corpus = write_corpus(tmp_path / "corpus")
+    cfg = make_config(tmp_path, corpus, str(tmp_path / "store"))
+    rep = plot_web(cfg, "walk/w1.bvh", "w2", tmp_path / "web.png")
+    assert rep.rate == 20.0 and rep.shape == (40, 50) and rep.chains > 0 and rep.minima > 0
+    assert (tmp_path / "web.png").stat().st_size > 10_000
+    with pytest.raises(ValueError, match="different skeletons"):
+        plot_web(cfg, "w1", "odd", tmp_path / "x.png")
