@@ -184,6 +184,11 @@ def self_band(cfg: MatchWebConfig, rate: float) -> int:
 # ----------------------------------------------------------------------------------------------
 
 
+def _as_grid(grid: np.ndarray) -> np.ndarray:
+    """Grids enter the kernels as C-contiguous float32 (one compiled signature each)."""
+    return np.ascontiguousarray(grid, dtype=np.float32)
+
+
 @njit(cache=True)
 def _local_minima(g: np.ndarray) -> np.ndarray:
     fa, fb = g.shape
@@ -211,7 +216,7 @@ def local_minima(grid: np.ndarray) -> np.ndarray:
     neighbour (missing neighbours at the border do not count); vertical likewise with the cells
     below and above. Infinite cells (ignored band) are never minima. O(Fa·Fb).
     """
-    return _local_minima(np.ascontiguousarray(grid))
+    return _local_minima(_as_grid(grid))
 
 
 @njit(cache=True)
@@ -252,7 +257,7 @@ def valid_region(grid: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
     Every minimum is extended along the direction(s) in which it is a minimum until a cell whose
     value is at least ``(1 + a)`` times the minimum's is reached (that cell excluded).
     """
-    return _valid_region(np.ascontiguousarray(grid), np.ascontiguousarray(minima, dtype=np.uint8), float(a))
+    return _valid_region(_as_grid(grid), np.ascontiguousarray(minima, dtype=np.uint8), float(a))
 
 
 @njit(cache=True)
@@ -329,7 +334,7 @@ def find_chains(grid: np.ndarray, minima: np.ndarray, slope_k: int, min_extent: 
     slope rule allows. Chains spanning fewer than ``min_extent`` frames (max of row and column
     extents) are dropped and their minima released. O(Fa·Fb) scan plus O(minima) growth.
     """
-    return _find_chains(np.ascontiguousarray(grid), np.ascontiguousarray(minima, dtype=np.uint8),
+    return _find_chains(_as_grid(grid), np.ascontiguousarray(minima, dtype=np.uint8),
                         max_run(slope_k), int(min_extent))
 
 
@@ -629,7 +634,7 @@ def find_bridges(grid: np.ndarray, valid: np.ndarray, chain_cells: np.ndarray, c
     ``(from_chain, index in from_chain, to_chain, index in to_chain)``.
     Cost O(chain cells · L² · k) in the worst case, much less where the valid region is thin.
     """
-    g = np.ascontiguousarray(grid, dtype=np.float64)
+    g = _as_grid(grid)
     fa, fb = g.shape
     cells = np.ascontiguousarray(chain_cells, dtype=np.int64).reshape(-1, 2)
     offsets = np.ascontiguousarray(chain_offsets, dtype=np.int64)
@@ -668,10 +673,9 @@ def build_web_full(grid: np.ndarray, rate: float, cfg: MatchWebConfig, self_pair
     Self pairs ignore the band |i − j| ≤ ``self_band_s·rate``. Cost: O(Fa·Fb) for minima and the
     valid region, plus the bridge search (see :func:`find_bridges`); memory O(Fa·Fb).
     """
-    g = np.asarray(grid)
+    g = _as_grid(grid)
     if self_pair:
         g = mask_self_band(g, self_band(cfg, rate))
-    g = np.ascontiguousarray(g)
     minima = local_minima(g)
     valid = valid_region(g, minima, cfg.valid_a)
     cells, offsets = find_chains(g, minima, cfg.slope_k, min_chain_extent(cfg, rate))

@@ -1,0 +1,164 @@
+"""Features and frame distances (SPEC §3): GEMM grid vs an explicit per-pair alignment."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from flows.config import FeatureConfig
+from store.motion import Motion, Skeleton
+from tasks.distance import (
+    distance_block,
+    distance_cells,
+    distance_grid,
+    distance_prepared,
+    prepare_pair,
+    rigid_align_2d,
+)
+from tasks.features import clip_features, point_weights
+from tasks.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul
+
+ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
+
+
+def small_skeleton() -> Skeleton:
+    names = ("hips", "spine", "head", "lleg", "lknee", "rleg", "rknee", "larm", "rarm")
+    parents = np.array([-1, 0, 1, 0, 3, 0, 5, 1, 1])
+    offs = np.array([[0, 0, 0], [0, 30, 0], [0, 30, 0], [10, 0, 0], [0, -45, 0], [-10, 0, 0], [0, -45, 0],
+                     [20, 25, 0], [-20, 25, 0]], dtype=float)
+    ch = (("Xposition", "Yposition", "Zposition", *ROT_CH),) + (ROT_CH,) * 8
+    return Skeleton(names, parents, offs, ch)
+
+
+def wiggle(n: int, fps: float, seed: int, unit: str = "cm") -> Motion:
+    """A clip of random smooth joint rotations with a wandering root (file unit cm)."""
+    rng = np.random.default_rng(seed)
+    sk = small_skeleton()
+    t = np.arange(n) / fps
+    ang = np.zeros((n, sk.n_joints, 3))
+    for j in range(sk.n_joints):
+        for a in range(3):
+            for _ in range(2):
+                ang[:, j, a] += rng.uniform(5, 25) * np.sin(2 * np.pi * rng.uniform(0.2, 1.0) * t + rng.uniform(0, 6))
+    ang[:, 0, 2] += np.cumsum(rng.normal(0, 1, n)) * 0.5
+    root = np.stack([np.cumsum(rng.normal(0, 1, n)), 95 + 3 * np.sin(t), np.cumsum(rng.normal(0, 1, n))], axis=1)
+    return Motion(sk, fps, root, quat_from_euler(ang, "ZXY"), name=f"wiggle{seed}", unit=unit)
+
+
+def slow_grid(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Reference: explicit best 2-D alignment of every pair of clouds, one pair at a time."""
+    out = np.empty((len(fa), len(fb)))
+    for i in range(len(fa)):
+        for j in range(len(fb)):
+            out[i, j] = rigid_align_2d(fa[i], fb[j], w)[2]
+    return out
+
+
+@pytest.fixture(scope="module")
+def clouds() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    cfg = FeatureConfig()
+    a, b = wiggle(90, 30.0, 1), wiggle(70, 30.0, 2)
+    return clip_features(a, 30.0, cfg), clip_features(b, 30.0, cfg), point_weights(a.skeleton, cfg)
+
+
+def test_features_shape_window_and_units() -> None:
+    cfg = FeatureConfig(window=5)
+    m = wiggle(61, 60.0, 3)
+    f = clip_features(m, 30.0, cfg)
+    j = m.skeleton.n_joints
+    assert f.shape == (31, 5 * j, 3) and f.dtype == np.float32
+    # window frame 2 (the centre) of frame 10 is frame 10's joints; window frame 0 of frame 0 is clamped
+    centre = f[:, 2 * j:3 * j]
+    assert np.allclose(f[10, 0:j], centre[8], atol=1e-6)
+    assert np.allclose(f[0, 0:j], centre[0]) and np.allclose(f[0, j:2 * j], centre[0])
+    assert np.allclose(f[-1, 4 * j:], centre[-1])
+    # metres: the file is in cm, the root sits ~95 cm above the ground
+    assert 0.85 < centre[:, 0, 1].mean() < 1.05
+    # z-up: the same clip with its axes turned so that the file's up is z gives the same clouds
+    rot = quat_from_axis_angle(np.array([1.0, 0, 0]), np.array(np.pi / 2))
+    rz = replace(m, rotations=np.concatenate([quat_mul(rot, m.rotations[:, :1]), m.rotations[:, 1:]], axis=1),
+                 root_positions=m.root_positions @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]).T)
+    fz = clip_features(rz, 30.0, cfg, up="z")
+    assert np.allclose(fz, f, atol=1e-5)
+
+
+def test_point_weights() -> None:
+    sk = small_skeleton()
+    w = point_weights(sk, FeatureConfig(window=3, joint_weights={"head": 3.0, "lknee": 0.0}))
+    assert w.shape == (3 * sk.n_joints,) and np.isclose(w.sum(), 1.0)
+    assert np.isclose(w[2], 3 * w[0]) and w[4] == 0 and np.isclose(w[2 + sk.n_joints], w[2])
+    with pytest.raises(ValueError, match="no joint"):
+        point_weights(sk, FeatureConfig(joint_weights={"tail": 1.0}))
+
+
+def test_closed_form_is_the_optimal_alignment(clouds) -> None:
+    fa, fb, w = clouds
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        p, q = fa[rng.integers(len(fa))].astype(float), fb[rng.integers(len(fb))].astype(float)
+        theta, t, d = rigid_align_2d(p, q, w)
+
+        def cost(x: np.ndarray, p: np.ndarray = p, q: np.ndarray = q) -> float:
+            c, s = np.cos(x[0]), np.sin(x[0])
+            qx = c * q[:, 0] + s * q[:, 2] + x[1]
+            qz = -s * q[:, 0] + c * q[:, 2] + x[2]
+            return float(np.sum(w * ((p[:, 0] - qx) ** 2 + (p[:, 1] - q[:, 1]) ** 2 + (p[:, 2] - qz) ** 2)))
+
+        assert np.isclose(cost(np.array([theta, *t])), d)
+        for start in np.linspace(-np.pi, np.pi, 4, endpoint=False):
+            res = minimize(cost, np.array([start, 0.0, 0.0]), method="Nelder-Mead",
+                           options={"xatol": 1e-9, "fatol": 1e-12, "maxiter": 4000})
+            assert res.fun >= d - 1e-9
+
+
+def test_gemm_grid_matches_slow_reference(clouds) -> None:
+    fa, fb, w = clouds
+    ref = slow_grid(fa, fb, w)
+    g64 = distance_grid(fa, fb, w, dtype=np.float64)
+    assert g64.shape == (len(fa), len(fb))
+    assert np.allclose(g64, ref, rtol=1e-9, atol=1e-12)
+    g32 = distance_grid(fa, fb, w)
+    assert g32.dtype == np.float32
+    # 1e-4 relative to each cell, with an absolute floor of 1e-4 of the grid's mean
+    assert np.all(np.abs(g32 - ref) <= 1e-4 * ref + 1e-4 * ref.mean())
+    assert np.allclose(distance_grid(fa, fb, w, tile=16), g32, rtol=1e-5, atol=1e-7)
+    assert (g32 >= 0).all()
+
+
+def test_self_grid_diagonal_is_zero_and_symmetric(clouds) -> None:
+    fa, _, w = clouds
+    g = distance_grid(fa, fa, w, dtype=np.float64)
+    assert np.allclose(np.diag(g), 0.0, atol=1e-12) and np.allclose(g, g.T, atol=1e-12)
+
+
+def test_invariant_to_vertical_rotation_and_horizontal_translation(clouds) -> None:
+    fa, fb, w = (np.asarray(x, dtype=np.float64) for x in clouds)
+    rng = np.random.default_rng(5)
+    angles = rng.uniform(-np.pi, np.pi, len(fb))  # a different rigid motion for every frame
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    moved = np.empty_like(fb)
+    moved[:, :, 0] = c * fb[:, :, 0] + s * fb[:, :, 2] + rng.uniform(-5, 5, (len(fb), 1))
+    moved[:, :, 1] = fb[:, :, 1]
+    moved[:, :, 2] = -s * fb[:, :, 0] + c * fb[:, :, 2] + rng.uniform(-5, 5, (len(fb), 1))
+    g, gm = distance_grid(fa, fb, w, dtype=np.float64), distance_grid(fa, moved, w, dtype=np.float64)
+    assert np.allclose(g, gm, rtol=1e-9, atol=1e-10)
+    lifted = fb.copy()
+    lifted[:, :, 1] += 0.3  # a vertical shift is not factored out
+    assert not np.allclose(distance_grid(fa, lifted, w, dtype=np.float64), g, atol=1e-3)
+
+
+def test_blocks_and_cells_agree_with_the_grid(clouds) -> None:
+    fa, fb, w = clouds
+    g = distance_grid(fa, fb, w)
+    rows, cols = np.array([3, 4, 50, 7]), np.array([0, 69, 5])
+    assert np.allclose(distance_block(fa, fb, w, rows, cols), g[np.ix_(rows, cols)], rtol=1e-5, atol=1e-7)
+    assert np.allclose(distance_block(fa, fb, w, slice(10, 20), slice(30, 33)), g[10:20, 30:33], rtol=1e-5,
+                       atol=1e-7)
+    pa, pb = prepare_pair(fa, fb, w)
+    r = np.array([0, 5, 89, 40])
+    c = np.array([0, 69, 1, 40])
+    assert np.allclose(distance_cells(pa, pb, r, c), g[r, c], rtol=1e-4, atol=1e-6)
+    assert np.allclose(distance_prepared(pa, pb, r, c), g[np.ix_(r, c)], rtol=1e-5, atol=1e-7)

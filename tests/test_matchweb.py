@@ -1,0 +1,401 @@
+"""Match webs (SPEC §4, KG04 §3.1-3.2): numba kernels vs slow references, constructed grids,
+a clip against a time-warped copy of itself, and coarse-to-fine vs the full build."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from flows.config import FeatureConfig, MatchWebConfig
+from store.motion import Motion, Skeleton
+from tasks.distance import distance_grid
+from tasks.features import clip_features, point_weights
+from tasks.kinematics import quat_from_euler, sample_motion
+from tasks.matchweb import (
+    MatchWeb,
+    build_web,
+    build_web_full,
+    find_bridges,
+    find_chains,
+    local_minima,
+    optimal_path,
+    valid_region,
+)
+
+CFG = MatchWebConfig()
+ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
+
+
+# ---------------------------------------------------------------------------- slow references
+
+
+def ref_minima(g: np.ndarray) -> np.ndarray:
+    fa, fb = g.shape
+    out = np.zeros(g.shape, np.uint8)
+    for i in range(fa):
+        for j in range(fb):
+            v = g[i, j]
+            if not np.isfinite(v):
+                continue
+            left = g[i, j - 1] if j > 0 else np.inf
+            right = g[i, j + 1] if j < fb - 1 else np.inf
+            below = g[i - 1, j] if i > 0 else np.inf
+            above = g[i + 1, j] if i < fa - 1 else np.inf
+            out[i, j] = (1 if v < left and v <= right else 0) | (2 if v < below and v <= above else 0)
+    return out
+
+
+def ref_valid(g: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
+    out = np.zeros(g.shape, bool)
+    for i, j in zip(*np.nonzero(minima), strict=True):
+        out[i, j] = True
+        lim = (1 + a) * g[i, j]
+        dirs = ([(0, 1), (0, -1)] if minima[i, j] & 1 else []) + ([(1, 0), (-1, 0)] if minima[i, j] & 2 else [])
+        for di, dj in dirs:
+            ii, jj = i + di, j + dj
+            while 0 <= ii < g.shape[0] and 0 <= jj < g.shape[1] and g[ii, jj] < lim:
+                out[ii, jj] = True
+                ii, jj = ii + di, jj + dj
+    return out
+
+
+def ref_chains(g: np.ndarray, minima: np.ndarray, k: int, min_extent: int) -> list[list[tuple[int, int]]]:
+    used = np.zeros(g.shape, bool)
+    chains = []
+    for i, j in itertools.product(range(g.shape[0]), range(g.shape[1])):
+        if not minima[i, j] or used[i, j]:
+            continue
+        chain, r = [(i, j)], 0
+        used[i, j] = True
+        while True:
+            ii, jj = chain[-1]
+            cands = [(ii + 1, jj + 1, 0), (ii + 1, jj, r + 1 if r > 0 else 1), (ii, jj + 1, r - 1 if r < 0 else -1)]
+            best = None
+            for ci, cj, nr in cands:
+                if abs(nr) > k - 1 or ci >= g.shape[0] or cj >= g.shape[1] or not minima[ci, cj] or used[ci, cj]:
+                    continue
+                if best is None or g[ci, cj] < g[best[0], best[1]]:
+                    best = (ci, cj, nr)
+            if best is None:
+                break
+            chain.append(best[:2])
+            used[best[0], best[1]] = True
+            r = best[2]
+        if max(chain[-1][0] - i, chain[-1][1] - j) >= min_extent:
+            chains.append(chain)
+        else:
+            for c in chain:
+                used[c] = False
+    return chains
+
+
+def slope_ok(cells: np.ndarray, k: int) -> bool:
+    """Monotone unit steps with at most k − 1 consecutive steps along one axis."""
+    d = np.diff(np.asarray(cells), axis=0)
+    if not np.all((d >= 0) & (d <= 1)) or np.any(d.sum(axis=1) == 0):
+        return False
+    run, prev = 0, None
+    for step in map(tuple, d):
+        if step == (1, 1):
+            run, prev = 0, None
+            continue
+        run = run + 1 if step == prev else 1
+        prev = step
+        if run > k - 1:
+            return False
+    return True
+
+
+def all_paths(start: tuple[int, int], n_steps_max: int, ok) -> list[list[tuple[int, int]]]:
+    """Every monotone path from ``start`` of at most ``n_steps_max`` Manhattan length through ok cells."""
+    out = []
+
+    def rec(path: list[tuple[int, int]], manhattan: int) -> None:
+        out.append(list(path))
+        i, j = path[-1]
+        for di, dj in ((1, 1), (1, 0), (0, 1)):
+            c = (i + di, j + dj)
+            if manhattan + di + dj <= n_steps_max and ok(c, path):
+                path.append(c)
+                rec(path, manhattan + di + dj)
+                path.pop()
+
+    rec([start], 0)
+    return out
+
+
+# ---------------------------------------------------------------------------- constructed grids
+
+
+def valleys(shape: tuple[int, int], offsets: list[int], slope: float) -> np.ndarray:
+    """Grid with diagonal valleys j = i + offset (value 0.1), rising by ``slope`` per cell away
+    (no plateaus: a plateau's border minima would make a wide valid region)."""
+    i, j = np.mgrid[0:shape[0], 0:shape[1]]
+    g = np.full(shape, np.inf)
+    for off in offsets:
+        g = np.minimum(g, 0.1 + slope * np.abs(j - i - off))
+    return g.astype(np.float32)
+
+
+def chain_list(web: MatchWeb) -> list[np.ndarray]:
+    return [web.path(p)[0] for p in range(web.n_paths)]
+
+
+def test_kernels_match_slow_references() -> None:
+    rng = np.random.default_rng(3)
+    g = rng.random((40, 33)).astype(np.float32)
+    g[5, 5] = g[5, 6]  # a tie
+    g[10:14, 3:9] = 0.5  # a plateau
+    g[20, :] = np.inf  # an ignored row
+    m = local_minima(g)
+    assert np.array_equal(m, ref_minima(g))
+    assert np.array_equal(valid_region(g, m, 0.15), ref_valid(g, m, 0.15))
+    # chains on a smoother grid, where minima line up
+    g2 = (np.sin(np.add.outer(np.arange(60) * 0.3, -np.arange(50) * 0.25)) + 1.2 + 0.3 * rng.random((60, 50)))
+    m2 = local_minima(g2)
+    for k, ext in [(3, 2), (2, 3), (1, 1)]:
+        cells, offs = find_chains(g2, m2, k, ext)
+        got = [list(map(tuple, cells[a:b].tolist())) for a, b in itertools.pairwise(offs)]
+        want = ref_chains(g2.astype(np.float32), m2, k, ext)
+        assert got == want and len(got) > 3
+        assert all(slope_ok(np.array(c), k) for c in got)
+
+
+def test_optimal_path_is_the_brute_force_optimum() -> None:
+    rng = np.random.default_rng(7)
+    for k in (1, 2, 3):
+        g = rng.random((6, 7))
+        mask = rng.random((6, 7)) > 0.15
+        mask[0, 0] = mask[5, 6] = True
+        best = np.inf
+        for p in all_paths((0, 0), 11, lambda c, _p, mask=mask: c[0] < 6 and c[1] < 7 and mask[c]):
+            if p[-1] == (5, 6) and slope_ok(np.array(p), k):
+                best = min(best, sum(g[c] for c in p))
+        path = optimal_path(g, (0, 0), (5, 6), k, mask=mask)
+        if np.isfinite(best):
+            assert path is not None and slope_ok(path, k) and mask[path[:, 0], path[:, 1]].all()
+            assert tuple(path[0]) == (0, 0) and tuple(path[-1]) == (5, 6)
+            assert np.isclose(g[path[:, 0], path[:, 1]].sum(), best)
+        else:
+            assert path is None
+
+
+def test_bridges_match_brute_force() -> None:
+    """Bridge C → C': over every chain cell start, the least-total path to each C' cell (inside
+    the valid region, slope rule, Manhattan < L, not through chain cells), least average kept."""
+    g = valleys((16, 18), [0, 5], slope=0.002)
+    g += np.random.default_rng(1).random(g.shape).astype(np.float32) * 1e-4
+    m = local_minima(g)
+    valid = valid_region(g, m, 0.15)
+    cells, offs = find_chains(g, m, 3, 4)
+    assert len(offs) == 3
+    L = 7
+    br, bcells, boffs = find_bridges(g, valid, cells, offs, 3, L)
+    owner = -np.ones(g.shape, int)
+    for c, (a, b) in enumerate(itertools.pairwise(offs)):
+        owner[cells[a:b, 0], cells[a:b, 1]] = c
+    want = {}
+    for c, (a, b) in enumerate(itertools.pairwise(offs)):
+        for start in map(tuple, cells[a:b].tolist()):
+            def ok(cell, path, c=c):
+                if cell[0] >= g.shape[0] or cell[1] >= g.shape[1] or not valid[cell] or owner[cell] == c:
+                    return False
+                return all(owner[x] < 0 for x in path[1:])  # chain cells end a path
+
+            best_total: dict[tuple[int, int], tuple[float, float]] = {}
+            for p in all_paths(start, L - 1, ok):
+                end = p[-1]
+                if owner[end] < 0 or owner[end] == c or not slope_ok(np.array(p), 3):
+                    continue
+                tot = float(sum(g[x] for x in p))
+                if end not in best_total or tot < best_total[end][0]:
+                    best_total[end] = (tot, tot / len(p))
+            for end, (_, avg) in best_total.items():
+                key = (c, owner[end])
+                want[key] = min(want.get(key, np.inf), avg)
+    got = {}
+    for b, (c, _, d, _) in enumerate(br):
+        x = bcells[boffs[b]:boffs[b + 1]]
+        got[(int(c), int(d))] = float(g[x[:, 0], x[:, 1]].mean())
+    assert set(got) == set(want) and len(got) == 2
+    for key, value in got.items():
+        assert np.isclose(value, want[key], rtol=1e-5)
+
+
+def test_chains_found_and_short_ones_dropped() -> None:
+    g = valleys((50, 50), [0], slope=0.05)
+    for i in range(5, 10):  # an isolated pit of 5 cells along j = i + 25
+        g[i, i + 25] = 0.1
+    web = build_web_full(g, 30.0, CFG, self_pair=False)
+    long = [c for c in chain_list(web) if np.ptp(c[:, 0]) >= 8]
+    assert len(long) == 1 and np.array_equal(long[0], np.stack([np.arange(50)] * 2, axis=1))
+    short = {(i, i + 25) for i in range(5, 10)}
+    assert not short & set(map(tuple, web.paths_cells.tolist()))
+    # the same valley at 10 Hz is long enough (extent 4 frames >= 0.25 s · 10 Hz)
+    web10 = build_web_full(g, 10.0, CFG, self_pair=False)
+    assert short <= set(map(tuple, web10.paths_cells.tolist()))
+
+
+@pytest.mark.parametrize("slope,expect_bridges", [(0.001, True), (0.05, False)])
+def test_bridges_inside_the_valid_region_only(slope: float, expect_bridges: bool) -> None:
+    g = valleys((60, 70), [0, 10], slope=slope)
+    web = build_web_full(g, 30.0, CFG, self_pair=False)
+    chains = chain_list(web)
+    assert len(chains) == 2
+    if not expect_bridges:  # a ridge (> 15% above the valley floor) between the valleys
+        assert web.n_bridges == 0
+        return
+    valid = valid_region(g, local_minima(g), CFG.valid_a)
+    pairs = {(int(a), int(c)) for a, _, c, _ in web.bridges}
+    assert pairs == {(0, 1), (1, 0)}
+    for b in range(web.n_bridges):
+        cells, vals = web.bridge(b)
+        p, a, q, c = web.bridges[b]
+        assert np.array_equal(cells[0], chains[p][a]) and np.array_equal(cells[-1], chains[q][c])
+        assert slope_ok(cells, CFG.slope_k) and valid[cells[:, 0], cells[:, 1]].all()
+        assert np.abs(cells[-1] - cells[0]).sum() < 2.0 * 30.0
+        assert np.allclose(vals, g[cells[:, 0], cells[:, 1]])
+
+
+def test_bridge_across_a_gap() -> None:
+    """A valley that jumps 8 columns at row 30: the slope rule cuts the chain, a bridge joins it."""
+    i, j = np.mgrid[0:70, 0:70]
+    centre = np.where(i < 30, i, i + 8)
+    g = (0.1 + 0.001 * np.abs(j - centre)).astype(np.float32)
+    web = build_web_full(g, 30.0, CFG, self_pair=False)
+    chains = chain_list(web)
+    first = next(p for p, c in enumerate(chains) if (10, 10) in set(map(tuple, c.tolist())))
+    second = next(p for p, c in enumerate(chains) if (50, 58) in set(map(tuple, c.tolist())))
+    assert first != second
+    assert any(a == first and c == second for a, _, c, _ in web.bridges)
+    valid = valid_region(g, local_minima(g), CFG.valid_a)
+    for b in range(web.n_bridges):
+        cells = web.bridge(b)[0]
+        assert slope_ok(cells, CFG.slope_k) and valid[cells[:, 0], cells[:, 1]].all()
+
+
+def test_self_pair_ignores_the_diagonal_band() -> None:
+    g = valleys((60, 60), [0, 20, -20], slope=0.05)
+    web = build_web_full(g, 30.0, CFG, self_pair=True)
+    band = int(CFG.self_band_s * 30)
+    cells = np.concatenate([web.paths_cells, web.bridges_cells])
+    assert len(cells) and np.all(np.abs(cells[:, 0] - cells[:, 1]) > band)
+    assert {tuple(c) for c in web.paths_cells.tolist()} >= {(i, i + 20) for i in range(40)}
+
+
+def test_round_trip_arrays() -> None:
+    g = valleys((60, 70), [0, 10], slope=0.001)
+    web = build_web_full(g, 30.0, CFG.model_copy(update={"keep_grids": True}), self_pair=False)
+    d = web.to_arrays()
+    assert all(isinstance(v, np.ndarray) for v in d.values())
+    back = MatchWeb.from_arrays(d)
+    assert back.rate == web.rate and back.shape == web.shape and back.self_pair == web.self_pair
+    for key, v in d.items():
+        assert np.array_equal(back.to_arrays()[key], v) and back.to_arrays()[key].dtype == v.dtype
+    assert web.n_bridges > 0 and np.array_equal(back.grid, g)
+
+
+# ---------------------------------------------------------------------------- motions
+
+
+def small_skeleton() -> Skeleton:
+    names = ("hips", "spine", "head", "lleg", "lknee", "rleg", "rknee", "larm", "rarm")
+    parents = np.array([-1, 0, 1, 0, 3, 0, 5, 1, 1])
+    offs = np.array([[0, 0, 0], [0, .3, 0], [0, .3, 0], [.1, 0, 0], [0, -.45, 0], [-.1, 0, 0], [0, -.45, 0],
+                     [.2, .25, 0], [-.2, .25, 0]])
+    ch = (("Xposition", "Yposition", "Zposition", *ROT_CH),) + (ROT_CH,) * 8
+    return Skeleton(names, parents, offs, ch)
+
+
+def wiggle(n: int, fps: float, seed: int) -> Motion:
+    rng = np.random.default_rng(seed)
+    sk = small_skeleton()
+    t = np.arange(n) / fps
+    ang = np.zeros((n, sk.n_joints, 3))
+    for j in range(sk.n_joints):
+        for a in range(3):
+            for _ in range(3):
+                ang[:, j, a] += rng.uniform(2, 13) * np.sin(2 * np.pi * rng.uniform(0.1, 1.2) * t + rng.uniform(0, 6))
+    yaw = np.cumsum(rng.normal(0, 0.3, n)) / fps * 20
+    ang[:, 0, 2] += yaw
+    root = np.stack([np.cumsum(np.sin(np.deg2rad(yaw))) / fps, np.full(n, 0.95),
+                     np.cumsum(np.cos(np.deg2rad(yaw))) / fps], axis=1)
+    return Motion(sk, fps, root, quat_from_euler(ang, "ZXY"), name=f"wiggle{seed}", unit="m")
+
+
+def smooth_warp(n_out: int, n_in: int, seed: int) -> np.ndarray:
+    """Fractional source frames of a smooth monotone warp with speeds within [0.6, 1.6]."""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0, 1, n_out)
+    speed = np.ones(n_out)
+    for _ in range(3):
+        speed += rng.uniform(-0.3, 0.3) * np.sin(2 * np.pi * rng.uniform(0.5, 3) * x + rng.uniform(0, 6))
+    c = np.concatenate([[0], np.cumsum(np.clip(speed, 0.6, 1.6)[:-1])])
+    return c / c[-1] * (n_in - 1)
+
+
+@pytest.fixture(scope="module")
+def warped_pair():
+    fc = FeatureConfig()
+    a = wiggle(1200, 60.0, 1)  # 20 s
+    warp = smooth_warp(1000, 1200, 2)
+    b = replace(sample_motion(a, warp), name="warped")
+    w = point_weights(a.skeleton, fc)
+    fa = {r: clip_features(a, r, fc) for r in fc.rates}
+    fb = {r: clip_features(b, r, fc) for r in fc.rates}
+    web = build_web(fa, fb, w, CFG, self_pair=False)
+    full = build_web_full(distance_grid(fa[30.0], fb[30.0], w), 30.0, CFG, self_pair=False)
+    return warp, web, full
+
+
+def test_time_warped_copy_follows_the_warp(warped_pair) -> None:
+    warp, web, full = warped_pair
+    assert web.rate == 30.0 and web.shape == (600, 500)
+    for wb in (web, full):
+        lengths = np.diff(wb.paths_offsets)
+        cells, _ = wb.path(int(np.argmax(lengths)))
+        # B's frame j (30 Hz) is B's 60 Hz frame 2j, which shows A's 60 Hz frame warp[2j]
+        truth = warp[np.minimum(2 * cells[:, 1], len(warp) - 1)] / 2.0
+        assert np.abs(cells[:, 0] - truth).max() <= 2.0
+        assert np.ptp(cells[:, 1]) > 0.9 * 500  # spans (nearly) the whole clip
+        assert slope_ok(cells, CFG.slope_k)
+
+
+def test_coarse_to_fine_covers_the_full_build(warped_pair) -> None:
+    """"Same chains": every chain of the full 30 Hz build spanning ≥ 1 s has ≥ 70% of its cells
+    (≥ 90% over all such cells) within 2 cells (Chebyshev) of a coarse-to-fine path."""
+    _, web, full = warped_pair
+    tree = cKDTree(web.paths_cells)
+    fractions, total, covered = [], 0, 0
+    for cells in chain_list(full):
+        if max(np.ptp(cells[:, 0]), np.ptp(cells[:, 1])) < 30:
+            continue
+        d, _ = tree.query(cells, p=np.inf)
+        fractions.append(np.mean(d <= 2))
+        total += len(cells)
+        covered += int(np.sum(d <= 2))
+    assert len(fractions) >= 3
+    assert min(fractions) >= 0.7 and covered / total >= 0.9
+    # every refined path and bridge is a valid slope-ruled path with its values recorded
+    for p in range(web.n_paths):
+        assert slope_ok(web.path(p)[0], CFG.slope_k)
+    for b in range(web.n_bridges):
+        cells = web.bridge(b)[0]
+        p, a, q, c = web.bridges[b]
+        assert slope_ok(cells, CFG.slope_k)
+        assert np.array_equal(cells[0], web.path(p)[0][a]) and np.array_equal(cells[-1], web.path(q)[0][c])
+    assert web.n_bridges > 0 and np.all(np.isfinite(web.paths_values))
+
+
+def test_single_rate_build_is_the_full_build() -> None:
+    fc = FeatureConfig()
+    a, b = wiggle(300, 30.0, 4), wiggle(240, 30.0, 5)
+    w = point_weights(a.skeleton, fc)
+    fa, fb = clip_features(a, 10.0, fc), clip_features(b, 10.0, fc)
+    web = build_web({10.0: fa}, {10.0: fb}, w, CFG, self_pair=False)
+    full = build_web_full(distance_grid(fa, fb, w), 10.0, CFG, self_pair=False)
+    assert np.array_equal(web.paths_cells, full.paths_cells) and np.array_equal(web.bridges, full.bridges)
