@@ -176,7 +176,8 @@ def balance_batches(jobs: list[PairJob], n_batches: int) -> list[list[PairJob]]:
         load, i = heapq.heappop(heap)
         batches[i].append(job)
         heapq.heappush(heap, (load + job.cells + PAIR_OVERHEAD_CELLS, i))
-    return [b for b in batches if b]
+    # pairs sharing a rows clip run back to back (the worker's feature cache hits)
+    return [sorted(b, key=lambda j: (j.a.sha256, j.b.sha256)) for b in batches if b]
 
 
 def batch_count(jobs: list[PairJob], n_workers: int) -> int:
@@ -351,6 +352,12 @@ def _store(url: str) -> MotionStore:
     return MotionStore(url)
 
 
+@lru_cache(maxsize=64)
+def _features(url: str, sha: str, fdig: str) -> tuple[dict[float, Any], Any]:
+    """Features of a clip, cached per worker (a clip appears in many pairs of a batch)."""
+    return _store(url).read_features(sha, fdig)
+
+
 def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
     """Features of clips at every rate plus point weights, written to the store (SPEC §3).
 
@@ -406,8 +413,8 @@ def compute_web_batch(jobs: list[PairJob], cfg: Config, store_url: str) -> list[
     for job in jobs:
         t = time.perf_counter()
         try:
-            fa, weights = store.read_features(job.a.sha256, fdig)
-            fb = fa if job.self_pair else store.read_features(job.b.sha256, fdig)[0]
+            fa, weights = _features(store_url, job.a.sha256, fdig)
+            fb = fa if job.self_pair else _features(store_url, job.b.sha256, fdig)[0]
             web = build_web(fa, fb, weights, cfg.matchweb, job.self_pair)
             arrays = web.to_arrays()
             grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
@@ -483,12 +490,20 @@ def catalog_task(cfg: Config) -> Catalog:
 
 
 @task(name="plan", cache_policy=NO_CACHE)
-def plan_task(chunks: list[Chunk], cfg: Config) -> list[ChunkPlan]:
-    """Pair plan of every chunk, split into cached and to-compute by the store."""
+def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list[ChunkPlan]:
+    """Pair plan of every chunk, split into cached and to-compute by the store.
+
+    Objects the current generation lists are present (gc never drops them), so only the others
+    are looked up in the store.
+    """
     store = MotionStore(cfg.store.path)
     fdig = feature_digest(cfg)
     rates = [float(r) for r in cfg.features.rates]
-    plans = [plan_chunk(c, cfg, store.has, lambda sha: store.has_features(sha, fdig, rates)) for c in chunks]
+    listed = {w["key"] for w in prev.webs} if prev else set()
+    listed_f = {sha for sha, rs in (prev.features if prev else {}).items()
+                if prev.params.get("features") == fdig and {rate_tag(r) for r in rates} <= set(rs)}
+    plans = [plan_chunk(c, cfg, lambda k: k in listed or store.has(k),
+                        lambda sha: sha in listed_f or store.has_features(sha, fdig, rates)) for c in chunks]
     logger = get_run_logger()
     for p in plans:
         logger.info("chunk %s: %d clips, %d pairs (%d to compute, %d cached), %d clips need features",
@@ -544,7 +559,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     timings["catalog_s"] = time.perf_counter() - t0
     chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
     t = time.perf_counter()
-    plans = plan_task(chunks, cfg)
+    plans = plan_task(chunks, cfg, prev)
     timings["plan_s"] = time.perf_counter() - t
 
     todo_cells = sum(j.cells for p in plans for j in p.todo)
