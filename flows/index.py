@@ -26,7 +26,6 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
-from functools import lru_cache
 from typing import Any
 
 from prefect import flow, get_run_logger, task
@@ -36,6 +35,8 @@ from flows.config import Config, DaskConfig, load_config
 from store.cache import (
     Generation,
     MotionStore,
+    compute_features_batch,
+    compute_web_batch,
     feature_digest,
     feature_key,
     feature_params,
@@ -346,89 +347,6 @@ def format_summary(s: IndexSummary | dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-# ----------------------------------------------------------------------- work on Dask workers
-@lru_cache(maxsize=8)
-def _store(url: str) -> MotionStore:
-    return MotionStore(url)
-
-
-@lru_cache(maxsize=64)
-def _features(url: str, sha: str, fdig: str) -> tuple[dict[float, Any], Any]:
-    """Features of a clip, cached per worker (a clip appears in many pairs of a batch)."""
-    return _store(url).read_features(sha, fdig)
-
-
-def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
-    """Features of clips at every rate plus point weights, written to the store (SPEC §3).
-
-    Runs on a Dask worker; returns one small record per clip (``error`` when unreadable).
-    """
-    from store.catalog import load_clip
-    from tasks.features import clip_features, point_weights
-
-    store = _store(store_url)
-    fdig = feature_digest(cfg)
-    out = []
-    for c in clips:
-        t = time.perf_counter()
-        try:
-            motion = load_clip(c, cfg.corpus)
-            by_rate = {float(r): clip_features(motion, float(r), cfg.features, up=cfg.corpus.up_axis)
-                       for r in cfg.features.rates}
-            weights = point_weights(motion.skeleton, cfg.features)
-            store.write_features(c.sha256, fdig, by_rate, weights,
-                                 {"path": c.path, "skeleton": c.skeleton, "fps": c.fps})
-            out.append({"sha256": c.sha256, "seconds": time.perf_counter() - t})
-        except Exception as exc:  # noqa: BLE001 - a broken clip is recorded, the run goes on
-            out.append({"sha256": c.sha256, "path": c.path, "error": f"{type(exc).__name__}: {exc}"})
-    return out
-
-
-def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
-    """Chains and bridges of a web from its flat arrays (ragged: ``*_offsets`` hold N+1 bounds)."""
-
-    def count(prefix: str) -> int:
-        off = arrays.get(f"{prefix}_offsets")
-        if off is not None:
-            return max(0, len(off) - 1)
-        for name, arr in arrays.items():
-            if name.startswith(prefix) and getattr(arr, "ndim", 0) >= 1:
-                return int(arr.shape[0])
-        return 0
-
-    return {"n_chains": count("paths"), "n_bridges": count("bridges")}
-
-
-def compute_web_batch(jobs: list[PairJob], cfg: Config, store_url: str) -> list[dict[str, Any]]:
-    """Match webs of a batch of pairs (KG04 §3.1-3.2), each written to the store under its key.
-
-    Runs on a Dask worker; reads features from the store and returns small records only.
-    """
-    from tasks.matchweb import build_web
-
-    store = _store(store_url)
-    fdig = feature_digest(cfg)
-    rate = working_rate(cfg)
-    out = []
-    for job in jobs:
-        t = time.perf_counter()
-        try:
-            fa, weights = _features(store_url, job.a.sha256, fdig)
-            fb = fa if job.self_pair else _features(store_url, job.b.sha256, fdig)[0]
-            web = build_web(fa, fb, weights, cfg.matchweb, job.self_pair)
-            arrays = web.to_arrays()
-            grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
-            meta = {"a_sha": job.a.sha256, "b_sha": job.b.sha256, "rate": rate,
-                    "shape": [int(fa[rate].shape[0]), int(fb[rate].shape[0])], **web_counts(arrays)}
-            store.write_web(job.key, arrays, meta)
-            if grid is not None:
-                store.write_grid(job.key, grid)
-            out.append({"key": job.key, "seconds": time.perf_counter() - t, **meta})
-        except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
-            out.append({"key": job.key, "error": f"{type(exc).__name__}: {exc}"})
-    return out
-
-
 # ----------------------------------------------------------------------------- Dask plumbing
 @contextmanager
 def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
@@ -528,7 +446,8 @@ def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> 
     jobs = [j for j in plan.todo if j.a.sha256 not in bad_sha and j.b.sha256 not in bad_sha]
     if not jobs:
         return []
-    batches = balance_batches(jobs, batch_count(jobs, _workers(address)))
+    batches = [[(j.key, j.a.sha256, j.b.sha256, j.self_pair) for j in b]
+               for b in balance_batches(jobs, batch_count(jobs, _workers(address)))]
     return _run_on_dask(address, compute_web_batch, batches, cfg, cfg.store.path,
                         f"webs[{plan.chunk.name}]", get_run_logger())
 

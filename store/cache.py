@@ -26,9 +26,11 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 import uuid
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
+from functools import lru_cache
 from importlib import metadata
 from typing import TYPE_CHECKING, Any
 
@@ -39,9 +41,9 @@ from zarr.codecs import BloscCodec
 from zarr.storage import FsspecStore, LocalStore
 
 if TYPE_CHECKING:
-    from tasks.matchweb import MatchWeb
-
     from flows.config import Config
+    from store.catalog import ClipEntry
+    from tasks.matchweb import MatchWeb
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
 STORE_SCHEMA = 1
@@ -398,3 +400,86 @@ class MotionStore:
                         if e["type"] == "directory"]
             level = nxt
         return level
+
+
+# ------------------------------------------------------------------ producers run on Dask workers
+# They live here, not in flows/index.py, so that worker processes never import Prefect (~5 s per
+# worker); they take plain values (clip entries, keys, the config) and return small records.
+
+
+@lru_cache(maxsize=8)
+def _store(url: str) -> MotionStore:
+    return MotionStore(url)
+
+
+@lru_cache(maxsize=64)
+def _features(url: str, sha: str, fdigest: str) -> tuple[dict[float, np.ndarray], np.ndarray]:
+    """Features of a clip, cached per worker (a clip appears in many pairs of a batch)."""
+    return _store(url).read_features(sha, fdigest)
+
+
+def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
+    """Chains and bridges of a web from its flat arrays (ragged: ``*_offsets`` hold N+1 bounds)."""
+
+    def count(prefix: str) -> int:
+        off = arrays.get(f"{prefix}_offsets")
+        return max(0, len(off) - 1) if off is not None else 0
+
+    return {"n_chains": count("paths"), "n_bridges": count("bridges")}
+
+
+def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
+    """Features of clips at every rate plus point weights, written to the store (SPEC §3).
+
+    Returns one small record per clip (``error`` when the clip cannot be read or featurized).
+    """
+    from store.catalog import load_clip
+    from tasks.features import clip_features, point_weights
+
+    store = _store(store_url)
+    fdig = feature_digest(cfg)
+    out = []
+    for c in clips:
+        t = time.perf_counter()
+        try:
+            motion = load_clip(c, cfg.corpus)
+            by_rate = {float(r): clip_features(motion, float(r), cfg.features, up=cfg.corpus.up_axis)
+                       for r in cfg.features.rates}
+            weights = point_weights(motion.skeleton, cfg.features)
+            store.write_features(c.sha256, fdig, by_rate, weights,
+                                 {"path": c.path, "skeleton": c.skeleton, "fps": c.fps})
+            out.append({"sha256": c.sha256, "seconds": time.perf_counter() - t})
+        except Exception as exc:  # noqa: BLE001 - a broken clip is recorded, the run goes on
+            out.append({"sha256": c.sha256, "path": c.path, "error": f"{type(exc).__name__}: {exc}"})
+    return out
+
+
+def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, store_url: str) -> list[dict[str, Any]]:
+    """Match webs (KG04 §3.1-3.2) of ``(key, rows sha, columns sha, self pair)`` tuples.
+
+    Reads both clips' features from the store, builds the web coarse to fine and writes it under
+    its key (the full grid on the side with ``keep_grids``). Returns small records only.
+    """
+    from tasks.matchweb import build_web
+
+    store = _store(store_url)
+    fdig = feature_digest(cfg)
+    rate = float(max(cfg.features.rates))
+    out = []
+    for key, a_sha, b_sha, self_pair in pairs:
+        t = time.perf_counter()
+        try:
+            fa, weights = _features(store_url, a_sha, fdig)
+            fb = fa if self_pair else _features(store_url, b_sha, fdig)[0]
+            web = build_web(fa, fb, weights, cfg.matchweb, self_pair)
+            arrays = web.to_arrays()
+            grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
+            meta = {"a_sha": a_sha, "b_sha": b_sha, "rate": rate,
+                    "shape": [int(fa[rate].shape[0]), int(fb[rate].shape[0])], **web_counts(arrays)}
+            store.write_web(key, arrays, meta)
+            if grid is not None:
+                store.write_grid(key, grid)
+            out.append({"key": key, "seconds": time.perf_counter() - t, **meta})
+        except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
+            out.append({"key": key, "error": f"{type(exc).__name__}: {exc}"})
+    return out

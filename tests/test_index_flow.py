@@ -36,10 +36,9 @@ from flows.index import (
     plan_chunks,
     plan_pairs,
     skeleton_groups,
-    web_counts,
 )
 from store.bvh import write_bvh
-from store.cache import MotionStore, web_digest
+from store.cache import MotionStore, web_counts, web_digest
 from store.catalog import Catalog, ClipEntry, ScanError
 from store.motion import Motion, Skeleton
 from tasks.kinematics import quat_from_euler
