@@ -8,8 +8,8 @@ centred on their weighted mean::
     A = Σ w (x x' + z z'),  B = Σ w (x z' − z x'),  Y = Σ w y y'
     D = Σ w |p|² + Σ w |p'|² − 2 (sqrt(A² + B²) + Y),   θ = atan2(B, A)
 
-Over a grid, A and B are one GEMM of ``w·[x, z]`` (Fa, 2P) against ``[[x', z'], [z', −x']]``
-(2P, 2Fb) and Y another of ``w·y`` (Fa, P) against ``y'`` (P, Fb). Centring every cloud first is
+Over a grid, A and B are GEMMs of ``w·[x, z]`` (Fa, 2P) against ``[x', z']`` and ``[z', −x']``
+(2P, Fb), and Y one of ``w·y`` (Fa, P) against ``y'`` (P, Fb). Centring every cloud first is
 the same as subtracting the rank-one terms ``m_x m_x'ᵀ + m_z m_z'ᵀ`` from the uncentred products;
 doing it on the features (O(F·P)) is cheaper and better conditioned. A common vertical shift of
 both clips leaves D unchanged and keeps float32 round-off small. Cost: ``10·Fa·Fb·P`` flops of
@@ -110,14 +110,15 @@ def prepare_pair(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
 
 
 @njit(cache=True, fastmath=True)
-def _combine(ab: np.ndarray, yy: np.ndarray, na: np.ndarray, nb: np.ndarray, out: np.ndarray) -> None:
-    """out = max(0, na_i + nb_j − 2 (sqrt(A² + B²) + Y)); ab holds [A | B] side by side."""
+def _combine(aa: np.ndarray, bb: np.ndarray, yy: np.ndarray, na: np.ndarray, nb: np.ndarray,
+             out: np.ndarray) -> None:
+    """out = max(0, na_i + nb_j − 2 (sqrt(A² + B²) + Y)), one fused pass."""
     r, c = out.shape
     for i in range(r):
         ni = na[i]
         for j in range(c):
-            a = ab[i, j]
-            b = ab[i, c + j]
+            a = aa[i, j]
+            b = bb[i, j]
             d = ni + nb[j] - 2.0 * (np.sqrt(a * a + b * b) + yy[i, j])
             out[i, j] = max(0.0, d)
 
@@ -128,22 +129,18 @@ def _take(m: np.ndarray, idx: slice | np.ndarray) -> np.ndarray:
 
 def distance_prepared(pa: PreparedFeatures, pb: PreparedFeatures, rows: slice | np.ndarray,
                       cols: slice | np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """D over the rectangle ``rows × cols`` (slices or index arrays) by three GEMM operands.
-
-    Two GEMM calls (A|B together, then Y) and one fused elementwise pass; the caller tiles.
-    """
+    """D over the rectangle ``rows × cols`` (slices or index arrays): three GEMMs (A, B, Y) with
+    no copies of the operands, then one fused elementwise pass; the caller tiles."""
     la = _take(pa.left, rows)
-    ly = _take(pa.left_y, rows)
     na = _take(pa.norms, rows)
-    rb = np.concatenate([_take(pb.right, cols), _take(pb.right_rot, cols)], axis=0)
     ry = _take(pb.right_y, cols)
     nb = _take(pb.norms, cols)
-    dt = la.dtype
-    ab = np.matmul(la, rb.T)
-    yy = np.matmul(ly, ry.T)
+    aa = np.matmul(la, _take(pb.right, cols).T)
+    bb = np.matmul(la, _take(pb.right_rot, cols).T)
+    yy = np.matmul(_take(pa.left_y, rows), ry.T)
     if out is None:
-        out = np.empty((la.shape[0], ry.shape[0]), dtype=dt)
-    _combine(ab, yy, na, nb, out)
+        out = np.empty((la.shape[0], ry.shape[0]), dtype=la.dtype)
+    _combine(aa, bb, yy, na, nb, out)
     return out
 
 
@@ -162,8 +159,7 @@ def distance_grid(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
         r1 = min(r0 + tile, fa_n)
         for c0 in range(0, fb_n, tile):
             c1 = min(c0 + tile, fb_n)
-            tmp = distance_prepared(pa, pb, slice(r0, r1), slice(c0, c1))
-            grid[r0:r1, c0:c1] = tmp
+            distance_prepared(pa, pb, slice(r0, r1), slice(c0, c1), out=grid[r0:r1, c0:c1])
     return grid
 
 
