@@ -85,7 +85,7 @@ def test_incomplete_object_is_not_present(tmp_path):
     store = MotionStore(str(tmp_path / "s"))
     key = web_key(SHA_A, SHA_B, "wd1")
     store.write_web(key, ragged_web(np.random.default_rng(2)))
-    g = zarr.open_group(store=store.zstore, path=key, mode="r+")
+    g = zarr.open(store=store.zstore, path=key, mode="r+")
     g.attrs["complete"] = False  # as if the writer died before marking it
     assert not store.has(key)
     with pytest.raises(KeyError):
