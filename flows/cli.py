@@ -95,20 +95,30 @@ def demo(
     ),
     config: Annotated[Path | None, typer.Option(help="Config (default: configs/demo.yaml).")] = None,
 ) -> None:
-    """Generate the synthetic demo corpus and print its catalog."""
-    from store.demo_corpus import write_demo_corpus
+    """Generate the synthetic demo corpus, print its catalog and index it (Zarr store, local Dask).
+
+    The run's config is written to WORKDIR/config.yaml (paths relative to it), so every later
+    command can be pointed at the same corpus and store: ``motionweb index WORKDIR/config.yaml``.
+    """
+    import yaml
 
     from store.catalog import scan_corpus
+    from store.demo_corpus import write_demo_corpus
 
     cfg = config_or_fail(config or CONFIG_DIR / "demo.yaml")
-    workdir = workdir.resolve()
-    cfg.corpus.path = str(workdir / "corpus")
-    cfg.store.path = str(workdir / "store")
-    cfg.output = str(workdir / "out")
+    workdir.mkdir(parents=True, exist_ok=True)
+    data = cfg.model_dump(mode="json")
+    data["corpus"]["path"], data["store"]["path"], data["output"] = "corpus", "store", "out"
+    cfg_path = workdir / "config.yaml"
+    cfg_path.write_text("# written by `motionweb demo`; paths are relative to this file\n"
+                        + yaml.safe_dump(data, sort_keys=False))
+    cfg = config_or_fail(cfg_path)
     files = write_demo_corpus(cfg.corpus.path, seed=cfg.demo.seed,
                               variants_per_category=cfg.demo.variants_per_category, fps=cfg.demo.fps)
     typer.echo(f"demo corpus: {len(files)} clips in {cfg.corpus.path}")
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
+    typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")
+    run_index(cfg, progress=True)
 
 
 @app.command()
@@ -213,11 +223,45 @@ def retime(
 
 
 def _quiet_services() -> None:
-    """Defaults that keep an index run's output readable (no telemetry, terse Dask logs)."""
+    """Defaults for runs from the CLI: no telemetry, terse Dask logs, patient server start."""
     import os
 
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+    # the CLI shows its own progress counter; PREFECT_LOGGING_LEVEL=INFO shows the flow's log too
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+    # Prefect's ephemeral API server gets 20 s to start by default: too little on a busy 2-core box
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
+
+
+def run_index(cfg: Config, progress: bool) -> dict:
+    """Run the index flow with an optional progress counter on stderr; errors become ``fail``."""
+    _quiet_services()
+    import flows.index as idx
+
+    seen: dict[str, tuple[int, int]] = {}
+
+    def show(stage: str, done: int, total: int) -> None:
+        """One line summing the chunks' counters per stage ("features 27/27  webs 40/54")."""
+        seen[stage] = (done, total)
+        sums: dict[str, list[int]] = {}
+        for name, (d, t) in seen.items():
+            acc = sums.setdefault(name.split("[")[0], [0, 0])
+            acc[0] += d
+            acc[1] += t
+        typer.echo("\r  " + "  ".join(f"{k} {d}/{t}" for k, (d, t) in sums.items()), err=True, nl=False)
+
+    idx.PROGRESS = show if progress else None
+    try:
+        summary = idx.index_library(cfg)
+    except (FileNotFoundError, MotionFormatError, ValueError) as exc:
+        fail(str(exc))
+    finally:
+        idx.PROGRESS = None
+        if seen:
+            typer.echo("", err=True)
+    typer.echo(idx.format_summary(summary))
+    return summary
 
 
 @app.command()
@@ -226,25 +270,7 @@ def index(
     progress: Annotated[bool, typer.Option(help="Show a progress counter on stderr.")] = True,
 ) -> None:
     """Index the corpus into match webs (Prefect flow); print the run summary."""
-    cfg = config_or_fail(config)
-    _quiet_services()
-    import flows.index as idx
-
-    if progress:
-        def show(stage: str, done: int, total: int) -> None:
-            end = "\n" if done == total else ""
-            typer.echo(f"\r  {stage}: {done}/{total}", err=True, nl=False)
-            if end:
-                typer.echo("", err=True)
-
-        idx.PROGRESS = show
-    try:
-        summary = idx.index_library(cfg)
-    except (FileNotFoundError, MotionFormatError, ValueError) as exc:
-        fail(str(exc))
-    finally:
-        idx.PROGRESS = None
-    typer.echo(idx.format_summary(summary))
+    run_index(config_or_fail(config), progress)
 
 
 @app.command()

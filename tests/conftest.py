@@ -23,3 +23,14 @@ def deepmimic_dir(mocap_dir: Path) -> Path:
     if not (d / "humanoid.urdf").is_file():
         pytest.skip(f"DeepMimic clips not found under {d} (set {ENV_VAR})")
     return d
+
+
+@pytest.fixture(scope="session")
+def prefect_harness():
+    """Prefect's test harness (a temporary API server) once per session, heartbeats off."""
+    from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=90), \
+            temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        yield

@@ -164,16 +164,6 @@ def make_config(tmp: Path, corpus: Path, store: str, **overrides) -> Config:
 
 
 # ----------------------------------------------------------------------------------- flow runs
-@pytest.fixture(scope="session")
-def prefect_harness():
-    from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
-    from prefect.testing.utilities import prefect_test_harness
-
-    with prefect_test_harness(server_startup_timeout=90), \
-            temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
-        yield
-
-
 @pytest.fixture(scope="module")
 def indexed(prefect_harness, tmp_path_factory):
     """A corpus indexed once: (tmp dir, corpus, config, first summary)."""
