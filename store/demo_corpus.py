@@ -6,7 +6,8 @@ stance intervals, exact ballistic flights, effector targets at apex frames) hold
 Units are metres, Y is up, the character faces +Z in its rest pose, quaternions are (w, x, y, z).
 
 Public API: :func:`humanoid_skeleton`, :data:`CATEGORIES`, :func:`generate_clip`,
-:func:`walk_then_jump`, :func:`time_warp_clip`, :func:`random_warp`, :func:`write_demo_corpus`.
+:func:`walk_then_jump`, :func:`time_warp_clip`, :func:`random_warp`, :func:`pose_noise`,
+:func:`write_demo_corpus`.
 """
 
 from __future__ import annotations
@@ -1287,6 +1288,17 @@ def random_warp(n_out: int, n_in: int, rng: np.random.Generator,
     warp *= (n_in - 1) / warp[-1]
     warp[-1] = n_in - 1
     return warp
+
+
+def pose_noise(motion: Motion, rng: np.random.Generator, deg: float = 1.0, metres: float = 0.003) -> Motion:
+    """``motion`` with small white pose noise: every joint turned by a random rotation of normal
+    angle (σ = ``deg`` degrees) about a random axis each frame, the root moved by σ = ``metres``."""
+    f, j = motion.rotations.shape[:2]
+    axes = rng.normal(size=(f, j, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    dq = quat_from_axis_angle(axes, np.deg2rad(rng.normal(0.0, deg, size=(f, j))))
+    return replace(motion, rotations=quat_mul(motion.rotations, dq),
+                   root_positions=motion.root_positions + rng.normal(0.0, metres / motion.metres(), size=(f, 3)))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -3,17 +3,13 @@ through star and chain edges of a hand-built match graph, curves, common length,
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from flows.config import FeatureConfig, MatchWebConfig
-from store.demo_corpus import generate_clip, random_warp, time_warp_clip
-from store.motion import Motion
+from store.demo_corpus import generate_clip, pose_noise, random_warp, time_warp_clip
 from tasks.distance import distance_grid
 from tasks.features import clip_features, point_weights
-from tasks.kinematics import quat_from_axis_angle, quat_mul
 from tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
 from tasks.matchweb import local_minima, optimal_path, valid_region
 from tasks.register import (
@@ -162,16 +158,6 @@ def test_monotone_knots_collapse_runs_and_keep_the_corners() -> None:
 # ---------------------------------------------------------------------------- known warps
 
 
-def noisy(motion: Motion, rng: np.random.Generator, deg: float = 1.0, metres: float = 0.003) -> Motion:
-    """Small pose noise: every joint turned by a random ~``deg``° rotation, root moved ~``metres``."""
-    f, j = motion.rotations.shape[:2]
-    axes = rng.normal(size=(f, j, 3))
-    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
-    dq = quat_from_axis_angle(axes, np.deg2rad(rng.normal(0.0, deg, size=(f, j))))
-    return replace(motion, rotations=quat_mul(motion.rotations, dq),
-                   root_positions=motion.root_positions + rng.normal(0.0, metres, size=(f, 3)))
-
-
 #: 60 Hz frame counts of the warped copies (odd: their 30 Hz frames are exact 60 Hz frames)
 COPY_FRAMES = (241, 301, 271, 221)
 #: query segment (30 Hz frames of the base clip)
@@ -191,7 +177,7 @@ def planted():
     truth = {}
     for c, n_out in enumerate(COPY_FRAMES, start=1):
         warp = random_warp(n_out, base.n_frames, rng)
-        feats[f"copy{c}"] = clip_features(noisy(time_warp_clip(base, warp), rng), RATE, fc)
+        feats[f"copy{c}"] = clip_features(pose_noise(time_warp_clip(base, warp), rng), RATE, fc)
         # copy frame at 30 Hz showing base 30 Hz frame u: w⁻¹(2u) / 2 (60 Hz frames of both)
         truth[f"copy{c}"] = lambda u, w=warp: np.interp(2.0 * np.asarray(u, float), w, np.arange(len(w))) / 2.0
     w = point_weights(base.skeleton, fc)
