@@ -232,7 +232,7 @@ def align_segments(pa: PreparedFeatures, pb: PreparedFeatures, seg_a: Segment, s
     band = None if radius is None else Band.around(guide_path(rel, n, m), n, m, radius)
     if band is None or 2 * band.n_cells >= n * m:
         band = Band.rectangle(n, m)
-        vals = distance_prepared(pa, pb, slice(0, n), slice(0, m)).astype(np.float64).reshape(-1)
+        vals = distance_prepared(pa, pb, slice(0, n), slice(0, m)).reshape(-1)
     else:
         vals = np.empty(band.n_cells, np.float64)
         _eval_band(0, band.lo, band.hi, band.off, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms,
@@ -452,7 +452,10 @@ def register(graph: MatchGraph, features: Mapping[str, np.ndarray], weights: np.
         parent = edge.u if edge.v == child else edge.v
         cells = edge.cells if edge.u == parent else edge.cells[:, ::-1]
         p = col[parent]
-        al = align_segments(prepared[p], prepared[c], segs[p], segs[c], cells, cfg, radius)
+        try:
+            al = align_segments(prepared[p], prepared[c], segs[p], segs[c], cells, cfg, radius)
+        except ValueError as exc:
+            raise ValueError(f"edge {e} (node {parent} -> node {child}): {exc}") from None
         ea = EdgeAlignment(parent, child, e, al, monotone_knots(al.cells))
         frames[:, c] = ea(frames[:, p])
         frames[[0, -1], c] = segs[c].start, segs[c].end  # exact despite round-off at the last knot

@@ -8,12 +8,13 @@ import pytest
 
 from flows.config import FeatureConfig, MatchWebConfig
 from store.demo_corpus import generate_clip, pose_noise, random_warp, time_warp_clip
-from tasks.distance import distance_grid
+from tasks.distance import distance_grid, distance_prepared, prepare_pair
 from tasks.features import clip_features, point_weights
 from tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
 from tasks.matchweb import local_minima, optimal_path, valid_region
 from tasks.register import (
     Band,
+    align_segments,
     band_alignment,
     band_valid_region,
     guide_path,
@@ -155,6 +156,21 @@ def test_monotone_knots_collapse_runs_and_keep_the_corners() -> None:
         monotone_knots(np.array([[3, 4], [3, 5]]))
 
 
+def test_alignment_outside_the_valid_region_falls_back_on_the_slope_rule() -> None:
+    """Unrelated random clouds with a = 0 (valid region = the scattered 1-D minima): no slope-ruled
+    path stays in it, so the edge keeps the slope rule only, flagged, and its path is the
+    unrestricted optimum."""
+    rng = np.random.default_rng(5)
+    w = np.full(12, 1 / 12)
+    pa, pb = prepare_pair(rng.normal(size=(30, 12, 3)), rng.normal(size=(36, 12, 3)), w, np.float64)
+    sa, sb = Segment("a", 0, 29), Segment("b", 0, 35)
+    al = align_segments(pa, pb, sa, sb, np.zeros((0, 2)), CFG.model_copy(update={"valid_a": 0.0}), radius=None)
+    assert not al.in_valid_region
+    g = distance_prepared(pa, pb, slice(0, 30), slice(0, 36))
+    assert path_ok(al.cells, 30, 36, CFG.slope_k)
+    assert np.isclose(al.cost * len(al.cells), ref_alignment_cost(g, CFG.slope_k), rtol=1e-9)
+
+
 # ---------------------------------------------------------------------------- known warps
 
 
@@ -280,6 +296,9 @@ def test_errors_name_the_node_and_clip(planted) -> None:
     far = MatchGraph(RATE, graph.nodes[:1] + [MatchNode(Segment("copy1", 100, 900))], [MatchEdge(0, 1, 1.0)])
     with pytest.raises(ValueError, match="node 1: frames 100..900 of clip 'copy1' outside"):
         register(far, feats, w, CFG)
+    steep = MatchGraph(RATE, graph.nodes[:1] + [MatchNode(Segment("copy1", 0, 30))], [MatchEdge(1, 0, 1.0)])
+    with pytest.raises(ValueError, match=r"edge 0 \(node 0 -> node 1\): no slope-ruled time alignment"):
+        register(steep, feats, w, CFG)  # 127 query frames onto 31: slope above k = 3
     bad = MatchGraph(RATE, graph.nodes[:2], [MatchEdge(0, 1, -1.0)])
     with pytest.raises(ValueError, match="edge 0"):
         register(bad, feats, w, CFG)
