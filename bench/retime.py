@@ -25,7 +25,7 @@ from tasks.retime import (
     retime_plan,
 )
 
-OPTS = RetimeOptions(alpha=1000.0, beta=1e-4, knots_per_second=8.0)
+OPTS = RetimeOptions(knots_per_second=8.0)
 
 
 def clip(name: str):

@@ -44,6 +44,11 @@ class DemoConfig(_Section):
     seed: int = 7
     variants_per_category: int = 3
     fps: float = 60.0
+    #: the search `motionweb demo` ends with (clip, seconds, ε as a quantile of the webs' values)
+    query_clip: str = "walk/walk_00.bvh"
+    query_start: float = 1.0
+    query_end: float = 2.5
+    query_quantile: float = 0.8
 
 
 class FeatureConfig(_Section):
@@ -126,11 +131,11 @@ class RetimeConfig(_Section):
     contact_speed: float = 0.3
     torque_margin: float = 1.5
     samples_per_frame: int = 4
+    #: MPS06 Eqn. 14 weights, both unit-free: α on the squared (p̈, ṗ²) distance to the feasible
+    #: polygon, β on the mean squared torque deviation in units of the torque limits
     alpha: float = 1.0
-    beta: float = 1e-4
+    beta: float = 0.1
     objective: Literal["match", "minimize"] = "match"
-    #: α is multiplied by this: (p̈, ṗ²) distances are tiny next to torque errors in N·m
-    feasibility_scale: float = 1000.0
     ground_height: float = 0.0
     #: per clip name: {foot joint: [[start_s, end_s], ...]} replacing detected contacts
     contact_intervals: dict[str, dict[str, list[tuple[float, float]]]] = Field(default_factory=dict)

@@ -16,12 +16,12 @@ from tasks.retime import RetimeOptions, RetimePlan, RetimeResult, prepare, repor
 
 
 def options_from_config(cfg: RetimeConfig, objective: str | None = None, up_axis: str = "y") -> RetimeOptions:
-    """``RetimeOptions`` from the config section (α scaled by ``feasibility_scale``)."""
+    """``RetimeOptions`` from the config section."""
     return RetimeOptions(
         body_model=cfg.body_model, total_mass=cfg.total_mass, friction=cfg.friction,
         contact_height=cfg.contact_height, contact_speed=cfg.contact_speed, ground_height=cfg.ground_height,
         torque_margin=cfg.torque_margin, samples_per_frame=cfg.samples_per_frame,
-        knots_per_second=cfg.knots_per_second, alpha=cfg.alpha * cfg.feasibility_scale, beta=cfg.beta,
+        knots_per_second=cfg.knots_per_second, alpha=cfg.alpha, beta=cfg.beta,
         objective=objective or cfg.objective, speed_max=cfg.speed_max, allow_flight_only=cfg.allow_flight_only,
         up_axis="xyz".index(up_axis))
 

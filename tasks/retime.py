@@ -23,7 +23,10 @@ O(S · K) with S samples and K polygon vertices (independent of the number of do
 
 from __future__ import annotations
 
+import ctypes
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -40,6 +43,37 @@ from tasks.kinematics import sample_motion
 
 N_ROOT = 6
 INF = highspy.kHighsInf
+
+
+@contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Run the block with the OpenBLAS libraries of numpy and scipy on one thread, then restore.
+
+    Retiming solves tiny problems (L-BFGS-B on ~10² parameters, 2×2 to 60×20 products), where
+    OpenBLAS threads only add synchronization: on a loaded 2-core machine scipy's L-BFGS-B ran
+    ~50× slower per iteration with its default thread count. The libraries are found among the
+    loaded shared objects (``/proc/self/maps``); elsewhere the block runs unchanged.
+    """
+    libs = []
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted({line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line})
+    except OSError:
+        paths = []
+    for path in paths:
+        lib = ctypes.CDLL(path)
+        for suffix in ("64_", ""):
+            get = getattr(lib, f"scipy_openblas_get_num_threads{suffix}", None)
+            put = getattr(lib, f"scipy_openblas_set_num_threads{suffix}", None)
+            if get is not None and put is not None:
+                libs.append((put, int(get())))
+                put(1)
+                break
+    try:
+        yield
+    finally:
+        for put, n in libs:
+            put(n)
 
 
 class RetimeError(ValueError):
@@ -387,10 +421,14 @@ class BakedObjective:
 
 
 def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Contacts,
-         tau_target: np.ndarray, alpha: float, beta: float) -> BakedObjective:
+         tau_target: np.ndarray, alpha: float, beta: float, tau_scale: np.ndarray) -> BakedObjective:
     """Fan-triangulated contact model and six coefficients per sector (MPS06 §3.4, §3.6).
 
-    τ(x) − τ' = a_k p̈ + b_k ṗ² + e_k in sector k, so β‖τ − τ'‖² = β(a·a p̈² + 2a·b p̈ṗ² +
+    The torque term of MPS06 Eqn. 14 is made dimensionless: each generalized force is divided by
+    ``tau_scale`` (its torque limit; body weight on the root rows) and the sum by nv, so β‖τ − τ'‖²
+    is β times the mean squared deviation in units of the limits, and α, β compare unit-free
+    quantities whatever the body's size. With D = diag(1/tau_scale)/√nv and τ(x) − τ' =
+    a_k p̈ + b_k ṗ² + e_k in sector k (a, b, e scaled by D), the term is β(a·a p̈² + 2a·b p̈ṗ² +
     b·b ṗ⁴ + 2a·e p̈ + 2b·e ṗ² + e·e). O(F · K · nv · nλ).
     """
     f = A.shape[0]
@@ -402,6 +440,7 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
     coef = np.zeros((f, K, 6))
     slope = np.zeros((f, K, nl, 2))
     solid = np.zeros(f, bool)
+    d = 1.0 / (np.asarray(tau_scale, dtype=float) * np.sqrt(A.shape[1]))
     for i in range(f):
         v, lv, c = polys.vertices[i], polys.lambdas[i], polys.center[i]
         k = len(v)
@@ -418,16 +457,16 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
         lc = polys.center_lambda[i]
         for s in range(K):
             if k >= 3 and s < k:
-                d = np.stack([v[s] - c, v[(s + 1) % k] - c], axis=1)  # (2, 2)
-                det = np.linalg.det(d)
+                dv = np.stack([v[s] - c, v[(s + 1) % k] - c], axis=1)  # (2, 2)
+                det = np.linalg.det(dv)
                 if abs(det) > 1e-12:
-                    slope[i, s] = np.stack([lv[s] - lc, lv[(s + 1) % k] - lc], axis=1) @ np.linalg.inv(d)
+                    slope[i, s] = np.stack([lv[s] - lc, lv[(s + 1) % k] - lc], axis=1) @ np.linalg.inv(dv)
             elif s >= k >= 3:
                 slope[i, s] = slope[i, k - 1]
             L = slope[i, s]
-            a = A[i] - N @ L[:, 0]
-            b = B[i] - N @ L[:, 1]
-            e = C[i] - N @ (lc - L @ c) - tau_target[i]
+            a = d * (A[i] - N @ L[:, 0])
+            b = d * (B[i] - N @ L[:, 1])
+            e = d * (C[i] - N @ (lc - L @ c) - tau_target[i])
             coef[i, s] = beta * np.array([a @ a, 2 * a @ b, b @ b, 2 * a @ e, 2 * b @ e, e @ e])
     return BakedObjective(verts=verts, solid=solid, center=polys.center.copy(), theta0=theta0, theta=theta,
                           coef=coef, lam_center=polys.center_lambda.copy(), lam_slope=slope, alpha=alpha, beta=beta)
@@ -703,22 +742,23 @@ def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, durati
     n_s = int(np.ceil(samples_per_frame * n_frames_src * max(ratio, 1.0) * 1.25))
     res = None
     iters = 0
-    for _attempt in range(3):
-        edges = np.linspace(0.0, duration, n_s + 1)
-        ts = 0.5 * (edges[1:] + edges[:-1])
-        dt = duration / n_s
-        idx, mats = spline.design(ts)
-        fun = _make_objective(obj, spline, idx, mats, fps, dt, n_s)
-        res = minimize(fun, z, jac=True, method="L-BFGS-B",
-                       options={"maxiter": max_iter, "maxcor": 10, "ftol": 1e-10, "gtol": 1e-8})
-        z = res.x
-        iters += int(res.nit)
-        history.append(float(res.fun))
-        _, pd_s, _ = spline.evaluate(z, ts)
-        step = pd_s.max() * dt * fps  # source frames between samples
-        if step <= 1.0 / samples_per_frame + 1e-9:
-            break
-        n_s = int(np.ceil(n_s * step * samples_per_frame * 1.1))
+    with single_threaded_blas():
+        for _attempt in range(3):
+            edges = np.linspace(0.0, duration, n_s + 1)
+            ts = 0.5 * (edges[1:] + edges[:-1])
+            dt = duration / n_s
+            idx, mats = spline.design(ts)
+            fun = _make_objective(obj, spline, idx, mats, fps, dt, n_s)
+            res = minimize(fun, z, jac=True, method="L-BFGS-B",
+                           options={"maxiter": max_iter, "maxcor": 10, "ftol": 1e-10, "gtol": 1e-8})
+            z = res.x
+            iters += int(res.nit)
+            history.append(float(res.fun))
+            _, pd_s, _ = spline.evaluate(z, ts)
+            step = pd_s.max() * dt * fps  # source frames between samples
+            if step <= 1.0 / samples_per_frame + 1e-9:
+                break
+            n_s = int(np.ceil(n_s * step * samples_per_frame * 1.1))
     n_out = round(duration * fps) + 1
     t = np.minimum(np.arange(n_out) / fps, duration)
     p, pd, pdd = spline.evaluate(z, t)
@@ -773,7 +813,7 @@ class RetimeOptions:
     samples_per_frame: int = 4
     knots_per_second: float = 12.0
     alpha: float = 1.0
-    beta: float = 1e-4
+    beta: float = 0.1
     objective: str = "match"
     speed_max: float = 6.0
     pdd_max: float = 40.0
@@ -865,7 +905,8 @@ def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.nd
     target = original.tau if opts.objective == "match" else np.zeros_like(original.tau)
     if opts.objective not in ("match", "minimize"):
         raise ValueError(f"unknown objective {opts.objective!r} (match, minimize)")
-    baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta)
+    tau_scale = np.where(np.arange(len(original.limits)) < N_ROOT, weight, original.limits)
+    baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta, tau_scale)
     tm["bake"] = time.perf_counter() - t
     return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors, A=A, B=B,
                       C=C, original=original, polygons=polys, baked=baked, timings=tm)

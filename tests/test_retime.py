@@ -29,7 +29,7 @@ _helpers = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)
 synthetic_jump = _helpers.synthetic_jump
 
-OPTS = RetimeOptions(alpha=1000.0, beta=1e-4, knots_per_second=8.0)
+OPTS = RetimeOptions(knots_per_second=8.0)
 
 
 @pytest.fixture(scope="module")
