@@ -388,6 +388,21 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
                             seconds=time.perf_counter() - t0)
 
 
+def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
+    """A lower bound on the duration of any timing that stays inside every polygon (MPS06 §3.3).
+
+    Each frame's polygon bounds ṗ² from above; playing every source interval at the largest ṗ
+    its two end frames allow (trapezoid rule on 1/ṗ_max) ignores the coupling through p̈, so
+    no feasible timing is shorter (``inf`` when some frame allows no motion). A requested
+    duration below it must leave the polygons somewhere. O(Σ K).
+    """
+    top = np.array([v[:, 1].max() if len(v) else 0.0 for v in polys.vertices])
+    if np.any(top <= 0):
+        return float("inf")
+    inv = 1.0 / np.sqrt(top)
+    return float(0.5 * (inv[1:] + inv[:-1]).sum() / fps)
+
+
 # --------------------------------------------------------------------------- baking
 
 
@@ -989,6 +1004,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "total_mass_kg": plan.body.total_mass,
         "objective": float(res.objective), "converged": res.converged, "iterations": res.iterations,
         "contacts": cont.intervals(m.fps), "contacts_detected": cont.detected, "flights": flights,
+        "shortest_feasible_duration": shortest_duration(polys, m.fps),
         "infeasible_source_frames": np.flatnonzero(polys.infeasible).tolist(),
         "original_timing_outside_polygon": np.flatnonzero(~polys.original_inside).tolist(),
         "infeasible_output_frames": outside,
