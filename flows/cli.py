@@ -19,6 +19,12 @@ app = typer.Typer(
 )
 
 
+@app.callback()
+def _main() -> None:
+    """Search, blend and retime motion-capture libraries (KG04, HDP07, MPS06)."""
+    _quiet_services()
+
+
 def fail(message: str, code: int = 2) -> None:
     """Print a clear error (never a traceback) and exit non-zero."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
@@ -95,7 +101,7 @@ def demo(
     ),
     config: Annotated[Path | None, typer.Option(help="Config (default: configs/demo.yaml).")] = None,
 ) -> None:
-    """Generate the synthetic demo corpus, print its catalog and index it (Zarr store, local Dask).
+    """Generate the synthetic demo corpus, index it (Zarr store, local Dask) and search it.
 
     The run's config is written to WORKDIR/config.yaml (paths relative to it), so every later
     command can be pointed at the same corpus and store: ``motionweb index WORKDIR/config.yaml``.
@@ -119,6 +125,14 @@ def demo(
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
     typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")
     run_index(cfg, progress=True)
+    from flows.query import QueryRequest
+
+    d = cfg.demo
+    typer.echo(f"\nsearching (KG04 §3.3) for {d.query_clip} {d.query_start:g}-{d.query_end:g} s, registering the matches ...")
+    run_query(cfg, QueryRequest(clip=d.query_clip, start=d.query_start, end=d.query_end,
+                                quantile=d.query_quantile, register=True))
+    typer.echo(f"next: motionweb search {cfg_path} --clip CLIP --start S --end E --quantile Q "
+               "(see motionweb search --help)")
 
 
 @app.command()
@@ -236,7 +250,6 @@ def _quiet_services() -> None:
 
 def run_index(cfg: Config, progress: bool) -> dict:
     """Run the index flow with an optional progress counter on stderr; errors become ``fail``."""
-    _quiet_services()
     import flows.index as idx
 
     seen: dict[str, tuple[int, int]] = {}
@@ -282,7 +295,6 @@ def serve(
     import os
 
     cfg = config_or_fail(config)
-    _quiet_services()
     from flows.index import index_library
 
     if not os.environ.get("PREFECT_API_URL"):
@@ -290,6 +302,63 @@ def serve(
                     "(`prefect server start`, then export PREFECT_API_URL)", err=True, fg=typer.colors.YELLOW)
     typer.echo(f"serving index-library/{name} on cron {cfg.index.schedule!r} for {config.resolve()}")
     index_library.serve(name=name, cron=cfg.index.schedule, parameters={"config": str(config.resolve())})
+
+
+def matches_table(rows: list[dict]) -> str:
+    """Fixed-width table of query results (rank, clip, category, frames, seconds, cost, tier, distance)."""
+    head = ("rank", "clip", "category", "frames", "seconds", "cost", "tier", "distance")
+    body = [(str(r["rank"]), r["clip"], r["category"], f"{r['start_frame']}-{r['end_frame']}",
+             f"{r['start_s']:.2f}-{r['end_s']:.2f}", f"{r['cost']:.4g}", str(r["tier"]), f"{r['distance']:.4g}")
+            for r in rows]
+    widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(x, widths, strict=True)).rstrip() for x in [head, *body])
+
+
+def run_query(cfg: Config, request) -> dict:
+    """Check the request, run the query flow and print its matches; errors become ``fail``."""
+    from flows.query import plan_query, query
+
+    try:
+        plan_query(cfg, request)
+        res = query(cfg, request)
+    except (ValueError, KeyError, FileNotFoundError, MotionFormatError) as exc:
+        fail(str(exc).strip("'\""))
+    q = res["query"]
+    typer.echo(f"query {q['clip']} frames {q['start_frame']}-{q['end_frame']} at {q['rate']:g} Hz, "
+               f"ε = {res['epsilon']:.4g}, generation {res['generation']}")
+    if not res["matches"]:
+        typer.echo("no matches: raise --threshold / --quantile, or search --all-categories")
+    else:
+        typer.echo(matches_table(res["matches"]))
+    typer.echo(f"{len(res['matches'])} matches in {res['timings']['search_s']:.2f} s; outputs in {res['out']}")
+    return res
+
+
+@app.command()
+def search(
+    config: Annotated[Path, typer.Argument(help="Config file (store, search, output).")],
+    clip: Annotated[str, typer.Option(help="Query clip: corpus path or file stem.")],
+    start: Annotated[float, typer.Option(help="Query start, seconds.")],
+    end: Annotated[float, typer.Option(help="Query end, seconds.")],
+    threshold: Annotated[float | None, typer.Option(help="Absolute threshold ε on average web values.")] = None,
+    quantile: Annotated[float | None, typer.Option(help="ε as this quantile (0-1) of the searched webs' values.")] = None,
+    tiers: Annotated[int | None, typer.Option(help="Search tiers (default: config search.max_tiers).")] = None,
+    all_categories: Annotated[bool, typer.Option(help="Search every chunk, not only the query's category.")] = False,
+    register: Annotated[bool, typer.Option(help="Register the matches: warps.csv/png, registered BVH.")] = False,
+    export: Annotated[Path | None, typer.Option(help="Write every match as BVH into this folder.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Output folder (default: the config's output).")] = None,
+) -> None:
+    """Search the index for motions like CLIP[START, END] (KG04 §3.3); print the matches."""
+    from flows.query import QueryRequest
+
+    cfg = config_or_fail(config)
+    try:
+        request = QueryRequest(clip=clip, start=start, end=end, threshold=threshold, quantile=quantile, tiers=tiers,
+                               all_categories=all_categories or None, register=register,
+                               export=str(export) if export else None, out=str(out) if out else None)
+    except ValueError as exc:
+        fail(str(exc))
+    run_query(cfg, request)
 
 
 @app.command("plot-web")

@@ -60,23 +60,3 @@ def test_preview_of_broken_file_is_a_clear_error(tmp_path: Path) -> None:
     r = runner.invoke(app, ["preview", str(tmp_path / "b.bvh"), "--out", str(tmp_path / "b.gif")])
     assert r.exit_code == 2 and "b.bvh" in r.output
 
-
-def test_demo_generates_indexes_and_reruns_from_its_config(prefect_harness, tmp_path: Path, monkeypatch) -> None:
-    from flows.config import load_config
-    from store.cache import MotionStore
-
-    for var, value in [("PREFECT_LOGGING_LEVEL", "WARNING"), ("DASK_LOGGING__DISTRIBUTED", "warning")]:
-        monkeypatch.setenv(var, value)  # what the CLI sets, restored after the test
-    work = tmp_path / "demo"
-    r = runner.invoke(app, ["demo", "--workdir", str(work)])
-    assert r.exit_code == 0, r.output
-    cfg = load_config(work / "config.yaml")
-    assert cfg.corpus.path == str((work / "corpus").resolve())
-    gen = MotionStore(cfg.store.path, read_only=True).generation()
-    n_clips = len(list((work / "corpus").rglob("*.bvh")))
-    assert len(gen.clips) == n_clips > 0 and not gen.broken
-    assert f"clips {n_clips}" in r.output and f"computed {len(gen.webs)}, cached 0" in r.output
-    # the written config drives a rerun that computes nothing (SPEC §9 incremental rule)
-    again = runner.invoke(app, ["index", str(work / "config.yaml"), "--no-progress"])
-    assert again.exit_code == 0, again.output
-    assert f"computed 0, cached {len(gen.webs)}" in again.output

@@ -1,0 +1,303 @@
+"""The on-demand query flow: search the committed index, optionally register and export (SPEC §5-6).
+
+``query(config, request)`` reads only the store's committed generation, so a query never sees a
+half-written index (an index run may be writing its next generation meanwhile). The corpus,
+feature and web parameters come from that generation's recorded config; the request's config
+gives the search parameters and the output folder. Outputs (in ``request.out`` or
+``config.output``): ``matches.json``, ``graph.json``, ``graph.png``; with registration
+``warps.csv``, ``warps.png`` and ``registered/*.bvh``; with ``export`` every match as BVH.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from prefect import flow, get_run_logger, task
+from prefect.cache_policies import NO_CACHE
+
+from flows.config import Config, load_config
+from store.bvh import write_bvh
+from store.cache import Generation, MotionStore, feature_digest, package_versions
+from store.formats import read_motion
+from store.motion import Motion
+from tasks.kinematics import sample_motion
+from tasks.matchgraph import MatchGraph, Segment
+from tasks.register import Registration, register
+from tasks.search import MatchSearch, StoreWebs, epsilon_from_quantile, search
+
+
+@dataclass
+class QueryRequest:
+    """A query M1[a, b] (KG04 §3.3): ``clip`` is a corpus path or a unique file stem; ``start``
+    and ``end`` in seconds; exactly one of ``threshold`` (absolute ε) and ``quantile`` (ε as that
+    quantile of the searched webs' values)."""
+
+    clip: str
+    start: float
+    end: float
+    threshold: float | None = None
+    quantile: float | None = None
+    tiers: int | None = None
+    all_categories: bool | None = None
+    register: bool = False
+    export: str | None = None
+    out: str | None = None
+
+    def __post_init__(self) -> None:
+        if (self.threshold is None) == (self.quantile is None):
+            raise ValueError("give exactly one of threshold (absolute ε) and quantile (ε as a quantile)")
+        if self.quantile is not None and not 0.0 < self.quantile < 1.0:
+            raise ValueError(f"quantile must lie in (0, 1), got {self.quantile}")
+        if self.tiers is not None and self.tiers < 1:
+            raise ValueError(f"tiers must be ≥ 1, got {self.tiers}")
+        if not self.end > self.start:
+            raise ValueError(f"the query must end after it starts, got {self.start} s .. {self.end} s")
+
+
+@dataclass
+class QueryResult:
+    """What the flow returns (and the CLI prints)."""
+
+    out: str
+    generation: str
+    query: dict[str, Any]
+    epsilon: float
+    matches: list[dict[str, Any]]
+    files: list[str]
+    timings: dict[str, float]
+
+
+def committed_generation(store_url: str) -> tuple[MotionStore, Generation]:
+    """The store's committed generation (ValueError when it was never indexed)."""
+    store = MotionStore(store_url, read_only=True)
+    gen = store.generation() if store.current_id() else None
+    if gen is None:
+        raise ValueError(f"store {store_url} was never indexed: run `motionweb index CONFIG` first")
+    return store, gen
+
+
+def resolve_clip(gen: Generation, name: str) -> dict[str, Any]:
+    """The clip record of a corpus path or unique stem (ValueError listing candidates)."""
+    by_path = {c["path"]: c for c in gen.clips}
+    if name in by_path:
+        return by_path[name]
+    hits = [c for c in gen.clips if Path(c["path"]).stem == name or Path(c["path"]).name == name]
+    if len(hits) == 1:
+        return hits[0]
+    if hits:
+        raise ValueError(f"clip name {name!r} is ambiguous: {', '.join(c['path'] for c in hits)}")
+    near = sorted(c["path"] for c in gen.clips if name.lower() in c["path"].lower())[:8]
+    hint = f"; similar: {', '.join(near)}" if near else f"; the index holds {len(gen.clips)} clips"
+    raise ValueError(f"unknown clip {name!r} in generation {gen.id}{hint}")
+
+
+def query_segment(rec: dict[str, Any], start: float, end: float, rate: float) -> Segment:
+    """Seconds to frames at the web rate, checked against the clip's duration."""
+    a, b = round(start * rate), round(end * rate)
+    last = int(np.floor(rec["duration"] * rate + 1e-9))
+    if start < 0 or b > last:
+        raise ValueError(f"query {start:g} s .. {end:g} s is outside clip {rec['path']!r} "
+                         f"(0 .. {rec['duration']:.3f} s)")
+    return Segment(rec["path"], a, b)
+
+
+def load_indexed_clip(gen_cfg: Config, rec: dict[str, Any]) -> Motion:
+    """Read a clip of the generation, refusing a file that changed since it was indexed."""
+    path = Path(gen_cfg.corpus.path) / rec["path"]
+    motion = read_motion(path, unit=gen_cfg.corpus.length_unit, scale_to_m=gen_cfg.corpus.scale_to_m)
+    if motion.content_hash != rec["sha256"]:
+        raise ValueError(f"{path} changed since generation was indexed; run `motionweb index` again")
+    return motion
+
+
+def segment_motion(motion: Motion, frames: np.ndarray, rate: float) -> Motion:
+    """The motion at (fractional) frames counted at ``rate`` Hz, played back at ``rate``."""
+    return replace(sample_motion(motion, np.asarray(frames, np.float64) * motion.fps / rate), fps=float(rate))
+
+
+def plan_query(cfg: Config, request: QueryRequest) -> Segment:
+    """Every check of a request that needs no search (store indexed, clip known, range inside it
+    and long enough), so the CLI can refuse a bad request before a flow run starts."""
+    store, gen = committed_generation(cfg.store.path)
+    gen_cfg = Config.model_validate(gen.config)
+    rate = max(float(r) for r in gen_cfg.features.rates)
+    seg = query_segment(resolve_clip(gen, request.clip), request.start, request.end, rate)
+    MatchSearch(StoreWebs.for_query(store, seg.clip, True, generation=gen), cfg.search, gen_cfg.matchweb).check(seg)
+    return seg
+
+
+# ------------------------------------------------------------------------------------ outputs
+def match_rows(graph: MatchGraph, clips: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per node, sorted by graph distance (the query first)."""
+    rows = []
+    for k, n in enumerate(graph.nodes):
+        s, rec = n.segment, clips[n.segment.clip]
+        rows.append({
+            "rank": k, "clip": s.clip, "category": rec.get("category", ""),
+            "start_frame": s.start, "end_frame": s.end, "rate": graph.rate,
+            "start_s": round(s.start / graph.rate, 4), "end_s": round(s.end / graph.rate, 4),
+            "cost": float(n.cost), "tier": n.tier, "distance": float(n.distance),
+        })
+    return rows
+
+
+def graph_dict(graph: MatchGraph) -> dict[str, Any]:
+    return {
+        "rate": graph.rate,
+        "nodes": [{**asdict(n.segment), "tier": n.tier, "cost": n.cost, "distance": n.distance} for n in graph.nodes],
+        "edges": [{"u": e.u, "v": e.v, "cost": e.cost, "cells": e.cells.tolist()} for e in graph.edges],
+    }
+
+
+def plot_graph(graph: MatchGraph, rows: list[dict[str, Any]], out: Path) -> None:
+    """Nodes placed by graph distance (x) and tier (y), coloured by category; edges in grey."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 5))
+    tiers = np.array([n.tier for n in graph.nodes], float)
+    x = np.array([n.distance for n in graph.nodes])
+    y = tiers + 0.25 * np.sin(np.arange(len(tiers)) * 2.3) * (tiers > 0)
+    for e in graph.edges:
+        ax.plot(x[[e.u, e.v]], y[[e.u, e.v]], color="0.8", lw=0.7, zorder=1)
+    cats = sorted({r["category"] for r in rows})
+    for c, cat in enumerate(cats):
+        k = [i for i, r in enumerate(rows) if r["category"] == cat]
+        ax.scatter(x[k], y[k], color=plt.cm.tab10(c % 10), s=40, zorder=2, label=cat or "(none)")
+    for k, n in enumerate(graph.nodes[:40]):
+        ax.annotate(f"{Path(n.segment.clip).stem}[{n.segment.start}:{n.segment.end}]", (x[k], y[k]),
+                    fontsize=6, xytext=(3, 3), textcoords="offset points")
+    ax.scatter(x[:1], y[:1], s=140, facecolors="none", edgecolors="red", zorder=3, label="query")
+    ax.set_yticks(range(int(tiers.max()) + 1))
+    ax.set_xlabel("graph distance to the query (shortest-path cost)")
+    ax.set_ylabel("tier")
+    ax.set_title(f"match graph: {len(graph.nodes)} nodes, {len(graph.edges)} edges (KG04 §3.3)")
+    ax.legend(loc="lower right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def write_warps(reg: Registration, rows: list[dict[str, Any]], out: Path) -> list[Path]:
+    """``warps.csv`` (query frame u, then every node's frame s_i(u)) and ``warps.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [f"{rows[c]['rank']}:{Path(s.clip).stem}" for c, s in zip(reg.nodes, reg.segments, strict=True)]
+    csv_path = out / "warps.csv"
+    with csv_path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["u", *names])
+        for u, row in zip(reg.u, reg.frames, strict=True):
+            w.writerow([f"{u:g}", *(f"{v:.4f}" for v in row)])
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for c, name in enumerate(names):
+        seg = reg.segments[c]
+        ax.plot(reg.u - reg.u[0], (reg.frames[:, c] - seg.start) / reg.rate, lw=1, label=name if c < 12 else None)
+    ax.set_xlabel("query frame (from the query's start)")
+    ax.set_ylabel("example time from its segment start (s)")
+    ax.set_title("registration: time-warp curves s(u) (KG04 §4.1)")
+    ax.legend(fontsize=6)
+    fig.tight_layout()
+    png = out / "warps.png"
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    return [csv_path, png]
+
+
+# ----------------------------------------------------------------------------------- the flow
+@task(name="search", cache_policy=NO_CACHE)
+def search_task(store: MotionStore, gen: Generation, cfg: Config, gen_cfg: Config, request: QueryRequest,
+                ) -> tuple[MatchGraph, float, dict[str, Any]]:
+    """Resolve the query, choose ε and run the tiered search on the committed generation."""
+    rate = max(float(r) for r in gen_cfg.features.rates)
+    rec = resolve_clip(gen, request.clip)
+    seg = query_segment(rec, request.start, request.end, rate)
+    all_cats = cfg.search.all_categories if request.all_categories is None else request.all_categories
+    webs = StoreWebs.for_query(store, seg.clip, all_cats, generation=gen)
+    eps = (request.threshold if request.threshold is not None
+           else epsilon_from_quantile(webs.all_webs(), request.quantile))
+    scfg = cfg.search if request.tiers is None else cfg.search.model_copy(update={"max_tiers": request.tiers})
+    return search(seg, eps, webs, scfg, gen_cfg.matchweb), eps, rec
+
+
+@task(name="register", cache_policy=NO_CACHE)
+def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: MatchGraph,
+                  clips: dict[str, dict[str, Any]]) -> Registration:
+    """Load the nodes' features at the web rate and register every node to the query."""
+    fdig = gen.params["features"]
+    feats, weights = {}, None
+    for clip in {n.segment.clip for n in graph.nodes}:
+        by_rate, weights = store.read_features(clips[clip]["sha256"], fdig, [graph.rate])
+        feats[clip] = by_rate[graph.rate]
+    return register(graph, feats, weights, gen_cfg.matchweb)
+
+
+@flow(name="query")
+def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
+    """Search the committed index for ``request`` (KG04 §3.3), optionally register (§4.1) and
+    export; writes the outputs listed in the module docstring and returns a :class:`QueryResult`
+    as a dict. Cost: one tier reads the webs of the query's chunk once and walks them in
+    O(cells of the paths and bridges touching rows a..b); tiers repeat that per new node."""
+    cfg = config if isinstance(config, Config) else load_config(config)
+    logger = get_run_logger()
+    t0 = time.perf_counter()
+    store, gen = committed_generation(cfg.store.path)
+    gen_cfg = Config.model_validate(gen.config)
+    if feature_digest(gen_cfg) != gen.params["features"]:
+        raise ValueError(f"generation {gen.id} records inconsistent feature parameters; re-index")
+    graph, eps, rec = search_task(store, gen, cfg, gen_cfg, request)
+    timings = {"search_s": time.perf_counter() - t0}
+    clips = {c["path"]: c for c in gen.clips}
+    rows = match_rows(graph, clips)
+    out = Path(request.out or cfg.output)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"generation": gen.id, "store": cfg.store.path, "epsilon": eps, "request": asdict(request),
+            "config_digest": cfg.digest(), "versions": package_versions()}
+    files = [out / "matches.json", out / "graph.json", out / "graph.png"]
+    files[0].write_text(json.dumps({**meta, "matches": rows}, indent=1))
+    files[1].write_text(json.dumps({**meta, **graph_dict(graph)}))
+    plot_graph(graph, rows, files[2])
+    logger.info("query %s [%d, %d]: ε = %.4g, %d matches", rec["path"], graph.nodes[0].segment.start,
+                graph.nodes[0].segment.end, eps, len(graph.nodes) - 1)
+
+    motions: dict[str, Motion] = {}
+
+    def motion_of(clip: str) -> Motion:
+        if clip not in motions:
+            motions[clip] = load_indexed_clip(gen_cfg, clips[clip])
+        return motions[clip]
+
+    if request.export:
+        exp = Path(request.export)
+        exp.mkdir(parents=True, exist_ok=True)
+        for row, node in zip(rows, graph.nodes, strict=True):
+            s = node.segment
+            p = exp / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.bvh"
+            write_bvh(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p)
+            files.append(p)
+    if request.register and len(graph.nodes) > 1:
+        t = time.perf_counter()
+        reg = register_task(store, gen, gen_cfg, graph, clips)
+        timings["register_s"] = time.perf_counter() - t
+        files += write_warps(reg, rows, out)
+        common = reg.resample()
+        regdir = out / "registered"
+        regdir.mkdir(exist_ok=True)
+        for c, s in enumerate(reg.segments):
+            p = regdir / f"{rows[reg.nodes[c]]['rank']:03d}_{Path(s.clip).stem}.bvh"
+            write_bvh(segment_motion(motion_of(s.clip), common[:, c], graph.rate), p)
+            files.append(p)
+    timings["total_s"] = time.perf_counter() - t0
+    return asdict(QueryResult(out=str(out), generation=gen.id, query=rows[0], epsilon=eps, matches=rows[1:],
+                              files=[str(f) for f in files], timings=timings))
