@@ -1,0 +1,581 @@
+"""Search over match webs: match sequences, redundancy removal, tiers, the match graph (KG04 §3.3;
+SPEC §5).
+
+A query is a segment ``M1[a, b]`` (frames at the web rate, inclusive) and a threshold ε. For each
+web (M1, M2) the search intersects the web with rows a..b (KG04 Fig. 9): from every path with a
+cell in row a (its earliest such cell) it walks along the path, branching onto bridges, until a
+cell in row b; the columns of the first and last cells give the match ``M2[c, d]``, kept when the
+average cell value of the walk is at most ε.
+
+The walk (choice made here). Rather than enumerating every match sequence, which is exponential
+in the number of bridges crossed, the webs of a clip are packed into one DAG whose states are the
+cells of paths and bridge interiors (:class:`WalkGraph`; a bridge's first and last cells are the
+path cells it joins). Cells advance by one row or column per step, so ``row + col`` orders the
+states topologically. Per start cell a dynamic program over the states reachable within rows
+a..b finds, for every terminal cell (the last cell of a row-b run), the walk of least average
+value exactly, by Dinkelbach's parametric method: a walk with average ≤ λ exists iff the least
+total of ``value − λ`` is ≤ 0, a plain shortest-path DP. λ = ε decides which terminals match;
+each match is then refined with λ ← average of its current walk until the average stops
+decreasing (a few passes). Cost of one query on one clip: O(P) to find the paths crossing row a
+(P paths in all its webs) plus, per start, O(R log R) for the R states reachable in the band of
+rows a..b, and O(R) per refinement pass of a kept match — linear in the size of the webs searched,
+as KG04 §3.4 reports. The trivial identity match of a self web cannot occur: self webs mask the
+band |i − j| ≤ ``self_band_s`` (``tasks.matchweb.mask_self_band``), and a match overlapping the
+query anyway is absorbed by the query node (dedup below).
+
+Redundancy removal (KG04 §3.3): matches sorted by average value, the best kept, every other
+overlapping it by more than ``SearchConfig.overlap_redundant`` dropped, repeat.
+
+Tiers and the match graph (KG04 §3.3, Fig. 10): every new node becomes a query in turn, up to
+``max_tiers`` tiers, until nothing new appears. A match M' of query node M is compared with every
+node; m = its largest overlap (``Segment.overlap``). m < ``new_node_below``: new node and edge
+M–M'; m > ``merge_above``: the node's interval is averaged with M' (the query node's interval is
+never changed) and an edge M–node added; otherwise M' is discarded. One edge per node pair (the
+cheaper kept). Edge cost = average cell value; node distance = shortest-path cost to the query
+(Dijkstra); nodes 1.. are returned sorted by that distance. A full search costs one query per
+node.
+
+Webs come from a mapping ``clip -> [(other clip, web with clip as rows), ...]`` (:data:`WebSource`),
+so the core needs no store; :class:`StoreWebs` builds that mapping from a store generation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numba import njit
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from flows.config import MatchWebConfig, SearchConfig
+from tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
+from tasks.matchweb import MatchWeb, min_chain_extent
+
+if TYPE_CHECKING:
+    from store.cache import Generation, MotionStore
+
+INF = np.inf
+
+#: clip key -> [(other clip key, web oriented with the clip as rows)]
+WebSource = Mapping[str, Sequence[tuple[str, MatchWeb]]]
+
+
+def transpose(web: MatchWeb) -> MatchWeb:
+    """The web with rows and columns swapped: cells (i, j) -> (j, i). Paths and bridges stay
+    monotone and keep their order, so junction indices are unchanged. O(cells)."""
+    return MatchWeb(
+        rate=web.rate, shape=(web.shape[1], web.shape[0]),
+        paths_cells=web.paths_cells[:, ::-1].copy(), paths_values=web.paths_values, paths_offsets=web.paths_offsets,
+        bridges=web.bridges, bridges_cells=web.bridges_cells[:, ::-1].copy(), bridges_values=web.bridges_values,
+        bridges_offsets=web.bridges_offsets, self_pair=web.self_pair,
+        grid=None if web.grid is None else np.ascontiguousarray(web.grid.T),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# the webs of one clip as one DAG of cells
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class WalkGraph:
+    """The webs of one clip (its frames are the rows) packed into one DAG of cells (KG04 §3.3).
+
+    State s is a cell ``(rows[s], cols[s])`` of web ``web_of[s]`` with value ``values[s]``.
+    Path cells come first, in path order; bridge interiors follow. ``nxt[s]`` is the next cell
+    along the same path or bridge (the last interior cell of a bridge continues onto the cell it
+    joins; −1 at a path's end); ``branch_to[branch_off[s]:branch_off[s + 1]]`` are the bridges
+    leaving path cell s (their first interior cell, or the joined cell for a two-cell bridge).
+    Path p spans states ``path_first[p]..path_last[p]``. ``others[w]`` is the columns clip of web w.
+    The work buffers are reused by every query (one query at a time per graph).
+    """
+
+    rate: float
+    n_frames: int
+    others: tuple[str, ...]
+    rows: np.ndarray
+    cols: np.ndarray
+    values: np.ndarray
+    web_of: np.ndarray
+    nxt: np.ndarray
+    branch_off: np.ndarray
+    branch_to: np.ndarray
+    path_first: np.ndarray
+    path_last: np.ndarray
+    work: tuple[np.ndarray, ...] = field(repr=False, default=())
+
+    def __post_init__(self) -> None:
+        n = len(self.rows)
+        self.work = (np.full(n, -1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
+                     np.empty(n, np.float64), np.empty(n, np.float64), np.empty(n, np.int64), np.empty(n, np.int64))
+
+    @property
+    def n_states(self) -> int:
+        return len(self.rows)
+
+
+def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
+    """States, successors and branches of one web, numbered from ``base`` (vectorised)."""
+    n_cells = len(web.paths_cells)
+    offs = web.paths_offsets
+    nxt = np.arange(base + 1, base + n_cells + 1, dtype=np.int64)
+    nxt[offs[1:][np.diff(offs) > 0] - 1] = -1
+    lens = np.diff(web.bridges_offsets)
+    inner = np.maximum(lens - 2, 0)
+    inner_start = base + n_cells + np.cumsum(inner) - inner
+    from_state = base + offs[web.bridges[:, 0]] + web.bridges[:, 1]
+    to_state = base + offs[web.bridges[:, 2]] + web.bridges[:, 3]
+    keep = np.ones(len(web.bridges_cells), bool)
+    keep[web.bridges_offsets[:-1]] = False
+    keep[web.bridges_offsets[1:] - 1] = False
+    inner_cells = web.bridges_cells[keep]
+    n_inner = int(inner.sum())
+    inner_nxt = np.arange(base + n_cells + 1, base + n_cells + n_inner + 1, dtype=np.int64)
+    last_inner = (inner_start + inner - 1)[inner > 0] - (base + n_cells)
+    inner_nxt[last_inner] = to_state[inner > 0]
+    return {
+        "cells": np.concatenate([web.paths_cells, inner_cells]).astype(np.int32),
+        "values": np.concatenate([web.paths_values, web.bridges_values[keep]]).astype(np.float64),
+        "nxt": np.concatenate([nxt, inner_nxt]),
+        "branch_from": from_state,
+        "branch_to": np.where(inner > 0, inner_start, to_state).astype(np.int64),
+        "path_first": base + offs[:-1],
+        "path_last": base + offs[1:] - 1,
+    }
+
+
+def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
+    """Pack the webs of one clip (each with that clip as rows) into a :class:`WalkGraph`. O(cells)."""
+    if not webs:
+        raise ValueError("no match webs to search")
+    rates = {float(w.rate) for _, w in webs}
+    frames = {int(w.shape[0]) for _, w in webs}
+    if len(rates) != 1 or len(frames) != 1:
+        raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
+    parts, base = [], 0
+    for _, w in webs:
+        s = _web_states(w, base)
+        parts.append(s)
+        base += len(s["cells"])
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    web_of = np.concatenate([np.full(len(p["cells"]), i, np.int32) for i, p in enumerate(parts)])
+    order = np.argsort(cat["branch_from"], kind="stable")
+    branch_off = np.zeros(base + 1, np.int64)
+    np.cumsum(np.bincount(cat["branch_from"], minlength=base), out=branch_off[1:])
+    return WalkGraph(
+        rate=rates.pop(), n_frames=frames.pop(), others=tuple(o for o, _ in webs),
+        rows=np.ascontiguousarray(cat["cells"][:, 0]), cols=np.ascontiguousarray(cat["cells"][:, 1]),
+        values=cat["values"], web_of=web_of, nxt=cat["nxt"], branch_off=branch_off,
+        branch_to=np.ascontiguousarray(cat["branch_to"][order]),
+        path_first=cat["path_first"].astype(np.int64), path_last=cat["path_last"].astype(np.int64),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# the walk (compiled)
+# ----------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _n_succ(s, rows, nxt, boff, b) -> int:
+    """Successors of state s: in row b only the next cell of the same path/bridge if still in
+    row b (the walk ends at the last cell of its row-b run); below row b the next cell and every
+    bridge leaving s."""
+    if rows[s] >= b:
+        t = nxt[s]
+        return 1 if t >= 0 and rows[t] == b else 0
+    return (1 if nxt[s] >= 0 else 0) + boff[s + 1] - boff[s]
+
+
+@njit(cache=True)
+def _succ(s, k, nxt, boff, bto) -> int:
+    """The k-th successor of s (k < _n_succ): the next cell first when there is one."""
+    if nxt[s] >= 0:
+        if k == 0:
+            return nxt[s]
+        k -= 1
+    return bto[boff[s] + k]
+
+
+@njit(cache=True)
+def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
+    """States reachable from s0 within rows ≤ b, sorted by row + col (a topological order);
+    ``local[s]`` is set to each state's position in ``reach``. Returns their count."""
+    n = 1
+    reach[0] = s0
+    local[s0] = 0
+    sp = 1
+    stack[0] = s0
+    while sp > 0:
+        sp -= 1
+        s = stack[sp]
+        for k in range(_n_succ(s, rows, nxt, boff, b)):
+            t = _succ(s, k, nxt, boff, bto)
+            if local[t] < 0:
+                local[t] = n
+                reach[n] = t
+                n += 1
+                stack[sp] = t
+                sp += 1
+    rank = np.empty(n, np.int64)
+    for q in range(n):
+        rank[q] = rows[reach[q]] + cols[reach[q]]
+    order = np.argsort(rank, kind="mergesort")
+    tmp = reach[:n][order].copy()
+    for q in range(n):
+        reach[q] = tmp[q]
+        local[tmp[q]] = q
+    return n
+
+
+@njit(cache=True)
+def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred) -> None:
+    """Least total of (value − lam) from reach[0] to every reachable state (KG04 §3.3 walks)."""
+    for q in range(n):
+        cost[q] = INF
+    s0 = reach[0]
+    cost[0] = values[s0] - lam
+    total[0] = values[s0]
+    length[0] = 1
+    pred[0] = -1
+    for q in range(n):
+        s = reach[q]
+        for k in range(_n_succ(s, rows, nxt, boff, b)):
+            t = _succ(s, k, nxt, boff, bto)
+            r = local[t]
+            c = cost[q] + values[t] - lam
+            if c < cost[r]:
+                cost[r] = c
+                total[r] = total[q] + values[t]
+                length[r] = length[q] + 1
+                pred[r] = q
+
+
+@njit(cache=True)
+def _walk(rows, cols, values, nxt, boff, bto, path_first, path_last, a, b, eps,
+          local, reach, stack, cost, total, length, pred):
+    """Every match of rows a..b with average ≤ eps, per (start path, terminal cell), each with its
+    least-average walk. Returns (start paths, c, d, averages, cells (K, 2), offsets)."""
+    o_path = []
+    o_c = []
+    o_d = []
+    o_avg = []
+    o_cells = []
+    for p in range(path_first.shape[0]):
+        f = path_first[p]
+        e = path_last[p]
+        if rows[f] > a or rows[e] < a:
+            continue
+        lo = f
+        hi = e
+        while lo < hi:  # earliest cell of the path in row a (rows never decrease along a path)
+            mid = (lo + hi) // 2
+            if rows[mid] < a:
+                lo = mid + 1
+            else:
+                hi = mid
+        s0 = lo
+        n = _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack)
+        _dp(n, reach, rows, values, nxt, boff, bto, b, local, eps, cost, total, length, pred)
+        terms = []
+        first = []
+        for q in range(n):
+            s = reach[q]
+            # average ≤ eps ⟺ total − eps·length ≤ 0 (relative round-off allowed for ties)
+            if rows[s] == b and _n_succ(s, rows, nxt, boff, b) == 0 and cost[q] <= 1e-12 * (total[q] + eps * length[q]):
+                terms.append(q)
+                first.append(total[q] / length[q])
+        for u in range(len(terms)):
+            q = terms[u]
+            lam = first[u]
+            while True:  # Dinkelbach: the walk of least average ending at q
+                _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred)
+                avg = total[q] / length[q]
+                if avg < lam - 1e-12 * max(abs(lam), 1e-30):
+                    lam = avg
+                else:
+                    break
+            m = length[q]
+            cells = np.empty((m, 2), np.int32)
+            r = q
+            for w in range(m - 1, -1, -1):
+                cells[w, 0] = rows[reach[r]]
+                cells[w, 1] = cols[reach[r]]
+                r = pred[r]
+            o_path.append(p)
+            o_c.append(cols[s0])
+            o_d.append(cols[reach[q]])
+            o_avg.append(min(avg, lam))
+            o_cells.append(cells)
+        for q in range(n):
+            local[reach[q]] = -1
+    k = len(o_path)
+    off = np.zeros(k + 1, np.int64)
+    for u in range(k):
+        off[u + 1] = off[u] + o_cells[u].shape[0]
+    flat = np.empty((off[k], 2), np.int32)
+    for u in range(k):
+        flat[off[u]:off[u + 1]] = o_cells[u]
+    paths = np.empty(k, np.int64)
+    cs = np.empty(k, np.int64)
+    ds = np.empty(k, np.int64)
+    avgs = np.empty(k, np.float64)
+    for u in range(k):
+        paths[u] = o_path[u]
+        cs[u] = o_c[u]
+        ds[u] = o_d[u]
+        avgs[u] = o_avg[u]
+    return paths, cs, ds, avgs, flat, off
+
+
+# ----------------------------------------------------------------------------------------------
+# one tier
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WebMatch:
+    """A match ``clip[start..end]`` of a query, ``cost`` the average cell value of its walk, whose
+    ``cells`` (k, 2) are (query frame, match frame) at the web rate (KG04 §3.3)."""
+
+    clip: str
+    start: int
+    end: int
+    cost: float
+    cells: np.ndarray
+
+    @property
+    def segment(self) -> Segment:
+        return Segment(self.clip, self.start, self.end)
+
+
+def find_matches(graph: WalkGraph, a: int, b: int, eps: float) -> list[WebMatch]:
+    """All matches of rows a..b in the webs of ``graph`` with average ≤ ``eps`` (KG04 §3.3), one
+    per (clip, c, d) with its least-average walk. Cost: see the module docstring."""
+    paths, cs, ds, avgs, flat, off = _walk(
+        graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.path_first,
+        graph.path_last, int(a), int(b), float(eps), *graph.work)
+    best: dict[tuple[str, int, int], WebMatch] = {}
+    for u in range(len(paths)):
+        clip = graph.others[graph.web_of[graph.path_first[paths[u]]]]
+        key = (clip, int(cs[u]), int(ds[u]))
+        if key not in best or avgs[u] < best[key].cost:
+            best[key] = WebMatch(clip, key[1], key[2], float(avgs[u]), flat[off[u]:off[u + 1]].copy())
+    return list(best.values())
+
+
+def walk_web(web: MatchWeb, a: int, b: int, eps: float, other: str = "") -> list[WebMatch]:
+    """:func:`find_matches` on a single web (rows = the query clip)."""
+    return find_matches(walk_graph([(other, web)]), a, b, eps)
+
+
+def remove_redundant(matches: Iterable[WebMatch], overlap: float) -> list[WebMatch]:
+    """KG04 §3.3: by increasing average value, keep a match and drop every other overlapping it by
+    more than ``overlap`` (``Segment.overlap``), repeat. O(m²) for m matches."""
+    kept: list[WebMatch] = []
+    for m in sorted(matches, key=lambda x: (x.cost, x.clip, x.start, x.end)):
+        seg = m.segment
+        if all(seg.overlap(k.segment) <= overlap for k in kept):
+            kept.append(m)
+    return kept
+
+
+def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
+    """ε as the ``q`` quantile (0..1) of the path values of ``webs`` (SPEC §5: absolute distances
+    mean little to a user, a quantile of the chunk's web values does)."""
+    if not 0.0 <= q <= 1.0:
+        raise ValueError(f"quantile must be within [0, 1], got {q}")
+    vals = [w.paths_values for w in webs]
+    allv = np.concatenate(vals) if vals else np.zeros(0)
+    allv = allv[np.isfinite(allv)]
+    if not len(allv):
+        raise ValueError("no match web values to take a quantile of (empty index or chunk)")
+    return float(np.quantile(allv, q))
+
+
+# ----------------------------------------------------------------------------------------------
+# tiers and the match graph
+# ----------------------------------------------------------------------------------------------
+
+
+class MatchSearch:
+    """Searches over a :data:`WebSource`, one :class:`WalkGraph` packed and cached per clip
+    (KG04 §3.3). Not thread-safe (graphs share work buffers)."""
+
+    def __init__(self, webs: WebSource, cfg: SearchConfig | None = None, web_cfg: MatchWebConfig | None = None):
+        self.webs = webs
+        self.cfg = cfg or SearchConfig()
+        self.web_cfg = web_cfg or MatchWebConfig()
+        self._graphs: dict[str, WalkGraph] = {}
+
+    def graph(self, clip: str) -> WalkGraph:
+        """The packed webs of ``clip`` (ValueError naming an unknown clip)."""
+        g = self._graphs.get(clip)
+        if g is None:
+            try:
+                webs = self.webs[clip]
+            except KeyError:
+                raise ValueError(f"unknown clip {clip!r}: it is not in the index searched") from None
+            if not webs:
+                raise ValueError(f"clip {clip!r} has no match webs in the index searched")
+            g = self._graphs[clip] = walk_graph(webs)
+        return g
+
+    def check(self, query: Segment) -> WalkGraph:
+        """Validate a user query: known clip, range inside it, at least the minimum chain length."""
+        g = self.graph(query.clip)
+        if query.start < 0 or query.end >= g.n_frames:
+            raise ValueError(f"query range {query.start}..{query.end} is outside clip {query.clip!r} "
+                             f"(frames 0..{g.n_frames - 1} at {g.rate:g} Hz)")
+        need = min_chain_extent(self.web_cfg, g.rate)
+        if query.end - query.start < need:
+            raise ValueError(f"query range {query.start}..{query.end} of {query.clip!r} spans "
+                             f"{query.end - query.start} frames, shorter than the minimum chain length "
+                             f"{need} frames ({self.web_cfg.min_chain_s:g} s at {g.rate:g} Hz)")
+        return g
+
+    def matches(self, query: Segment, eps: float) -> list[WebMatch]:
+        """One tier: matches of ``query`` with average ≤ ``eps``, redundant ones removed."""
+        g = self.graph(query.clip)
+        found = find_matches(g, query.start, min(query.end, g.n_frames - 1), eps)
+        return remove_redundant(found, self.cfg.overlap_redundant)
+
+    def search(self, query: Segment, eps: float) -> MatchGraph:
+        """The tiered search from ``query`` (KG04 §3.3): a match graph, nodes sorted by distance."""
+        if not (np.isfinite(eps) and eps >= 0):
+            raise ValueError(f"threshold ε must be finite and ≥ 0, got {eps}")
+        g = self.check(query)
+        nodes = [MatchNode(query, tier=0, cost=0.0, distance=0.0)]
+        edges: dict[tuple[int, int], MatchEdge] = {}
+        frontier = [0]
+        for tier in range(1, self.cfg.max_tiers + 1):
+            added = []
+            for qi in frontier:
+                for m in self.matches(nodes[qi].segment, eps):
+                    v, new = self._place(nodes, m, tier)
+                    if v is None or v == qi:
+                        continue
+                    if new:
+                        added.append(v)
+                    key = (min(qi, v), max(qi, v))
+                    if key not in edges or m.cost < edges[key].cost:
+                        edges[key] = MatchEdge(qi, v, m.cost, m.cells)
+            if not added:
+                break
+            frontier = added
+        return _finish(g.rate, nodes, list(edges.values()))
+
+    def _place(self, nodes: list[MatchNode], m: WebMatch, tier: int) -> tuple[int | None, bool]:
+        """Dedup a match against the graph (KG04 §3.3): (its node index or None when discarded,
+        whether the node is new)."""
+        seg = m.segment
+        ov = [seg.overlap(n.segment) for n in nodes]
+        best = int(np.argmax(ov))
+        if ov[best] < self.cfg.new_node_below:
+            nodes.append(MatchNode(seg, tier=tier, cost=m.cost))
+            return len(nodes) - 1, True
+        if ov[best] > self.cfg.merge_above:
+            if best != 0:
+                old = nodes[best].segment
+                nodes[best].segment = Segment(old.clip, round((old.start + seg.start) / 2), round((old.end + seg.end) / 2))
+            return best, False
+        return None, False
+
+
+def _finish(rate: float, nodes: list[MatchNode], edges: list[MatchEdge]) -> MatchGraph:
+    """Shortest-path distances to the query (Dijkstra) and nodes 1.. sorted by them."""
+    n = len(nodes)
+    if edges:
+        u = np.array([e.u for e in edges])
+        v = np.array([e.v for e in edges])
+        w = np.array([e.cost for e in edges], np.float64)
+        dist = dijkstra(csr_matrix((w, (u, v)), shape=(n, n)), directed=False, indices=0)
+    else:
+        dist = np.zeros(n)
+    for i, node in enumerate(nodes):
+        node.distance = float(dist[i])
+    order = [0, *sorted(range(1, n), key=lambda i: (dist[i], nodes[i].tier, nodes[i].cost))]
+    new = {old: k for k, old in enumerate(order)}
+    return MatchGraph(rate=rate, nodes=[nodes[i] for i in order],
+                      edges=[MatchEdge(new[e.u], new[e.v], e.cost, e.cells) for e in edges])
+
+
+def search(query: Segment, eps: float, webs: WebSource, cfg: SearchConfig | None = None,
+           web_cfg: MatchWebConfig | None = None) -> MatchGraph:
+    """Tiered search of ``query`` (frames at the web rate) with threshold ``eps`` over ``webs``
+    (KG04 §3.3; SPEC §5). Raises ValueError for an unknown clip, a range outside the clip or
+    shorter than the minimum chain length, a bad ε."""
+    return MatchSearch(webs, cfg, web_cfg).search(query, eps)
+
+
+# ----------------------------------------------------------------------------------------------
+# the webs of a store generation
+# ----------------------------------------------------------------------------------------------
+
+
+class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
+    """A :data:`WebSource` over a committed store generation: the webs touching a clip, oriented
+    with it as rows, restricted to clips of ``category`` (None: all). Each stored web is read once
+    and cached (with its transpose when needed)."""
+
+    def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None):
+        gen = generation if generation is not None else store.generation()
+        if gen is None:
+            raise ValueError(f"store {store.url} was never indexed (no committed generation)")
+        self.store, self.generation, self.category = store, gen, category
+        self.categories = {c["path"]: c.get("category", "") for c in gen.clips}
+        self._by_clip: dict[str, list[dict[str, Any]]] = {}
+        for w in gen.webs:
+            if category is None or (self.categories.get(w["a"]) == category and self.categories.get(w["b"]) == category):
+                self._by_clip.setdefault(w["a"], []).append(w)
+                if w["b"] != w["a"]:
+                    self._by_clip.setdefault(w["b"], []).append(w)
+        self._webs: dict[str, MatchWeb] = {}
+        self._transposed: dict[str, MatchWeb] = {}
+
+    @classmethod
+    def for_query(cls, store: MotionStore, clip: str, all_categories: bool = False,
+                  generation: Generation | None = None) -> StoreWebs:
+        """The webs a query on ``clip`` searches: its category's, or all with ``all_categories``."""
+        gen = generation if generation is not None else store.generation()
+        if gen is None:
+            raise ValueError(f"store {store.url} was never indexed (no committed generation)")
+        cats = {c["path"]: c.get("category", "") for c in gen.clips}
+        if clip not in cats:
+            raise ValueError(f"unknown clip {clip!r}: not in generation {gen.id} of {store.url}")
+        return cls(store, gen, None if all_categories else cats[clip])
+
+    def _read(self, rec: dict[str, Any]) -> MatchWeb:
+        web = self._webs.get(rec["key"])
+        if web is None:
+            web = self._webs[rec["key"]] = self.store.read_web(rec["key"])
+        return web
+
+    def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
+        if clip not in self._by_clip:
+            raise KeyError(clip)
+        out = []
+        for rec in self._by_clip[clip]:
+            web = self._read(rec)
+            if rec["a"] == clip:
+                out.append((rec["b"], web))
+            else:
+                t = self._transposed.get(rec["key"])
+                if t is None:
+                    t = self._transposed[rec["key"]] = transpose(web)
+                out.append((rec["a"], t))
+        return out
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._by_clip)
+
+    def __len__(self) -> int:
+        return len(self._by_clip)
+
+    def all_webs(self) -> list[MatchWeb]:
+        """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`)."""
+        recs = {r["key"]: r for rs in self._by_clip.values() for r in rs}
+        return [self._read(r) for r in recs.values()]

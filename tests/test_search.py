@@ -1,0 +1,282 @@
+"""Search over match webs (KG04 §3.3, SPEC §5): the compiled walk against brute-force enumeration
+of match sequences, planted copies under known warps (recall, precision, endpoints), a chain of
+variants found only through tiers, errors, quantile ε, self webs and the store adapter."""
+
+from __future__ import annotations
+
+import itertools
+from collections import defaultdict
+
+import numpy as np
+import pytest
+
+from flows.config import MatchWebConfig, SearchConfig
+from store.cache import Generation, MotionStore, new_generation_id, now_iso, web_key
+from tasks.matchgraph import Segment
+from tasks.matchweb import MatchWeb, build_web_full, self_band
+from tasks.search import (
+    MatchSearch,
+    StoreWebs,
+    epsilon_from_quantile,
+    remove_redundant,
+    search,
+    transpose,
+    walk_web,
+)
+from tests.planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
+
+TOL = 3  # frames at 30 Hz
+EPS = 0.005  # planted copies cost ~3e-4, the nearest other motion 0.02 (see test output)
+
+
+# ---------------------------------------------------------------------------- slow reference
+
+
+def ref_matches(web: MatchWeb, a: int, b: int) -> dict[tuple[int, int], tuple[float, float]]:
+    """KG04 §3.3 literally: enumerate every match sequence from the earliest row-a cell of each
+    path, walking down paths and recursing into every bridge met before row b; a sequence ends at
+    the last cell of its row-b run. Returns (c, d) -> (least average, average of least total)."""
+    leaving = defaultdict(list)
+    for bi, (p, fi, _, _) in enumerate(web.bridges.tolist()):
+        leaving[(p, fi)].append(bi)
+    best: dict[tuple[int, int], tuple[float, float, float]] = {}
+
+    def record(seq: list[float], c: int, d: int) -> None:
+        avg, tot = float(np.mean(seq)), float(np.sum(seq))
+        old = best.get((c, d), (np.inf, np.inf, np.inf))
+        best[(c, d)] = (min(old[0], avg), *(min((old[1], old[2]), (tot, avg))))
+
+    def run_path(p: int, k: int, seq: list[float], c: int) -> None:
+        cells, vals = web.path(p)
+        for q in range(k, len(cells)):
+            seq = [*seq, float(vals[q])]
+            if cells[q][0] == b:
+                if q + 1 == len(cells) or cells[q + 1][0] != b:
+                    record(seq, c, int(cells[q][1]))
+                    return
+                continue
+            for bi in leaving[(p, q)]:
+                run_bridge(bi, seq, c)
+
+    def run_bridge(bi: int, seq: list[float], c: int) -> None:
+        cells, vals = web.bridge(bi)
+        for u in range(1, len(cells) - 1):
+            seq = [*seq, float(vals[u])]
+            if cells[u][0] == b and cells[u + 1][0] != b:
+                record(seq, c, int(cells[u][1]))
+                return
+        run_path(int(web.bridges[bi][2]), int(web.bridges[bi][3]), seq, c)
+
+    for p in range(web.n_paths):
+        cells, _ = web.path(p)
+        hit = np.nonzero(cells[:, 0] == a)[0]
+        if len(hit):
+            run_path(p, int(hit[0]), [], int(cells[hit[0], 1]))
+    return {k: (v[0], v[2]) for k, v in best.items()}
+
+
+@pytest.fixture(scope="module")
+def tangled_web() -> MatchWeb:
+    """A 50x50 web of five noisy diagonal valleys joined by many bridges."""
+    rng = np.random.default_rng(9)
+    i, j = np.mgrid[0:50, 0:50]
+    g = np.full((50, 50), np.inf)
+    for o in (-12, -6, 0, 5, 11):
+        g = np.minimum(g, 0.1 + rng.uniform(0.01, 0.05) * np.abs(j - i - o) + 0.02 * rng.random((50, 50)))
+    web = build_web_full(g.astype(np.float32), 30.0, MatchWebConfig(min_chain_s=0.2, bridge_max_s=0.5, valid_a=0.5),
+                         self_pair=False)
+    assert web.n_bridges >= 15 and web.n_paths >= 5
+    return web
+
+
+def test_walk_is_the_brute_force_enumeration(tangled_web) -> None:
+    web = tangled_web
+    n_matches = n_differ = 0
+    for a in range(0, 50, 3):
+        for b in range(a, min(50, a + 24)):
+            ref = ref_matches(web, a, b)
+            got = {(m.start, m.end): m for m in walk_web(web, a, b, 1e9)}
+            assert set(got) == set(ref), (a, b)
+            for key, (least_avg, avg_of_least_total) in ref.items():
+                m = got[key]
+                assert m.cost == pytest.approx(least_avg, rel=1e-9, abs=1e-12)
+                assert m.cells[0, 0] == a and m.cells[-1, 0] == b and m.cells[0, 1] == key[0]
+                assert m.cells[-1, 1] == key[1] and np.all(np.diff(m.cells, axis=0) >= 0)
+                n_differ += avg_of_least_total > least_avg + 1e-9
+            n_matches += len(ref)
+            if ref:  # the ε filter: exactly the sequences of average ≤ ε
+                eps = float(np.median([v[0] for v in ref.values()]))
+                kept = {(m.start, m.end) for m in walk_web(web, a, b, eps)}
+                assert kept == {k for k, v in ref.items() if v[0] <= eps}
+    # enough cases, and some where the least-total walk is not the least-average one
+    assert n_matches > 500 and n_differ > 0
+
+
+def test_transpose_swaps_rows_and_columns(tangled_web) -> None:
+    t = transpose(tangled_web)
+    assert t.shape == tangled_web.shape[::-1] and np.array_equal(t.paths_cells, tangled_web.paths_cells[:, ::-1])
+    back = transpose(t)
+    for k, v in tangled_web.to_arrays().items():
+        assert np.array_equal(back.to_arrays()[k], v)
+    # a match of rows a..b in the web is, transposed, a walk over its columns: same cells swapped
+    m = walk_web(tangled_web, 10, 30, 1e9)[0]
+    mt = {(x.start, x.end): x for x in walk_web(t, int(m.cells[0, 1]), int(m.cells[-1, 1]), 1e9)}
+    assert (10, 30) in mt
+
+
+def test_redundancy_removal_keeps_the_best_of_overlapping() -> None:
+    from tasks.search import WebMatch
+
+    cells = np.zeros((0, 2), np.int32)
+    ms = [WebMatch("x", 0, 30, 0.2, cells), WebMatch("x", 5, 33, 0.1, cells), WebMatch("x", 20, 50, 0.3, cells),
+          WebMatch("y", 0, 30, 0.4, cells)]
+    kept = remove_redundant(ms, 0.5)
+    # (5,33) best; (0,30) overlaps it 26/29 > 0.5: dropped; (20,50) overlaps 14/29 ≤ 0.5: kept
+    assert [(m.clip, m.start, m.end) for m in kept] == [("x", 5, 33), ("x", 20, 50), ("y", 0, 30)]
+
+
+# ---------------------------------------------------------------------------- planted copies
+
+
+@pytest.fixture(scope="module")
+def planted() -> tuple[PlantedCorpus, CorpusWebs]:
+    pc = planted_corpus(seed=0, n_copies=20)
+    return pc, CorpusWebs(pc.clips)
+
+
+def test_planted_copies_found_with_their_endpoints(planted) -> None:
+    pc, webs = planted
+    graph = search(pc.query, EPS, webs, SearchConfig(max_tiers=1))
+    found = [n.segment for n in graph.nodes[1:]]
+    hits = [s for s in found if s.clip in pc.expected
+            and abs(s.start - pc.expected[s.clip].start) <= TOL and abs(s.end - pc.expected[s.clip].end) <= TOL]
+    recall = len({s.clip for s in hits}) / len(pc.expected)
+    precision = len(hits) / max(len(found), 1)
+    assert recall >= 0.95 and precision >= 0.95, (recall, precision, found)
+    # the match graph: query first, distances = edge costs at one tier, sorted, cells span the query
+    assert graph.nodes[0].segment == pc.query and graph.rate == 30.0
+    dist = [n.distance for n in graph.nodes]
+    assert dist == sorted(dist) and all(n.tier == 1 for n in graph.nodes[1:])
+    for e in graph.edges:
+        assert e.u == 0 and graph.nodes[e.v].distance == pytest.approx(e.cost) and e.cost <= EPS
+        assert e.cells[0, 0] == pc.query.start and e.cells[-1, 0] == pc.query.end
+    # the known warp: each match's cells follow it (query frame ≈ warp(copy frame))
+    for e in graph.edges:
+        seg = graph.nodes[e.v].segment
+        truth = pc.warps[seg.clip][e.cells[:, 1]]
+        assert np.nanmax(np.abs(truth - e.cells[:, 0])) <= TOL
+
+
+def test_quantile_threshold(planted) -> None:
+    pc, webs = planted
+    query_webs = [w for _, w in webs[pc.query.clip]]
+    values = np.concatenate([w.paths_values for w in query_webs])
+    assert epsilon_from_quantile(query_webs, 0.25) == pytest.approx(np.quantile(values, 0.25))
+    assert epsilon_from_quantile(query_webs, 0.0) == pytest.approx(values.min())
+    eps = epsilon_from_quantile(query_webs, 0.35)
+    assert 0.001 < eps < 0.02  # between the copies (~3e-4) and the other motions (≥ 0.02)
+    graph = search(pc.query, eps, webs, SearchConfig(max_tiers=1))
+    assert {n.segment.clip for n in graph.nodes[1:]} == set(pc.expected)
+    for q in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="quantile"):
+            epsilon_from_quantile(query_webs, q)
+    with pytest.raises(ValueError, match="no match web values"):
+        epsilon_from_quantile([], 0.5)
+
+
+def test_bad_queries_are_clear_errors(planted) -> None:
+    pc, webs = planted
+    n = pc.clips[pc.query.clip].n_frames
+    ms = MatchSearch(webs, SearchConfig(max_tiers=1))
+    with pytest.raises(ValueError, match="unknown clip 'kick/nope'"):
+        ms.search(Segment("kick/nope", 0, 20), EPS)
+    with pytest.raises(ValueError, match="outside clip 'kick/query'"):
+        ms.search(Segment(pc.query.clip, n - 20, n), EPS)
+    with pytest.raises(ValueError, match="outside clip"):
+        ms.search(Segment(pc.query.clip, -1, 20), EPS)
+    need = int(np.ceil(MatchWebConfig().min_chain_s * 30))
+    with pytest.raises(ValueError, match="shorter than the minimum chain length"):
+        ms.search(Segment(pc.query.clip, 10, 10 + need - 1), EPS)
+    ms.search(Segment(pc.query.clip, 10, 10 + need), EPS)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="threshold"):
+            ms.search(pc.query, bad)
+
+
+def test_self_web_never_returns_the_query_itself() -> None:
+    from store.demo_corpus import generate_clip
+
+    walk, _ = generate_clip("walk", 0, 3, fps=30.0)
+    webs = CorpusWebs({"walk/w": walk})
+    (_, web), = webs["walk/w"]
+    band = self_band(MatchWebConfig(), 30.0)
+    assert web.self_pair and np.all(np.abs(web.paths_cells[:, 0] - web.paths_cells[:, 1]) > band)
+    q = Segment("walk/w", 30, 60)
+    graph = search(q, 0.05, webs, SearchConfig(max_tiers=1, new_node_below=0.2))
+    assert len(graph.nodes) > 1  # other steps of the walk
+    for node in graph.nodes[1:]:
+        assert node.segment.overlap(q) < 0.2
+    for e in graph.edges:
+        assert np.all(np.abs(e.cells[:, 0] - e.cells[:, 1]) > band)
+
+
+# ---------------------------------------------------------------------------- tiers
+
+
+@pytest.fixture(scope="module")
+def chain() -> tuple[PlantedCorpus, CorpusWebs]:
+    pc = variant_chain(seed=0, n_variants=5)
+    return pc, CorpusWebs(pc.clips)
+
+
+def test_far_variants_found_only_through_tiers(chain) -> None:
+    pc, webs = chain
+    eps = 0.003  # between one chain step (~0.0015) and two (~0.0055)
+    one = search(pc.query, eps, webs, SearchConfig(max_tiers=1))
+    assert [n.segment.clip for n in one.nodes[1:]] == ["kick/variant_1"]
+    tiered = search(pc.query, eps, webs, SearchConfig())
+    order = [n.segment.clip for n in tiered.nodes[1:]]
+    assert order == list(pc.expected)  # all five, ranked by graph distance in chain order
+    assert [n.tier for n in tiered.nodes] == [0, 1, 2, 3, 4, 5]
+    dist = [n.distance for n in tiered.nodes]
+    assert all(d1 < d2 for d1, d2 in itertools.pairwise(dist))
+    # each variant's distance is the sum of the chain's edge costs
+    costs = {frozenset((e.u, e.v)): e.cost for e in tiered.edges}
+    for k in range(1, 6):
+        assert dist[k] == pytest.approx(dist[k - 1] + costs[frozenset((k - 1, k))])
+    for node in tiered.nodes[1:]:
+        exp = pc.expected[node.segment.clip]
+        assert abs(node.segment.start - exp.start) <= 2 * TOL and abs(node.segment.end - exp.end) <= 2 * TOL
+    # max_tiers bounds the tiers
+    two = search(pc.query, eps, webs, SearchConfig(max_tiers=2))
+    assert [n.segment.clip for n in two.nodes[1:]] == ["kick/variant_1", "kick/variant_2"]
+
+
+def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> None:
+    pc, webs = chain
+    store = MotionStore(str(tmp_path / "store"))
+    keys = list(pc.clips)
+    recs = []
+    for i, a in enumerate(keys):
+        for b in keys[i:]:
+            key = web_key(f"{i:064x}", f"{keys.index(b):064x}", "test")
+            store.write_web(key, webs.web(a, b).to_arrays())
+            recs.append({"a": a, "b": b, "key": key, "chunk": "all"})
+    clips = [{"path": k, "category": pc.categories[k]} for k in keys]
+    store.commit(Generation(new_generation_id(), now_iso(), clips=clips, webs=recs))
+    ro = MotionStore(str(tmp_path / "store"), read_only=True)
+    src = StoreWebs.for_query(ro, pc.query.clip)
+    assert set(src) == {k for k in keys if pc.categories[k] == "kick"}
+    assert len(StoreWebs.for_query(ro, pc.query.clip, all_categories=True)) == len(keys)
+    # a web stored with the variant as rows is read transposed for the query
+    v5 = dict(src["kick/variant_5"])["kick/query"]
+    assert np.array_equal(v5.paths_cells, webs.web("kick/variant_5", "kick/query").paths_cells)
+    got = search(pc.query, 0.003, src)
+    want = search(pc.query, 0.003, webs)
+    assert [n.segment for n in got.nodes] == [n.segment for n in want.nodes]
+    assert [n.distance for n in got.nodes] == pytest.approx([n.distance for n in want.nodes])
+    assert epsilon_from_quantile(src.all_webs(), 0.5) > 0
+    with pytest.raises(ValueError, match="unknown clip 'kick/nope'"):
+        StoreWebs.for_query(ro, "kick/nope")
+    with pytest.raises(ValueError, match="never indexed"):
+        StoreWebs(MotionStore(str(tmp_path / "empty")))
