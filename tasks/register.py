@@ -18,9 +18,9 @@ KG04 §4.1, step by step:
 
 Valid region on a segment grid. KG04 defines it on the full grid of two clips (1-D minima
 extended while below ``(1 + a)`` times the minimum, :func:`tasks.matchweb.valid_region`). Here
-only the DP's search region is evaluated — the segment rectangle when it is small, else a band
-of Chebyshev radius ``ceil(band_s · rate)`` around the edge's web path (``MatchEdge.cells``)
-joined to the rectangle's corners — and the valid region is computed on that region, its border
+only the DP's search region is evaluated — a band of Chebyshev radius ``ceil(band_s · rate)``
+around the edge's web path (``MatchEdge.cells``) joined to the rectangle's corners, or the whole
+segment rectangle when that band would cover half of it — and the valid region is computed on that region, its border
 playing the grid border (a missing neighbour does not count, as in ``local_minima``): every
 full-grid minimum inside the region is still a minimum and extends exactly as on the full grid
 up to the region's border; cells on the border can become extra minima, so the region is at worst
