@@ -82,6 +82,16 @@ def committed_generation(store_url: str) -> tuple[MotionStore, Generation]:
     return store, gen
 
 
+def indexed_config(gen: Generation) -> Config:
+    """The corpus, feature and web parameters the generation was indexed with (other sections
+    of its recorded config are ignored, so a store outlives changes to them)."""
+    try:
+        return Config.model_validate({k: gen.config.get(k, {}) for k in ("corpus", "features", "matchweb")})
+    except ValueError as exc:
+        raise ValueError(f"generation {gen.id} records parameters this version cannot read ({exc}); "
+                         "re-index with `motionweb index CONFIG`") from None
+
+
 def resolve_clip(gen: Generation, name: str) -> dict[str, Any]:
     """The clip record of a corpus path or unique stem (ValueError listing candidates)."""
     by_path = {c["path"]: c for c in gen.clips}
@@ -125,7 +135,7 @@ def plan_query(cfg: Config, request: QueryRequest) -> Segment:
     """Every check of a request that needs no search (store indexed, clip known, range inside it
     and long enough), so the CLI can refuse a bad request before a flow run starts."""
     store, gen = committed_generation(cfg.store.path)
-    gen_cfg = Config.model_validate(gen.config)
+    gen_cfg = indexed_config(gen)
     rate = max(float(r) for r in gen_cfg.features.rates)
     seg = query_segment(resolve_clip(gen, request.clip), request.start, request.end, rate)
     MatchSearch(StoreWebs.for_query(store, seg.clip, True, generation=gen), cfg.search, gen_cfg.matchweb).check(seg)
@@ -253,7 +263,7 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     logger = get_run_logger()
     t0 = time.perf_counter()
     store, gen = committed_generation(cfg.store.path)
-    gen_cfg = Config.model_validate(gen.config)
+    gen_cfg = indexed_config(gen)
     if feature_digest(gen_cfg) != gen.params["features"]:
         raise ValueError(f"generation {gen.id} records inconsistent feature parameters; re-index")
     graph, eps, rec = search_task(store, gen, cfg, gen_cfg, request)
