@@ -47,7 +47,13 @@ from numba import njit
 from scipy.interpolate import PchipInterpolator
 
 from flows.config import MatchWebConfig
-from tasks.distance import PreparedFeatures, distance_prepared, prepare_features, vertical_shift
+from tasks.distance import (
+    PreparedFeatures,
+    distance_cells,
+    distance_prepared,
+    prepare_features,
+    vertical_shift,
+)
 from tasks.matchgraph import MatchGraph, Segment
 from tasks.matchweb import (
     INF,
@@ -56,7 +62,6 @@ from tasks.matchweb import (
     _band_dp,
     _band_index,
     _best_state_total,
-    _eval_band,
     _upsample_band,
     max_run,
 )
@@ -234,9 +239,8 @@ def align_segments(pa: PreparedFeatures, pb: PreparedFeatures, seg_a: Segment, s
         band = Band.rectangle(n, m)
         vals = distance_prepared(pa, pb, slice(0, n), slice(0, m)).reshape(-1)
     else:
-        vals = np.empty(band.n_cells, np.float64)
-        _eval_band(0, band.lo, band.hi, band.off, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms,
-                   -1, vals)
+        rc = band.cells()
+        vals = distance_cells(pa, pb, rc[:, 0], rc[:, 1])
     valid = band_valid_region(band, vals, cfg.valid_a)
     valid[0] = valid[-1] = True
     path = band_alignment(band, np.where(valid, vals, INF), cfg.slope_k)
