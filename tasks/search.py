@@ -308,7 +308,7 @@ def _walk(rows, cols, values, nxt, boff, bto, path_first, path_last, a, b, eps,
             o_path.append(p)
             o_c.append(cols[s0])
             o_d.append(cols[reach[q]])
-            o_avg.append(min(avg, lam))
+            o_avg.append(avg)
             o_cells.append(cells)
         for q in range(n):
             local[reach[q]] = -1

@@ -280,3 +280,42 @@ def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> Non
         StoreWebs.for_query(ro, "kick/nope")
     with pytest.raises(ValueError, match="never indexed"):
         StoreWebs(MotionStore(str(tmp_path / "empty")))
+
+
+# ---------------------------------------------------------------------------- graph dedup
+
+
+def diagonal_web(shape: tuple[int, int], shifts: dict[int, float], last_row: int = 10**9) -> MatchWeb:
+    """Paths j = i + shift (rows ≤ ``last_row`` where the column exists) of constant value, no bridges."""
+    parts = [np.array([(i, i + s) for i in range(min(shape[0], last_row + 1)) if 0 <= i + s < shape[1]])
+             for s in shifts]
+    vals = [np.full(len(p), v) for p, v in zip(parts, shifts.values(), strict=True)]
+    return MatchWeb(rate=30.0, shape=shape, paths_cells=np.concatenate(parts), paths_values=np.concatenate(vals),
+                    paths_offsets=np.cumsum([0, *map(len, parts)]))
+
+
+def test_dedup_new_node_merge_and_discard() -> None:
+    """SPEC §5 on constructed webs: A→B, A→C diagonals, B→C shifted by 4 (a near-duplicate of C:
+    merged, intervals averaged), A→D at shifts 0, 15 (overlap 0.52: discarded) and 30 (overlap
+    1/31: a new node), A→D paths ending at row 45 (so D[40, 70] finds only A's query back)."""
+    n = 80
+    ab, ac = diagonal_web((n, n), {0: 0.1}), diagonal_web((n, n), {0: 0.1})
+    bc, ad = diagonal_web((n, n), {4: 0.1}), diagonal_web((n, n), {0: 0.1, 15: 0.2, 30: 0.3}, last_row=45)
+    webs = {"A": [("B", ab), ("C", ac), ("D", ad)], "B": [("A", transpose(ab)), ("C", bc)],
+            "C": [("A", transpose(ac)), ("B", transpose(bc))], "D": [("A", transpose(ad))]}
+    cfg = SearchConfig(overlap_redundant=0.9)
+    graph = search(Segment("A", 10, 40), 1.0, webs, cfg)
+    assert sorted((s.clip, s.start, s.end) for s in (n.segment for n in graph.nodes)) == [
+        ("A", 10, 40),  # the query is never moved
+        ("B", 9, 39),  # merged with B[8, 38] found from C[12, 42]
+        ("C", 12, 42),  # merged with C[14, 44] found from B[10, 40]
+        ("D", 10, 40), ("D", 40, 70)]  # D[25, 55] (overlap 16/31 with D[10, 40]) discarded
+    dist = {(n.segment.clip, n.segment.start): n.distance for n in graph.nodes}
+    assert dist == pytest.approx({("A", 10): 0.0, ("B", 9): 0.1, ("C", 12): 0.1, ("D", 10): 0.1, ("D", 40): 0.3})
+    pairs = {frozenset((graph.nodes[e.u].segment.clip + str(graph.nodes[e.u].segment.start),
+                        graph.nodes[e.v].segment.clip + str(graph.nodes[e.v].segment.start))) for e in graph.edges}
+    assert pairs == {frozenset(p) for p in (("A10", "B9"), ("A10", "C12"), ("B9", "C12"), ("A10", "D10"),
+                                            ("A10", "D40"))}
+    assert len(graph.edges) == len(pairs)  # one edge per node pair
+    for e in graph.edges:  # cells are (frame of u's clip, frame of v's clip)
+        assert e.cells[0, 0] == 10 or graph.nodes[e.u].segment.clip != "A"
