@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import ctypes
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -415,7 +415,9 @@ class BakedObjective:
     """Per-frame piecewise-quadratic objective in x = (p̈, ṗ²) (MPS06 §3.6), padded to K sectors.
 
     Attributes:
-        verts: (F, K, 2) polygon vertices (padded by repeating the last); solid: (F,) area > 0.
+        verts: (F, K, 2) polygon vertices (padded by repeating the last); count: (F,) vertices
+            before the padding; inv_len2: (F, K) 1 / squared length of edge k → k+1 (0 for
+            degenerate edges); solid: (F,) area > 0.
         center: (F, 2); theta0: (F,) angle of the first vertex about the centre; theta: (F, K)
             vertex angles relative to theta0 in [0, 2π) (padding 10).
         coef: (F, K, 6) torque-term coefficients of p̈², p̈ṗ², ṗ⁴, p̈, ṗ², 1 per sector (β included).
@@ -424,6 +426,8 @@ class BakedObjective:
     """
 
     verts: np.ndarray
+    count: np.ndarray
+    inv_len2: np.ndarray
     solid: np.ndarray
     center: np.ndarray
     theta0: np.ndarray
@@ -454,6 +458,7 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
     K = max(max((len(v) for v in polys.vertices), default=1), 1)
     nl = contacts.basis.shape[2]
     verts = np.zeros((f, K, 2))
+    count = np.ones(f, np.int64)
     theta = np.full((f, K), 10.0)
     theta0 = np.zeros(f)
     coef = np.zeros((f, K, 6))
@@ -467,6 +472,7 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
             v, lv, k = c[None], polys.center_lambda[i][None], 1
         verts[i, :k] = v
         verts[i, k:] = v[-1]
+        count[i] = k
         solid[i] = polygon_area(v) > 1e-12
         ang = np.arctan2(v[:, 1] - c[1], v[:, 0] - c[0])
         theta0[i] = ang[0]
@@ -487,7 +493,13 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
             b = d * (B[i] - N @ L[:, 1])
             e = d * (C[i] - N @ (lc - L @ c) - tau_target[i])
             coef[i, s] = beta * np.array([a @ a, 2 * a @ b, b @ b, 2 * a @ e, 2 * b @ e, e @ e])
-    return BakedObjective(verts=verts, solid=solid, center=polys.center.copy(), theta0=theta0, theta=theta,
+    edge = np.zeros_like(verts)
+    for i in range(f):
+        k = count[i]
+        edge[i, :k] = np.roll(verts[i, :k], -1, axis=0) - verts[i, :k]
+    len2 = (edge * edge).sum(axis=2)
+    inv_len2 = np.divide(1.0, len2, out=np.zeros_like(len2), where=len2 > 0)
+    return BakedObjective(verts=verts, count=count, inv_len2=inv_len2, solid=solid, center=polys.center.copy(), theta0=theta0, theta=theta,
                           coef=coef, lam_center=polys.center_lambda.copy(), lam_slope=slope, alpha=alpha, beta=beta)
 
 
@@ -537,64 +549,102 @@ def evaluate_numpy(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[n
     return val, gx, v1 - v0
 
 
-@njit(cache=True, fastmath=False)
-def _frame_value(verts, solid, center, theta0, theta, coef, alpha, fr, x0, x1):  # pragma: no cover - numba
-    K = verts.shape[1]
+@njit(cache=True)
+def _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, fr, x0, x1):  # pragma: no cover
+    """Value and d/dx of frame ``fr``'s terms at x = (x0, x1): O(count[fr]), padding skipped."""
+    K = count[fr]
     ang = np.arctan2(x1 - center[fr, 1], x0 - center[fr, 0]) - theta0[fr]
     two_pi = 2.0 * np.pi
     ang = ang - two_pi * np.floor(ang / two_pi)
     s = 0
-    for k in range(1, K):
-        if theta[fr, k] <= ang:
-            s = k
+    while s + 1 < K and theta[fr, s + 1] <= ang:  # vertex angles increase
+        s += 1
     c = coef[fr, s]
     val = c[0] * x0 * x0 + c[1] * x0 * x1 + c[2] * x1 * x1 + c[3] * x0 + c[4] * x1 + c[5]
     g0 = 2 * c[0] * x0 + c[1] * x1 + c[3]
     g1 = c[1] * x0 + 2 * c[2] * x1 + c[4]
     inside = solid[fr]
-    best = 1e300
-    b0 = x0
-    b1 = x1
+    if inside:  # half-plane test first: inside points need no projection
+        for k in range(K):
+            kn = k + 1 if k + 1 < K else 0
+            ax, ay = verts[fr, k, 0], verts[fr, k, 1]
+            if (verts[fr, kn, 0] - ax) * (x1 - ay) - (verts[fr, kn, 1] - ay) * (x0 - ax) < 0:
+                inside = False
+                break
+    if inside:
+        return val, g0, g1
+    best, b0, b1 = 1e300, x0, x1
     for k in range(K):
-        ax, ay = verts[fr, k, 0], verts[fr, k, 1]
-        kn = k + 1 if k + 1 < K else 0
-        ex, ey = verts[fr, kn, 0] - ax, verts[fr, kn, 1] - ay
-        rx, ry = x0 - ax, x1 - ay
-        if ex * ry - ey * rx < 0:
-            inside = False
-        ee = ex * ex + ey * ey
-        t = (rx * ex + ry * ey) / ee if ee > 0 else 0.0
-        t = min(max(t, 0.0), 1.0)
-        px, py = ax + t * ex, ay + t * ey
-        d = (x0 - px) ** 2 + (x1 - py) ** 2
+        d, px, py = _edge_point(verts, inv_len2, fr, k, K, x0, x1)
         if d < best:
             best, b0, b1 = d, px, py
-    if not inside:
-        val += alpha * best
-        g0 += 2 * alpha * (x0 - b0)
-        g1 += 2 * alpha * (x1 - b1)
-    return val, g0, g1
+    return val + alpha * best, g0 + 2 * alpha * (x0 - b0), g1 + 2 * alpha * (x1 - b1)
 
 
 @njit(cache=True)
-def _evaluate_kernel(verts, solid, center, theta0, theta, coef, alpha, u, x):  # pragma: no cover - numba
-    n = u.shape[0]
+def _edge_point(verts, inv_len2, fr, k, K, x0, x1):  # pragma: no cover - numba
+    """Squared distance from x to edge k → k+1 of frame ``fr`` and the closest point on it."""
+    ax, ay = verts[fr, k, 0], verts[fr, k, 1]
+    kn = k + 1 if k + 1 < K else 0
+    ex, ey = verts[fr, kn, 0] - ax, verts[fr, kn, 1] - ay
+    t = min(max(((x0 - ax) * ex + (x1 - ay) * ey) * inv_len2[fr, k], 0.0), 1.0)
+    px, py = ax + t * ex, ay + t * ey
+    return (x0 - px) ** 2 + (x1 - py) ** 2, px, py
+
+
+@njit(cache=True)
+def _sample_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, u, x0, x1):  # pragma: no cover
+    """Density at source frame ``u`` (linear blend of its two frames): value, d/dx0, d/dx1, d/du."""
     f = verts.shape[0]
+    ui = min(max(u, 0.0), f - 1.0)
+    i0 = min(int(np.floor(ui)), max(f - 2, 0))
+    i1 = min(i0 + 1, f - 1)
+    w = ui - i0
+    va, ga0, ga1 = _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, i0, x0, x1)
+    vb, gb0, gb1 = _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, i1, x0, x1)
+    return (1 - w) * va + w * vb, (1 - w) * ga0 + w * gb0, (1 - w) * ga1 + w * gb1, vb - va
+
+
+@njit(cache=True)
+def _evaluate_kernel(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, u, x):  # pragma: no cover
+    n = u.shape[0]
     val = np.empty(n)
     gx = np.empty((n, 2))
     gu = np.empty(n)
     for i in range(n):
-        ui = min(max(u[i], 0.0), f - 1.0)
-        i0 = min(int(np.floor(ui)), max(f - 2, 0))
-        i1 = min(i0 + 1, f - 1)
-        w = ui - i0
-        va, ga0, ga1 = _frame_value(verts, solid, center, theta0, theta, coef, alpha, i0, x[i, 0], x[i, 1])
-        vb, gb0, gb1 = _frame_value(verts, solid, center, theta0, theta, coef, alpha, i1, x[i, 0], x[i, 1])
-        val[i] = (1 - w) * va + w * vb
-        gx[i, 0] = (1 - w) * ga0 + w * gb0
-        gx[i, 1] = (1 - w) * ga1 + w * gb1
-        gu[i] = vb - va
+        val[i], gx[i, 0], gx[i, 1], gu[i] = _sample_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha,
+                                                          u[i], x[i, 0], x[i, 1])
     return val, gx, gu
+
+
+@njit(cache=True)
+def _objective_kernel(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, ctrl, w, c, fps, dt
+                      ):  # pragma: no cover
+    """MPS06 Eqn. 14 summed over samples and its gradient in the control points, in one pass.
+
+    Sample s depends on control points ``ctrl[s]`` (4) with weights ``w[:, s]`` for p, ṗ, p̈
+    (MPS06 §3.6: four control points per sample, so the gradient is linear in the samples).
+    """
+    n = ctrl.shape[0]
+    grad = np.zeros(c.shape[0])
+    total = 0.0
+    for s in range(n):
+        p = 0.0
+        pd = 0.0
+        pdd = 0.0
+        for j in range(4):
+            cj = c[ctrl[s, j]]
+            p += w[0, s, j] * cj
+            pd += w[1, s, j] * cj
+            pdd += w[2, s, j] * cj
+        v, g0, g1, gu = _sample_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, p * fps, pdd, pd * pd)
+        total += v
+        g_p = gu * fps * dt
+        g_pd = g1 * 2.0 * pd * dt
+        g_pdd = g0 * dt
+        for j in range(4):
+            grad[ctrl[s, j]] += w[0, s, j] * g_p + w[1, s, j] * g_pd + w[2, s, j] * g_pdd
+    return total * dt, grad
 
 
 def evaluate(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -603,8 +653,9 @@ def evaluate(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[np.ndar
     Returns value (S,), d/dx (S, 2) and d/du (S,). O(S · K), compiled (numba); the numpy
     reference is :func:`evaluate_numpy`.
     """
-    return _evaluate_kernel(obj.verts, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, float(obj.alpha),
-                            np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(x, dtype=np.float64))
+    return _evaluate_kernel(obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef,
+                            float(obj.alpha), np.ascontiguousarray(u, dtype=np.float64),
+                            np.ascontiguousarray(x, dtype=np.float64))
 
 
 def contact_lambda(obj: BakedObjective, frame: int, x: np.ndarray) -> np.ndarray:
@@ -657,36 +708,44 @@ class TimingSpline:
             out.append(c)
         return out
 
-    def design(self, t: np.ndarray) -> tuple[list[np.ndarray], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-        """Sample indices of each segment and its (value, d/dt, d²/dt²) design matrices."""
-        idx, mats = [], []
-        for k in range(len(self.n_ctrl)):
+    def design(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The 4 control points (S, 4; indices into the concatenated controls) each output time
+        depends on and their weights (3, S, 4) for p, ṗ, p̈ (the nonzeros of the design matrices)."""
+        t = np.asarray(t, float)
+        ctrl = np.zeros((len(t), 4), np.int64)
+        w = np.zeros((3, len(t), 4))
+        offset = 0
+        for k, n in enumerate(self.n_ctrl):
             last = k == len(self.n_ctrl) - 1
             sel = np.flatnonzero((t >= self.out[k]) & ((t <= self.out[k + 1]) if last else (t < self.out[k + 1])))
-            spl = BSpline(self.knots[k], np.eye(self.n_ctrl[k]), 3, extrapolate=False)
             tt = t[sel]
-            mats.append((np.nan_to_num(spl(tt)), np.nan_to_num(spl.derivative(1)(tt)),
-                         np.nan_to_num(spl.derivative(2)(tt))))
-            idx.append(sel)
-        return idx, mats
+            first = np.clip(np.searchsorted(self.knots[k], tt, side="right") - 1, 3, n - 1) - 3
+            cols = first[:, None] + np.arange(4)
+            spl = BSpline(self.knots[k], np.eye(n), 3, extrapolate=False)
+            for d in range(3):
+                dense = np.nan_to_num((spl.derivative(d) if d else spl)(tt))
+                w[d, sel] = np.take_along_axis(dense, cols, axis=1)
+            ctrl[sel] = offset + cols
+            offset += n
+        return ctrl, w
 
     def evaluate(self, z: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """p, ṗ, p̈ at output times ``t``."""
-        idx, mats = self.design(np.asarray(t, float))
-        p, pd, pdd = (np.zeros(len(t)) for _ in range(3))
-        for sel, (b0, b1, b2), c in zip(idx, mats, self.controls(z), strict=True):
-            p[sel], pd[sel], pdd[sel] = b0 @ c, b1 @ c, b2 @ c
-        return p, pd, pdd
+        ctrl, w = self.design(t)
+        c = np.concatenate(self.controls(z))[ctrl]
+        return (w[0] * c).sum(axis=1), (w[1] * c).sum(axis=1), (w[2] * c).sum(axis=1)
 
-    def chain(self, z: np.ndarray, grads: list[np.ndarray]) -> np.ndarray:
-        """d/dz from d/d(control points) of each segment (through cumsum and softmax)."""
-        out, o = [], 0
+    def chain(self, z: np.ndarray, grad: np.ndarray) -> np.ndarray:
+        """d/dz from d/d(concatenated control points) (through cumsum and softmax per segment)."""
+        out, o, oc = [], 0, 0
         for k, n in enumerate(self.n_ctrl):
             zk = z[o:o + n - 1]
+            gk = grad[oc:oc + n]
             o += n - 1
+            oc += n
             e = np.exp(zk - zk.max())
             s = e / e.sum()
-            g_inc = np.cumsum(grads[k][1:][::-1])[::-1]  # c_i depends on inc_j for j ≤ i
+            g_inc = np.cumsum(gk[1:][::-1])[::-1]  # c_i depends on inc_j for j ≤ i
             g_inc = g_inc * (self.src[k + 1] - self.src[k])
             out.append(s * g_inc - s * (s @ g_inc))
         return np.concatenate(out)
@@ -763,18 +822,15 @@ def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, durati
     iters = 0
     with single_threaded_blas():
         for _attempt in range(3):
-            edges = np.linspace(0.0, duration, n_s + 1)
-            ts = 0.5 * (edges[1:] + edges[:-1])
-            dt = duration / n_s
-            idx, mats = spline.design(ts)
-            fun = _make_objective(obj, spline, idx, mats, fps, dt, n_s)
+            fun = objective_function(obj, spline, fps, duration, n_s)
             res = minimize(fun, z, jac=True, method="L-BFGS-B",
                            options={"maxiter": max_iter, "maxcor": 10, "ftol": 1e-10, "gtol": 1e-8})
             z = res.x
             iters += int(res.nit)
             history.append(float(res.fun))
-            _, pd_s, _ = spline.evaluate(z, ts)
-            step = pd_s.max() * dt * fps  # source frames between samples
+            edges = np.linspace(0.0, duration, n_s + 1)
+            _, pd_s, _ = spline.evaluate(z, 0.5 * (edges[1:] + edges[:-1]))
+            step = pd_s.max() * duration / n_s * fps  # source frames between samples
             if step <= 1.0 / samples_per_frame + 1e-9:
                 break
             n_s = int(np.ceil(n_s * step * samples_per_frame * 1.1))
@@ -786,33 +842,23 @@ def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, durati
                         message=str(res.message), history=history)
 
 
-def _make_objective(obj: BakedObjective, spline: TimingSpline, idx: list[np.ndarray],
-                    mats: list[tuple[np.ndarray, np.ndarray, np.ndarray]], fps: float, dt: float, n_s: int):
+def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, duration: float, n_s: int
+                       ) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
+    """J(z) of MPS06 Eqn. 14 on ``n_s`` midpoint samples of [0, duration]: (value, gradient).
+
+    One compiled pass over the samples (:func:`_objective_kernel`) plus O(n_params) for the
+    softmax/cumsum parameterization; cost O(S · K), no Python per sample.
+    """
+    edges = np.linspace(0.0, duration, n_s + 1)
+    ctrl, w = spline.design(0.5 * (edges[1:] + edges[:-1]))
+    dt = duration / n_s
+    args = (obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, float(obj.alpha), ctrl, w)
+
     def fun(z: np.ndarray) -> tuple[float, np.ndarray]:
-        ctrl = spline.controls(z)
-        p = np.empty(n_s)
-        pd = np.empty(n_s)
-        pdd = np.empty(n_s)
-        for sel, (b0, b1, b2), c in zip(idx, mats, ctrl, strict=True):
-            p[sel], pd[sel], pdd[sel] = b0 @ c, b1 @ c, b2 @ c
-        x = np.stack([pdd, pd * pd], axis=1)
-        val, gx, gu = evaluate(obj, p * fps, x)
-        g_p = gu * fps * dt
-        g_pd = gx[:, 1] * 2 * pd * dt
-        g_pdd = gx[:, 0] * dt
-        grads = [b0.T @ g_p[sel] + b1.T @ g_pd[sel] + b2.T @ g_pdd[sel]
-                 for sel, (b0, b1, b2) in zip(idx, mats, strict=True)]
-        return float(val.sum() * dt), spline.chain(z, grads)
+        val, grad = _objective_kernel(*args, np.concatenate(spline.controls(z)), float(fps), dt)
+        return float(val), spline.chain(z, grad)
 
     return fun
-
-
-def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, duration: float, n_s: int):
-    """The objective J(z) (value, gradient) on ``n_s`` midpoint samples, for benchmarks and tests."""
-    edges = np.linspace(0.0, duration, n_s + 1)
-    ts = 0.5 * (edges[1:] + edges[:-1])
-    idx, mats = spline.design(ts)
-    return _make_objective(obj, spline, idx, mats, fps, duration / n_s, n_s)
 
 
 # --------------------------------------------------------------------------- end to end
