@@ -149,3 +149,40 @@ def test_queries_are_served_while_an_index_run_writes(demo, monkeypatch) -> None
         release.set()
         t.join(300)
     assert result["pairs_computed"] > 0 and store.current_id() == result["generation"] != before
+
+
+def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: Path) -> None:
+    """SIGKILL an index run (and its Prefect server and Dask workers) mid-way: the committed
+    generation stays current and queryable, and the next run completes from what was written."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    work, _ = demo
+    cfg = load_config(work / "config.yaml")
+    store = MotionStore(cfg.store.path, read_only=True)
+    before = store.current_id()
+    clip = work / "corpus" / "run" / "run_00.bvh"
+    clip.write_text(clip.read_text() + "\n")  # new content: its pairs must be recomputed
+    objects = Path(cfg.store.path) / "webs"
+    seen = {p for p in objects.rglob("*") if p.is_file()}
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "index", str(work / "config.yaml"), "--no-progress"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:
+            if {p for p in objects.rglob("*") if p.is_file()} - seen:
+                break  # the run has started writing objects of the new generation
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(60)
+    assert store.current_id() == before
+    res = query(cfg, QueryRequest(clip=cfg.demo.query_clip, start=cfg.demo.query_start, end=cfg.demo.query_end,
+                                  quantile=cfg.demo.query_quantile, out=str(tmp_path)))
+    assert res["generation"] == before and res["matches"]
+    summary = index_library(cfg)
+    assert summary["generation"] != before and store.current_id() == summary["generation"]
+    assert summary["pairs_computed"] + summary["pairs_cached"] == summary["pairs"] and not summary["broken"]
