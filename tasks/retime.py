@@ -478,21 +478,23 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
         theta0[i] = ang[0]
         theta[i, :k] = np.mod(ang - ang[0], 2 * np.pi)
         theta[i, 0] = 0.0
-        N = contacts.basis[i]
         lc = polys.center_lambda[i]
-        for s in range(K):
-            if k >= 3 and s < k:
-                dv = np.stack([v[s] - c, v[(s + 1) % k] - c], axis=1)  # (2, 2)
-                det = np.linalg.det(dv)
-                if abs(det) > 1e-12:
-                    slope[i, s] = np.stack([lv[s] - lc, lv[(s + 1) % k] - lc], axis=1) @ np.linalg.inv(dv)
-            elif s >= k >= 3:
-                slope[i, s] = slope[i, k - 1]
-            L = slope[i, s]
-            a = d * (A[i] - N @ L[:, 0])
-            b = d * (B[i] - N @ L[:, 1])
-            e = d * (C[i] - N @ (lc - L @ c) - tau_target[i])
-            coef[i, s] = beta * np.array([a @ a, 2 * a @ b, b @ b, 2 * a @ e, 2 * b @ e, e @ e])
+        if k >= 3:  # sector s spans centre, v_s, v_{s+1}: λ(x) = λ_c + [λ_s − λ_c, λ_{s+1} − λ_c] D_s⁻¹ (x − c)
+            r0, r1 = v - c, np.roll(v, -1, axis=0) - c
+            det = r0[:, 0] * r1[:, 1] - r1[:, 0] * r0[:, 1]
+            ok = np.abs(det) > 1e-12
+            inv = np.stack([np.stack([r1[:, 1], -r1[:, 0]], 1), np.stack([-r0[:, 1], r0[:, 0]], 1)], 1)
+            inv /= np.where(ok, det, 1.0)[:, None, None]
+            dl = np.stack([lv - lc, np.roll(lv, -1, axis=0) - lc], axis=2)  # (k, nλ, 2)
+            slope[i, :k] = np.where(ok[:, None, None], dl @ inv, 0.0)
+            slope[i, k:] = slope[i, k - 1]
+        N = contacts.basis[i]
+        L = slope[i]  # (K, nλ, 2)
+        a = d[:, None] * (A[i][:, None] - N @ L[:, :, 0].T)  # (nv, K)
+        b = d[:, None] * (B[i][:, None] - N @ L[:, :, 1].T)
+        e = d[:, None] * ((C[i] - tau_target[i] - N @ lc)[:, None] + N @ (L @ c).T)
+        coef[i] = beta * np.stack([(a * a).sum(0), 2 * (a * b).sum(0), (b * b).sum(0), 2 * (a * e).sum(0),
+                                   2 * (b * e).sum(0), (e * e).sum(0)], axis=1)
     edge = np.zeros_like(verts)
     for i in range(f):
         k = count[i]
