@@ -16,7 +16,9 @@ Pieces (single resolution, dense grids, numba-compiled loops):
 * :func:`find_chains` — chains of minima grown up / right / up-right under the slope rule,
   short ones dropped (KG04 §3.2), O(minima).
 * :func:`find_bridges` — least-average-cost paths inside the valid region from every chain cell to
-  the cells of other chains within Manhattan length L (KG04 §3.2), O(chain cells · L² · k).
+  the cells of other chains within Manhattan length L (KG04 §3.2); each search covers only the
+  cells reachable from its start inside the valid region: O(chain cells · reached cells · k),
+  at most O(chain cells · L² · k).
 * :func:`build_web_full` — all of the above on one grid.
 
 :func:`build_web` builds the web at the coarsest rate from a full grid, then refines it rate by
@@ -24,8 +26,8 @@ rate (KG04 §3.2, Fig. 8): each chain is padded by one coarse cell and upsampled
 its endpoints move to the smallest cells near the old ones, and an optimal (least total cost,
 slope-ruled) path joins them inside the band; each bridge likewise, with endpoints on the refined
 chains it joins. Only the cells of the bands are evaluated at the finer rates (cell by cell,
-``tasks.distance._cell_distance``), so a fine level costs linearly in the cells of its search
-regions rather than Fa·Fb.
+``tasks.distance._cell_distance``, once per cell however many bands overlap it), so a fine level
+costs linearly in the cells of its search regions rather than Fa·Fb.
 """
 
 from __future__ import annotations
@@ -359,14 +361,19 @@ def _band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     cells (inf elsewhere); ``flags``: 1 blocked, 2 terminal (may be entered, not left).
     State ``s = r + mrun`` with r > 0 a run of up steps, r < 0 of right steps, 0 after a diagonal
     or at a source. Outputs per (cell, state): total cost, cell count, predecessor state
-    (−1 at a source, −2 unreached).
+    (−1 at a source, −2 unreached). O(cells · k) with the predecessors' flat indices carried
+    along the rows (no per-cell index search).
     """
     ns = 2 * mrun + 1
     c0 = mrun
-    nrows = lo.shape[0]
-    for t in range(nrows):
+    for t in range(lo.shape[0]):
+        # previous row's interval (empty for the first row)
+        plo = lo[t - 1] if t > 0 else 0
+        phi = hi[t - 1] if t > 0 else -1
+        pbase = off[t - 1] - plo if t > 0 else 0
+        base = off[t] - lo[t]
         for j in range(lo[t], hi[t] + 1):
-            k = off[t] + j - lo[t]
+            k = base + j
             for s in range(ns):
                 cost[k, s] = INF
                 length[k, s] = 0
@@ -378,8 +385,8 @@ def _band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                 cost[k, c0] = init[k]
                 length[k, c0] = 1
                 ptr[k, c0] = -1
-            kd = _band_index(lo, hi, off, t - 1, j - 1)
-            if kd >= 0 and flags[kd] != 2:
+            if plo <= j - 1 <= phi and flags[pbase + j - 1] != 2:
+                kd = pbase + j - 1
                 for s in range(ns):
                     c = cost[kd, s] + v
                     if c < cost[k, c0]:
@@ -387,8 +394,9 @@ def _band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                         length[k, c0] = length[kd, s] + 1
                         ptr[k, c0] = s
             if mrun > 0:
-                kv = _band_index(lo, hi, off, t - 1, j)
-                if kv >= 0 and flags[kv] != 2:
+                if plo <= j <= phi and flags[pbase + j] != 2:
+                    kv = pbase + j
+                    # up: any state but a full run of up steps enters state r + 1 (r > 0) or 1
                     for s in range(ns):
                         r = s - c0
                         nr = r + 1 if r > 0 else 1
@@ -399,8 +407,8 @@ def _band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                             cost[k, c0 + nr] = c
                             length[k, c0 + nr] = length[kv, s] + 1
                             ptr[k, c0 + nr] = s
-                kh = _band_index(lo, hi, off, t, j - 1)
-                if kh >= 0 and flags[kh] != 2:
+                if j > lo[t] and flags[k - 1] != 2:
+                    kh = k - 1
                     for s in range(ns):
                         r = s - c0
                         nr = r - 1 if r < 0 else -1
@@ -508,35 +516,86 @@ def optimal_path(grid: np.ndarray, start: tuple[int, int], end: tuple[int, int],
 
 
 @njit(cache=True)
-def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags) -> tuple[int, int]:
-    """Fill the band of cells (i0 + t, j0 + d), t + d < L, for a bridge search from (i0, j0).
+def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags, src_a, src_b, row_v,
+              row_f) -> tuple[int, int]:
+    """Fill the band of a bridge search from (i0, j0): the cells (i0 + t, j0 + d), t + d < L,
+    that a path can reach from the start (KG04 §3.2: "bridges must be inside the valid region",
+    which "makes bridge calculation more efficient because the dynamic programming algorithm
+    processes fewer cells").
 
-    Returns (rows, number of terminal cells: cells of chains other than ``c``).
+    A cell is reached when it is valid, not a cell of chain ``c`` (other than the start), and
+    entered by an up, right or diagonal move from a reached cell that is not a terminal (a cell of
+    another chain: entered, not left). Row t keeps only the span of its reached cells and rows stop
+    at the first with none, so the band's rows and intervals hold every cell the DP could give a
+    finite cost (the slope rule only removes more): the search result is unchanged. Cost
+    O(reached cells + their row spans), at most O(L²). ``src_a``, ``src_b``, ``row_v``, ``row_f``
+    are (L,) scratch rows. Returns (rows, number of reached terminal cells).
     """
     fa, fb = g.shape
-    nt = min(L, fa - i0)
+    sp, sc = src_a, src_b  # previous / current row: reached and may be left, by column offset d
+    pf, pl = 0, -1  # span of the previous row's entries of sp (empty before row 0)
     n = 0
     nterm = 0
-    for t in range(nt):
-        lo[t] = j0
-        hi[t] = min(fb - 1, j0 + L - 1 - t)
-        off[t] = n
+    nt = 0
+    for t in range(min(L, fa - i0)):
         i = i0 + t
-        for j in range(lo[t], hi[t] + 1):
-            vals[n] = g[i, j] if valid[i, j] else INF
-            init[n] = INF
-            flags[n] = 0
+        dmax = min(fb - 1 - j0, L - 1 - t)
+        first = -1
+        last = -1
+        cf = dmax + 1
+        cl = -1
+        left = False
+        for d in range(pf if t > 0 else 0, dmax + 1):
+            below = (pf <= d <= pl and sp[d]) or (pf <= d - 1 <= pl and sp[d - 1])
+            if not (left or below or (t == 0 and d == 0)):
+                if d > pl + 1:  # only a move from the left could reach further cells
+                    break
+                sc[d] = False
+                row_v[d] = INF
+                row_f[d] = 0
+                continue
+            j = j0 + d
+            v = g[i, j] if valid[i, j] else INF
+            f = 0
             q = gid[i, j]
             if q >= 0:
                 if chain_of[q] == c:
-                    if t > 0 or j > j0:
-                        flags[n] = 1
-                elif vals[n] < INF:
-                    flags[n] = 2
+                    if t > 0 or d > 0:
+                        f = 1
+                elif v < INF:
+                    f = 2
+            row_v[d] = v
+            row_f[d] = f
+            reached = v < INF and f != 1
+            sc[d] = reached and f != 2
+            left = sc[d]
+            if reached:
+                if first < 0:
+                    first = d
+                last = d
+                if f == 2:
                     nterm += 1
+            if sc[d]:
+                cf = min(cf, d)
+                cl = d
+        if first < 0:
+            break
+        lo[t] = j0 + first
+        hi[t] = j0 + last
+        off[t] = n
+        for d in range(first, last + 1):
+            vals[n] = row_v[d]
+            flags[n] = row_f[d]
+            init[n] = INF
             n += 1
+        nt = t + 1
+        sp, sc = sc, sp
+        pf, pl = cf, cl
+        if pl < pf:
+            break
     off[nt] = n
-    init[0] = vals[0]
+    if n > 0:
+        init[0] = vals[0]
     return nt, nterm
 
 
@@ -551,6 +610,10 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
     vals = np.empty(ncell, np.float64)
     init = np.empty(ncell, np.float64)
     flags = np.empty(ncell, np.uint8)
+    src_a = np.zeros(L, np.bool_)
+    src_b = np.zeros(L, np.bool_)
+    row_v = np.empty(L, np.float64)
+    row_f = np.empty(L, np.uint8)
     cost = np.empty((ncell, ns), np.float64)
     length = np.empty((ncell, ns), np.int32)
     ptr = np.empty((ncell, ns), np.int8)
@@ -567,7 +630,8 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
         for p in range(offsets[c], offsets[c + 1]):
             i0 = cells[p, 0]
             j0 = cells[p, 1]
-            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags)
+            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags,
+                                  src_a, src_b, row_v, row_f)
             if nterm == 0 or not vals[0] < INF:
                 continue
             _band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
@@ -594,7 +658,8 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
             q = best_end[d]
             i0 = cells[p, 0]
             j0 = cells[p, 1]
-            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags)
+            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags,
+                                  src_a, src_b, row_v, row_f)
             _band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
             t = cells[q, 0] - i0
             k = off[t] + cells[q, 1] - lo[t]
@@ -632,7 +697,10 @@ def find_bridges(grid: np.ndarray, valid: np.ndarray, chain_cells: np.ndarray, c
     reaching a chain C', the one with the least average cell value is kept as the bridge C → C'
     (so at most one bridge per ordered pair). Junction rows are
     ``(from_chain, index in from_chain, to_chain, index in to_chain)``.
-    Cost O(chain cells · L² · k) in the worst case, much less where the valid region is thin.
+    Each search runs on the cells reachable from its start inside the valid region only (see
+    :func:`_triangle`; KG04 §3.2: the valid region "makes bridge calculation more efficient"), and
+    starts that reach no other chain skip the DP: cost O(chain cells · reached cells · k), at most
+    O(chain cells · L² · k) where the valid region is wide.
     """
     g = _as_grid(grid)
     fa, fb = g.shape
@@ -724,17 +792,54 @@ def _upsample_band(cells, s, h, fa, fb):
     return r_min, lo, hi, off
 
 
+#: side of the square tiles of the lazily evaluated fine grid of one refinement level
+TILE = 32
+
+
 @njit(cache=True)
-def _eval_band(row0, lo, hi, off, left, left_y, na, right, right_y, nb, band, out) -> None:
-    """Distance values on a band's cells (inf inside the ignored self band |i − j| ≤ band)."""
+def _mark_tiles(cells, offsets, s, h, fa, fb, index) -> None:
+    """Mark (``index[ti, tj] = 0``) the TILE×TILE tiles that the bands of ragged paths touch."""
+    for p in range(offsets.shape[0] - 1):
+        row0, lo, hi, _ = _upsample_band(cells[offsets[p]:offsets[p + 1]], s, h, fa, fb)
+        for t in range(lo.shape[0]):
+            ti = (row0 + t) // TILE
+            for tj in range(lo[t] // TILE, hi[t] // TILE + 1):
+                index[ti, tj] = 0
+
+
+@njit(cache=True)
+def _alloc_tiles(index):
+    """Number the marked tiles; returns their value pool, NaN (not evaluated yet) everywhere."""
+    n = 0
+    for ti in range(index.shape[0]):
+        for tj in range(index.shape[1]):
+            if index[ti, tj] >= 0:
+                index[ti, tj] = n
+                n += 1
+    return np.full((n, TILE, TILE), np.nan)
+
+
+@njit(cache=True)
+def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, out) -> None:
+    """Distance values on a band's cells (inf inside the ignored self band |i − j| ≤ band).
+
+    Each cell is evaluated once per level: its value is kept in the tile ``pool`` and the bands
+    of chains and bridges that overlap read it from there.
+    """
     for t in range(lo.shape[0]):
         i = row0 + t
+        ti = i // TILE
+        ri = i - ti * TILE
         for j in range(lo[t], hi[t] + 1):
-            k = off[t] + j - lo[t]
-            if band >= 0 and abs(i - j) <= band:
-                out[k] = INF
-            else:
-                out[k] = _cell_distance(left, left_y, na, right, right_y, nb, i, j)
+            tile = pool[index[ti, j // TILE]]
+            v = tile[ri, j % TILE]
+            if math.isnan(v):
+                if band >= 0 and abs(i - j) <= band:
+                    v = INF
+                else:
+                    v = _cell_distance(left, left_y, na, right, right_y, nb, i, j)
+                tile[ri, j % TILE] = v
+            out[off[t] + j - lo[t]] = v
 
 
 @njit(cache=True)
@@ -809,7 +914,8 @@ def _flat_index(row0, lo, hi, off, i, j) -> int:
 
 
 @njit(cache=True)
-def _refine_chains(cells, offsets, s, h, radius, fa, fb, left, left_y, na, right, right_y, nb, band, mrun):
+def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left_y, na, right, right_y, nb, band,
+                   mrun):
     """Refine every chain (KG04 Fig. 8); returns (cells, values, offsets, new id of each chain)."""
     nch = offsets.shape[0] - 1
     new_id = np.full(nch, -1, np.int64)
@@ -820,7 +926,7 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, left, left_y, na, right
         cc = cells[offsets[p]:offsets[p + 1]]
         row0, lo, hi, off = _upsample_band(cc, s, h, fa, fb)
         vals = np.empty(off[-1], np.float64)
-        _eval_band(row0, lo, hi, off, left, left_y, na, right, right_y, nb, band, vals)
+        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         i0 = cc[0, 0] * s
         j0 = cc[0, 1] * s
         i1 = cc[-1, 0] * s
@@ -903,7 +1009,7 @@ def _position(path, i, j) -> int:
 
 @njit(cache=True)
 def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id, new_cells, new_offsets,
-                    s, h, radius, fa, fb, left, left_y, na, right, right_y, nb, band, mrun):
+                    s, h, radius, fa, fb, index, pool, left, left_y, na, right, right_y, nb, band, mrun):
     """Refine every bridge whose chains survived; returns (junctions, cells, values, offsets)."""
     junctions = []
     out_c = []
@@ -918,7 +1024,7 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
         cc = b_cells[b_offsets[b]:b_offsets[b + 1]]
         row0, lo, hi, off = _upsample_band(cc, s, h, fa, fb)
         vals = np.empty(off[-1], np.float64)
-        _eval_band(row0, lo, hi, off, left, left_y, na, right, right_y, nb, band, vals)
+        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         sp = new_cells[new_offsets[np_]:new_offsets[np_ + 1]]
         dp = new_cells[new_offsets[nq]:new_offsets[nq + 1]]
         a = old_offsets[p] + bridges[b, 1]
@@ -954,8 +1060,11 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
     path in the band joins them. Each bridge is refined likewise inside its own band, from any
     cell of its refined from-chain to any cell of its refined to-chain within one coarse cell of
     the upsampled old junctions, keeping the least-average path. Chains or bridges with no
-    feasible path are dropped (with their bridges). Cost: O(band cells · P) for the values plus
-    O(band cells · k) for the DP — linear in the search regions, independent of Fa·Fb.
+    feasible path are dropped (with their bridges). The union of all bands is evaluated once, each
+    cell on first use, into TILE×TILE tiles allocated for the tiles the bands touch (chain and
+    bridge bands overlap, ~2× on real webs). Cost: O(union of band cells · P) for the values plus
+    O(band cells · k) for the DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search
+    regions.
     """
     fa, fb = pa.n_frames, pb.n_frames
     s = float(rate / web.rate)
@@ -964,12 +1073,16 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
     mrun = max_run(cfg.slope_k)
     band_w = self_band(cfg, rate) if self_pair else -1
     old_cells = web.paths_cells.astype(np.int64)
-    feats = (pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms)
+    old_bcells = web.bridges_cells.astype(np.int64)
+    index = np.full((-(-fa // TILE), -(-fb // TILE)), -1, np.int64)
+    _mark_tiles(old_cells, web.paths_offsets, s, h, fa, fb, index)
+    _mark_tiles(old_bcells, web.bridges_offsets, s, h, fa, fb, index)
+    pool = _alloc_tiles(index)
+    feats = (index, pool, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms)
     pc, pv, po, new_id = _refine_chains(old_cells, web.paths_offsets, s, h, radius, fa, fb, *feats, band_w, mrun)
     if web.n_bridges:
-        jn, bc, bv, bo = _refine_bridges(old_cells, web.paths_offsets, web.bridges, web.bridges_cells.astype(np.int64),
-                                         web.bridges_offsets, new_id, pc.astype(np.int64), po, s, h, radius, fa, fb,
-                                         *feats, band_w, mrun)
+        jn, bc, bv, bo = _refine_bridges(old_cells, web.paths_offsets, web.bridges, old_bcells, web.bridges_offsets,
+                                         new_id, pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
     else:
         jn, bc, bv, bo = np.zeros((0, 4), np.int64), _empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
     return MatchWeb(rate=rate, shape=(fa, fb), paths_cells=pc, paths_values=pv, paths_offsets=po, bridges=jn,

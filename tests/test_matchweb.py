@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from flows.config import FeatureConfig, MatchWebConfig
 from store.motion import Motion, Skeleton
-from tasks.distance import distance_grid
+from tasks.distance import distance_cells, distance_grid, prepare_pair
 from tasks.features import clip_features, point_weights
 from tasks.kinematics import quat_from_euler, sample_motion
 from tasks.matchweb import (
@@ -184,21 +184,15 @@ def test_optimal_path_is_the_brute_force_optimum() -> None:
             assert path is None
 
 
-def test_bridges_match_brute_force() -> None:
-    """Bridge C → C': over every chain cell start, the least-total path to each C' cell (inside
-    the valid region, slope rule, Manhattan < L, not through chain cells), least average kept."""
-    g = valleys((16, 18), [0, 5], slope=0.002)
-    g += np.random.default_rng(1).random(g.shape).astype(np.float32) * 1e-4
-    m = local_minima(g)
-    valid = valid_region(g, m, 0.15)
-    cells, offs = find_chains(g, m, 3, 4)
-    assert len(offs) == 3
-    L = 7
-    br, bcells, boffs = find_bridges(g, valid, cells, offs, 3, L)
+def ref_bridges(g: np.ndarray, valid: np.ndarray, cells: np.ndarray, offs: np.ndarray,
+                L: int) -> dict[tuple[int, int], float]:
+    """Slow reference of find_bridges: over every chain cell start, the least-total path to each
+    C' cell (inside the valid region, slope rule k = 3, Manhattan < L, not through chain cells),
+    the least average kept per (C, C'). Returns {(C, C'): average}."""
     owner = -np.ones(g.shape, int)
     for c, (a, b) in enumerate(itertools.pairwise(offs)):
         owner[cells[a:b, 0], cells[a:b, 1]] = c
-    want = {}
+    want: dict[tuple[int, int], float] = {}
     for c, (a, b) in enumerate(itertools.pairwise(offs)):
         for start in map(tuple, cells[a:b].tolist()):
             def ok(cell, path, c=c):
@@ -215,15 +209,49 @@ def test_bridges_match_brute_force() -> None:
                 if end not in best_total or tot < best_total[end][0]:
                     best_total[end] = (tot, tot / len(p))
             for end, (_, avg) in best_total.items():
-                key = (c, owner[end])
+                key = (c, int(owner[end]))
                 want[key] = min(want.get(key, np.inf), avg)
+    return want
+
+
+def check_bridges(g: np.ndarray, valid: np.ndarray, cells: np.ndarray, offs: np.ndarray, L: int) -> int:
+    br, bcells, boffs = find_bridges(g, valid, cells, offs, 3, L)
+    want = ref_bridges(g, valid, cells, offs, L)
     got = {}
     for b, (c, _, d, _) in enumerate(br):
         x = bcells[boffs[b]:boffs[b + 1]]
+        assert valid[x[:, 0], x[:, 1]].all() and slope_ok(x, 3)
         got[(int(c), int(d))] = float(g[x[:, 0], x[:, 1]].mean())
-    assert set(got) == set(want) and len(got) == 2
+    assert set(got) == set(want)
     for key, value in got.items():
         assert np.isclose(value, want[key], rtol=1e-5)
+    return len(got)
+
+
+def test_bridges_match_brute_force() -> None:
+    g = valleys((16, 18), [0, 5], slope=0.002)
+    g += np.random.default_rng(1).random(g.shape).astype(np.float32) * 1e-4
+    m = local_minima(g)
+    valid = valid_region(g, m, 0.15)
+    cells, offs = find_chains(g, m, 3, 4)
+    assert len(offs) == 3
+    assert check_bridges(g, valid, cells, offs, 7) == 2
+
+
+def test_bridges_on_a_holed_valid_region_match_brute_force() -> None:
+    """The bridge search only visits cells reachable from its start: holes and dead ends in the
+    valid region (random masks) must not change which bridges are found or their costs."""
+    rng = np.random.default_rng(5)
+    g = valleys((16, 18), [0, 4, -4], slope=0.002)
+    g += rng.random(g.shape).astype(np.float32) * 1e-4
+    cells, offs = find_chains(g, local_minima(g), 3, 4)
+    assert len(offs) >= 3
+    found = 0
+    for _ in range(6):
+        valid = rng.random(g.shape) < 0.75
+        valid[cells[:, 0], cells[:, 1]] = True
+        found += check_bridges(g, valid, cells, offs, 6)
+    assert found > 0
 
 
 def test_chains_found_and_short_ones_dropped() -> None:
@@ -399,3 +427,19 @@ def test_single_rate_build_is_the_full_build() -> None:
     web = build_web({10.0: fa}, {10.0: fb}, w, CFG, self_pair=False)
     full = build_web_full(distance_grid(fa, fb, w), 10.0, CFG, self_pair=False)
     assert np.array_equal(web.paths_cells, full.paths_cells) and np.array_equal(web.bridges, full.bridges)
+
+
+def test_refined_values_are_the_cell_distances() -> None:
+    """Refined paths and bridges carry D at their cells (each band cell evaluated once into the
+    level's tiles, shared by overlapping bands): the same values as the per-cell reference."""
+    fc = FeatureConfig()
+    a, b = wiggle(900, 60.0, 6), wiggle(700, 60.0, 7)
+    w = point_weights(a.skeleton, fc)
+    fa = {r: clip_features(a, r, fc) for r in fc.rates}
+    fb = {r: clip_features(b, r, fc) for r in fc.rates}
+    for other, self_pair in ((fb, False), (fa, True)):
+        web = build_web(fa, other, w, CFG, self_pair=self_pair)
+        pa, pb = prepare_pair(fa[30.0], other[30.0], w)
+        assert web.n_paths > 0
+        for cells, vals in ((web.paths_cells, web.paths_values), (web.bridges_cells, web.bridges_values)):
+            assert np.array_equal(vals, distance_cells(pa, pb, cells[:, 0], cells[:, 1]))
