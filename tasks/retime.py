@@ -123,7 +123,7 @@ class FeasiblePolygons:
             the residual allowed in the polygon; infeasible: (F,) no timing has a residual
             below ``infeasible_tol`` of body weight (the contact model cannot explain the frame);
             original_inside: (F,) whether (0, 1) is in the polygon.
-        n_lps: LPs solved; seconds: wall time.
+        n_lps: LPs solved; seconds, cpu_seconds: wall and CPU time of this process.
     """
 
     vertices: list[np.ndarray]
@@ -136,6 +136,7 @@ class FeasiblePolygons:
     original_inside: np.ndarray
     n_lps: int
     seconds: float
+    cpu_seconds: float
 
 
 # --------------------------------------------------------------------------- LPs
@@ -348,7 +349,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     ballistic segment or point. Cost O(F · max_lps) LPs of (3 + nλ) columns.
     """
     opts = opts or PolygonOptions()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     f = A.shape[0]
     nl_all = contacts.basis.shape[2]
     verts, lams = [], []
@@ -389,7 +390,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     infeasible = res > opts.infeasible_tol * weight
     return FeasiblePolygons(vertices=verts, lambdas=lams, center=center, center_lambda=clam, residual=res,
                             tolerance=tol, infeasible=infeasible, original_inside=inside, n_lps=n_lps,
-                            seconds=time.perf_counter() - t0)
+                            seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
 
 
 def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
@@ -565,21 +566,26 @@ def _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alp
     val = c[0] * x0 * x0 + c[1] * x0 * x1 + c[2] * x1 * x1 + c[3] * x0 + c[4] * x1 + c[5]
     g0 = 2 * c[0] * x0 + c[1] * x1 + c[3]
     g1 = c[1] * x0 + 2 * c[2] * x1 + c[4]
-    inside = solid[fr]
-    if inside:  # half-plane test first: inside points need no projection
+    best, b0, b1 = 1e300, x0, x1
+    if solid[fr]:
+        # the closest point of a convex polygon lies on an edge whose half-plane x violates (at a
+        # vertex, one of its two edges' half-planes is violated), so project on those only
+        inside = True
         for k in range(K):
             kn = k + 1 if k + 1 < K else 0
             ax, ay = verts[fr, k, 0], verts[fr, k, 1]
             if (verts[fr, kn, 0] - ax) * (x1 - ay) - (verts[fr, kn, 1] - ay) * (x0 - ax) < 0:
                 inside = False
-                break
-    if inside:
-        return val, g0, g1
-    best, b0, b1 = 1e300, x0, x1
-    for k in range(K):
-        d, px, py = _edge_point(verts, inv_len2, fr, k, K, x0, x1)
-        if d < best:
-            best, b0, b1 = d, px, py
+                d, px, py = _edge_point(verts, inv_len2, fr, k, K, x0, x1)
+                if d < best:
+                    best, b0, b1 = d, px, py
+        if inside:
+            return val, g0, g1
+    else:  # a segment or a point (flight frames): every edge
+        for k in range(K):
+            d, px, py = _edge_point(verts, inv_len2, fr, k, K, x0, x1)
+            if d < best:
+                best, b0, b1 = d, px, py
     return val + alpha * best, g0 + 2 * alpha * (x0 - b0), g1 + 2 * alpha * (x1 - b1)
 
 
@@ -698,17 +704,9 @@ class TimingSpline:
     def n_params(self) -> int:
         return sum(n - 1 for n in self.n_ctrl)
 
-    def controls(self, z: np.ndarray) -> list[np.ndarray]:
-        out, o = [], 0
-        for k, n in enumerate(self.n_ctrl):
-            zk = z[o:o + n - 1]
-            o += n - 1
-            e = np.exp(zk - zk.max())
-            inc = (self.src[k + 1] - self.src[k]) * e / e.sum()
-            c = self.src[k] + np.concatenate([[0.0], np.cumsum(inc)])
-            c[-1] = self.src[k + 1]
-            out.append(c)
-        return out
+    def controls(self, z: np.ndarray) -> np.ndarray:
+        """The concatenated control points of all segments for parameters ``z``."""
+        return _controls(np.asarray(z, float), np.asarray(self.n_ctrl, np.int64), self.src)
 
     def design(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The 4 control points (S, 4; indices into the concatenated controls) each output time
@@ -734,23 +732,55 @@ class TimingSpline:
     def evaluate(self, z: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """p, ṗ, p̈ at output times ``t``."""
         ctrl, w = self.design(t)
-        c = np.concatenate(self.controls(z))[ctrl]
+        c = self.controls(z)[ctrl]
         return (w[0] * c).sum(axis=1), (w[1] * c).sum(axis=1), (w[2] * c).sum(axis=1)
 
     def chain(self, z: np.ndarray, grad: np.ndarray) -> np.ndarray:
         """d/dz from d/d(concatenated control points) (through cumsum and softmax per segment)."""
-        out, o, oc = [], 0, 0
-        for k, n in enumerate(self.n_ctrl):
-            zk = z[o:o + n - 1]
-            gk = grad[oc:oc + n]
-            o += n - 1
-            oc += n
-            e = np.exp(zk - zk.max())
-            s = e / e.sum()
-            g_inc = np.cumsum(gk[1:][::-1])[::-1]  # c_i depends on inc_j for j ≤ i
-            g_inc = g_inc * (self.src[k + 1] - self.src[k])
-            out.append(s * g_inc - s * (s @ g_inc))
-        return np.concatenate(out)
+        return _chain(np.asarray(z, float), np.asarray(grad, float), np.asarray(self.n_ctrl, np.int64), self.src)
+
+
+@njit(cache=True)
+def _controls(z, n_ctrl, src):  # pragma: no cover - numba
+    """Segment k's controls: src[k] + cumsum of softmax(z_k) · (src[k+1] − src[k]), last = src[k+1]."""
+    c = np.empty(n_ctrl.sum())
+    o = 0
+    oc = 0
+    for k in range(n_ctrl.shape[0]):
+        n = n_ctrl[k]
+        zk = z[o:o + n - 1]
+        e = np.exp(zk - zk.max())
+        inc = (src[k + 1] - src[k]) / e.sum()
+        c[oc] = src[k]
+        for i in range(n - 1):
+            c[oc + i + 1] = c[oc + i] + inc * e[i]
+        c[oc + n - 1] = src[k + 1]
+        o += n - 1
+        oc += n
+    return c
+
+
+@njit(cache=True)
+def _chain(z, grad, n_ctrl, src):  # pragma: no cover - numba
+    """Gradient in z from the gradient in the controls of :func:`_controls`."""
+    out = np.empty(z.shape[0])
+    o = 0
+    oc = 0
+    for k in range(n_ctrl.shape[0]):
+        n = n_ctrl[k]
+        zk = z[o:o + n - 1]
+        e = np.exp(zk - zk.max())
+        s = e / e.sum()
+        g_inc = np.empty(n - 1)
+        acc = 0.0
+        for i in range(n - 2, -1, -1):  # c_i depends on inc_j for j < i
+            acc += grad[oc + i + 1]
+            g_inc[i] = acc * (src[k + 1] - src[k])
+        sg = (s * g_inc).sum()
+        out[o:o + n - 1] = s * g_inc - s * sg
+        o += n - 1
+        oc += n
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -856,9 +886,12 @@ def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, du
     dt = duration / n_s
     args = (obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, float(obj.alpha), ctrl, w)
 
+    n_ctrl = np.asarray(spline.n_ctrl, np.int64)
+
     def fun(z: np.ndarray) -> tuple[float, np.ndarray]:
-        val, grad = _objective_kernel(*args, np.concatenate(spline.controls(z)), float(fps), dt)
-        return float(val), spline.chain(z, grad)
+        zz = np.asarray(z, float)
+        val, grad = _objective_kernel(*args, _controls(zz, n_ctrl, spline.src), float(fps), dt)
+        return float(val), _chain(zz, grad, n_ctrl, spline.src)
 
     return fun
 
@@ -990,6 +1023,32 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
     return out, res
 
 
+def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:
+    """Seconds spent in each contact phase ('flight', '<foot> only', 'double'): (source, output).
+
+    The phase of a source frame is its set of feet in contact; output seconds integrate the
+    phase of p(t) over ``n`` output samples — the retiming's shift between stances (MPS06 Fig.
+    10-11: a leg favoured under sideways gravity or a heavy femur). O(n + F).
+    """
+    names = [f.name for f in contacts.feet]
+
+    def label(row: np.ndarray) -> str:
+        k = int(row.sum())
+        return "flight" if k == 0 else "double" if k > 1 else f"{names[int(np.argmax(row))]} only"
+
+    labels = [label(row) for row in contacts.active]
+    f = len(labels)
+    tt = (np.arange(n) + 0.5) * res.t[-1] / n
+    p, _, _ = res.spline.evaluate(res.z, tt)
+    frames = np.clip(np.rint(p * fps).astype(int), 0, f - 1)
+    out: dict[str, tuple[float, float]] = {}
+    for name in dict.fromkeys(labels):
+        src = sum(lab == name for lab in labels) / fps
+        dur = float(np.isin(frames, [i for i, lab in enumerate(labels) if lab == name]).sum() * res.t[-1] / n)
+        out[name] = (src, dur)
+    return out
+
+
 def flight_intervals(active: np.ndarray, fps: float) -> list[tuple[float, float]]:
     """Source-time intervals (s) with no foot in contact, between the last and first contact frames."""
     none = ~active.any(axis=1)
@@ -1056,6 +1115,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "total_mass_kg": plan.body.total_mass,
         "objective": float(res.objective), "converged": res.converged, "iterations": res.iterations,
         "contacts": cont.intervals(m.fps), "contacts_detected": cont.detected, "flights": flights,
+        "phase_seconds": {k: {"source": s, "output": o} for k, (s, o) in phase_times(cont, res, m.fps).items()},
         "shortest_feasible_duration": shortest_duration(polys, m.fps),
         "infeasible_source_frames": np.flatnonzero(polys.infeasible).tolist(),
         "original_timing_outside_polygon": np.flatnonzero(~polys.original_inside).tolist(),
