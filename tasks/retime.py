@@ -552,7 +552,7 @@ def evaluate_numpy(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[n
     return val, gx, v1 - v0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, fr, x0, x1):  # pragma: no cover
     """Value and d/dx of frame ``fr``'s terms at x = (x0, x1): O(count[fr]), padding skipped."""
     K = count[fr]
@@ -589,7 +589,7 @@ def _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alp
     return val + alpha * best, g0 + 2 * alpha * (x0 - b0), g1 + 2 * alpha * (x1 - b1)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _edge_point(verts, inv_len2, fr, k, K, x0, x1):  # pragma: no cover - numba
     """Squared distance from x to edge k → k+1 of frame ``fr`` and the closest point on it."""
     ax, ay = verts[fr, k, 0], verts[fr, k, 1]
@@ -600,7 +600,7 @@ def _edge_point(verts, inv_len2, fr, k, K, x0, x1):  # pragma: no cover - numba
     return (x0 - px) ** 2 + (x1 - py) ** 2, px, py
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sample_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, u, x0, x1):  # pragma: no cover
     """Density at source frame ``u`` (linear blend of its two frames): value, d/dx0, d/dx1, d/du."""
     f = verts.shape[0]
