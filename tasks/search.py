@@ -449,13 +449,14 @@ class MatchSearch:
             raise ValueError(f"threshold ε must be finite and ≥ 0, got {eps}")
         g = self.check(query)
         nodes = [MatchNode(query, tier=0, cost=0.0, distance=0.0)]
+        by_clip: dict[str, list[int]] = {query.clip: [0]}
         edges: dict[tuple[int, int], MatchEdge] = {}
         frontier = [0]
         for tier in range(1, self.cfg.max_tiers + 1):
             added = []
             for qi in frontier:
                 for m in self.matches(nodes[qi].segment, eps):
-                    v, new = self._place(nodes, m, tier)
+                    v, new = self._place(nodes, by_clip, m, tier)
                     if v is None or v == qi:
                         continue
                     if new:
@@ -468,16 +469,20 @@ class MatchSearch:
             frontier = added
         return _finish(g.rate, nodes, list(edges.values()))
 
-    def _place(self, nodes: list[MatchNode], m: WebMatch, tier: int) -> tuple[int | None, bool]:
+    def _place(self, nodes: list[MatchNode], by_clip: dict[str, list[int]], m: WebMatch,
+               tier: int) -> tuple[int | None, bool]:
         """Dedup a match against the graph (KG04 §3.3): (its node index or None when discarded,
-        whether the node is new)."""
+        whether the node is new). Only nodes of the same clip can overlap (``by_clip``)."""
         seg = m.segment
-        ov = [seg.overlap(n.segment) for n in nodes]
-        best = int(np.argmax(ov))
-        if ov[best] < self.cfg.new_node_below:
+        same = by_clip.setdefault(seg.clip, [])
+        ov = [seg.overlap(nodes[i].segment) for i in same]
+        k = int(np.argmax(ov)) if ov else -1
+        if k < 0 or ov[k] < self.cfg.new_node_below:
             nodes.append(MatchNode(seg, tier=tier, cost=m.cost))
+            same.append(len(nodes) - 1)
             return len(nodes) - 1, True
-        if ov[best] > self.cfg.merge_above:
+        best = same[k]
+        if ov[k] > self.cfg.merge_above:
             if best != 0:
                 old = nodes[best].segment
                 nodes[best].segment = Segment(old.clip, round((old.start + seg.start) / 2), round((old.end + seg.end) / 2))

@@ -32,16 +32,26 @@ EPS = 0.005  # planted copies cost ~3e-4, the nearest other motion 0.02 (see tes
 # ---------------------------------------------------------------------------- slow reference
 
 
-def ref_matches(web: MatchWeb, a: int, b: int) -> dict[tuple[int, int], tuple[float, float]]:
+class TooManySequences(RuntimeError):
+    """The enumeration met more match sequences than its budget."""
+
+
+def ref_matches(web: MatchWeb, a: int, b: int, max_sequences: int | None = None
+                ) -> dict[tuple[int, int], tuple[float, float]]:
     """KG04 §3.3 literally: enumerate every match sequence from the earliest row-a cell of each
     path, walking down paths and recursing into every bridge met before row b; a sequence ends at
-    the last cell of its row-b run. Returns (c, d) -> (least average, average of least total)."""
+    the last cell of its row-b run. Returns (c, d) -> (least average, average of least total).
+    Exponential in the bridges crossed: raises TooManySequences past ``max_sequences``."""
+    count = [0]
     leaving = defaultdict(list)
     for bi, (p, fi, _, _) in enumerate(web.bridges.tolist()):
         leaving[(p, fi)].append(bi)
     best: dict[tuple[int, int], tuple[float, float, float]] = {}
 
     def record(seq: list[float], c: int, d: int) -> None:
+        count[0] += 1
+        if max_sequences is not None and count[0] > max_sequences:
+            raise TooManySequences(f"more than {max_sequences} match sequences")
         avg, tot = float(np.mean(seq)), float(np.sum(seq))
         old = best.get((c, d), (np.inf, np.inf, np.inf))
         best[(c, d)] = (min(old[0], avg), *(min((old[1], old[2]), (tot, avg))))
