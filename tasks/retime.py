@@ -24,6 +24,7 @@ O(S · K) with S samples and K polygon vertices (independent of the number of do
 from __future__ import annotations
 
 import ctypes
+import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -145,35 +146,32 @@ class FeasiblePolygons:
 class FrameLP:
     """One HiGHS model of MPS06 Eqn. 13 for a frame: columns [p̈, ṗ², s, λ], maximize.
 
-    Rows: root rows −s ≤ A p̈ + B ṗ² − N λ + C ≤ s; joint rows |A p̈ + B ṗ² − N λ + C| ≤ limits.
+    Rows: root rows −s ≤ A p̈ + B ṗ² − N λ + C ≤ s; joint rows |A p̈ + B ṗ² − N λ + C| ≤ limits
+    (left out when ``limits`` is None: they would be free rows).
     """
 
     def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, N: np.ndarray, limits: np.ndarray | None,
-                 opts: PolygonOptions):
+                 opts: PolygonOptions, highs: highspy.Highs | None = None):
         nv, nl = N.shape
         self.nl = nl
-        h = highspy.Highs()
-        h.setOptionValue("output_flag", False)
-        h.setOptionValue("presolve", "off")  # tiny LPs re-solved from the previous basis
-        h.setOptionValue("threads", 1)  # HiGHS's worker pool only adds synchronization here (7x on 2 busy cores)
-        # a new direction changes costs only: the basis stays primal feasible, so primal simplex
-        # re-optimizes from it (1.7x fewer ms per direction than dual simplex)
-        h.setOptionValue("simplex_strategy", 4)
+        h = highs or new_highs()  # passModel replaces the previous frame's model
         lp = highspy.HighsLp()
         ncol = 3 + nl
-        lim = np.full(nv - N_ROOT, INF) if limits is None else limits[N_ROOT:]
+        nj = 0 if limits is None else nv - N_ROOT
+        lim = np.zeros(0) if limits is None else limits[N_ROOT:]
         # dense constraint matrix: root upper (6), root lower (6), joints
-        M = np.zeros((2 * N_ROOT + nv - N_ROOT, ncol))
+        M = np.zeros((2 * N_ROOT + nj, ncol))
         for blk, sgn in ((0, -1.0), (N_ROOT, 1.0)):
             M[blk:blk + N_ROOT, 0] = A[:N_ROOT]
             M[blk:blk + N_ROOT, 1] = B[:N_ROOT]
             M[blk:blk + N_ROOT, 2] = sgn
             M[blk:blk + N_ROOT, 3:] = -N[:N_ROOT]
-        M[2 * N_ROOT:, 0] = A[N_ROOT:]
-        M[2 * N_ROOT:, 1] = B[N_ROOT:]
-        M[2 * N_ROOT:, 3:] = -N[N_ROOT:]
-        lo = np.concatenate([np.full(N_ROOT, -INF), -C[:N_ROOT], -lim - C[N_ROOT:]])
-        hi = np.concatenate([-C[:N_ROOT], np.full(N_ROOT, INF), lim - C[N_ROOT:]])
+        if nj:
+            M[2 * N_ROOT:, 0] = A[N_ROOT:]
+            M[2 * N_ROOT:, 1] = B[N_ROOT:]
+            M[2 * N_ROOT:, 3:] = -N[N_ROOT:]
+        lo = np.concatenate([np.full(N_ROOT, -INF), -C[:N_ROOT], -lim - C[N_ROOT:N_ROOT + nj]])
+        hi = np.concatenate([-C[:N_ROOT], np.full(N_ROOT, INF), lim - C[N_ROOT:N_ROOT + nj]])
         lo[~np.isfinite(lo)] = -INF
         hi[~np.isfinite(hi)] = INF
         lp.num_col_, lp.num_row_ = ncol, M.shape[0]
@@ -216,6 +214,18 @@ class FrameLP:
             self.h.changeColBounds(1, x[1], x[1])
 
 
+def new_highs() -> highspy.Highs:
+    """A HiGHS instance set up for the tiny, often re-solved LPs of MPS06 §3.3 (reused across frames)."""
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("presolve", "off")  # tiny LPs re-solved from the previous basis
+    h.setOptionValue("threads", 1)  # HiGHS's worker pool only adds synchronization here (7x on 2 busy cores)
+    # a new direction changes costs only: the basis stays primal feasible, so primal simplex
+    # re-optimizes from it (1.7x fewer ms per direction than dual simplex)
+    h.setOptionValue("simplex_strategy", 4)
+    return h
+
+
 def _lp_cost(nl: int, pdd: float = 0.0, pd2: float = 0.0, s: float = 0.0, lam: float = 0.0) -> np.ndarray:
     return np.concatenate([[pdd, pd2, s], np.full(nl, lam)])
 
@@ -235,10 +245,11 @@ def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Conta
     lam = np.zeros((f, nl_all))
     res = np.zeros(f)
     big = 1e3 / max(weight, 1e-9)  # W·s dominates Σλ
+    highs = new_highs()
     for i in range(f):
         cols = contacts.columns(i)
         N = contacts.basis[i][:, cols]
-        lp = FrameLP(A[i], B[i], C[i], N, None, opts)
+        lp = FrameLP(A[i], B[i], C[i], N, None, opts, highs)
         lp.fix_timing((0.0, 1.0))
         x = lp.solve(_lp_cost(len(cols), s=-big * weight, lam=-1.0))
         if x is None:  # cannot happen with a free residual; keep zeros
@@ -257,9 +268,9 @@ def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Conta
 def _dedupe(points: list[tuple[float, np.ndarray, np.ndarray]], tol: float) -> list[tuple[float, np.ndarray, np.ndarray]]:
     out: list[tuple[float, np.ndarray, np.ndarray]] = []
     for p in points:
-        if not out or np.linalg.norm(p[1] - out[-1][1]) > tol:
+        if not out or math.dist(p[1], out[-1][1]) > tol:
             out.append(p)
-    if len(out) > 1 and np.linalg.norm(out[0][1] - out[-1][1]) <= tol:
+    if len(out) > 1 and math.dist(out[0][1], out[-1][1]) <= tol:
         out.pop()
     return out
 
@@ -289,14 +300,15 @@ def sweep_polygon(lp: FrameLP, opts: PolygonOptions) -> tuple[np.ndarray, np.nda
         for k in range(len(pts)):
             _a0, v0, _ = pts[k]
             _a1, v1, _ = pts[(k + 1) % len(pts)]
-            e = v1 - v0
-            if np.hypot(*e) <= opts.edge_tol or budget <= 0:
+            ex, ey = float(v1[0] - v0[0]), float(v1[1] - v0[1])
+            length = math.hypot(ex, ey)
+            if length <= opts.edge_tol or budget <= 0:
                 continue
-            n = np.array([e[1], -e[0]])  # outward normal of a counter-clockwise edge
-            an = float(np.arctan2(n[1], n[0]))
-            x = lp.solve(np.append(n / np.linalg.norm(n), 0.0))
+            n = np.array([ey / length, -ex / length, 0.0])  # outward unit normal of a counter-clockwise edge
+            an = math.atan2(n[1], n[0])
+            x = lp.solve(n)
             budget -= 1
-            if x is not None and n @ (x[:2] - v0) > 1e-6 * np.linalg.norm(n) * (1 + np.abs(v0).max()):
+            if x is not None and n[:2] @ (x[:2] - v0) > 1e-6 * (1 + np.abs(v0).max()):
                 new.append((an, x[:2].copy(), x[3:].copy()))
                 changed = True
         if new:
@@ -359,10 +371,11 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     tol = np.zeros(f)
     inside = np.zeros(f, bool)
     n_lps = 0
+    highs = new_highs()
     for i in range(f):
         cols = contacts.columns(i)
         N = contacts.basis[i][:, cols]
-        lp = FrameLP(A[i], B[i], C[i], N, limits, opts)
+        lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs)
         x = lp.solve(_lp_cost(len(cols), s=-1.0))
         res[i] = x[2] if x is not None else np.inf
         s0 = 0.0 if original_residual is None else float(original_residual[i])
