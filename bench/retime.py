@@ -102,6 +102,7 @@ def stage_table() -> None:
         motion, hum = clip(name)
         f = motion.n_frames
         plan = prepare(motion, OPTS, humanoid=hum)  # warm-up: numba compilation, imports
+        retime_plan(plan, motion.duration / 2, None, OPTS)
         _, dyn_w, dyn_c = timed(lambda m=motion, b=plan.body: dynamics_terms(b, m), repeat=3)
         plan, _, _ = timed(lambda m=motion, h=hum: prepare(m, OPTS, humanoid=h))
         poly_w = plan.polygons.seconds

@@ -88,7 +88,7 @@ class PolygonOptions:
     pdd_max: float = 40.0
     speed_max: float = 6.0
     directions: int = 8
-    max_lps: int = 20
+    max_lps: int = 16
     edge_tol: float = 0.5
     abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
     infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
@@ -931,7 +931,7 @@ class RetimeOptions:
     speed_max: float = 6.0
     pdd_max: float = 40.0
     directions: int = 8
-    max_lps: int = 20
+    max_lps: int = 16
     allow_flight_only: bool = False
     up_axis: int = 1
 
