@@ -46,6 +46,7 @@ from zarr.storage import FsspecStore, LocalStore
 if TYPE_CHECKING:
     from flows.config import Config
     from store.catalog import ClipEntry
+    from tasks.distance import ClipOperands
     from tasks.matchweb import MatchWeb
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
@@ -448,10 +449,14 @@ def _store(url: str) -> MotionStore:
     return MotionStore(url)
 
 
-@lru_cache(maxsize=64)
-def _features(url: str, sha: str, fdigest: str) -> tuple[dict[float, np.ndarray], np.ndarray]:
-    """Features of a clip, cached per worker (a clip appears in many pairs of a batch)."""
-    return _store(url).read_features(sha, fdigest)
+@lru_cache(maxsize=128)
+def _operands(url: str, sha: str, fdigest: str) -> dict[float, ClipOperands]:
+    """A clip's distance operands by rate (``tasks.distance.ClipOperands``), cached per worker:
+    a clip appears in many pairs, and is read and prepared once, not once per pair."""
+    from tasks.distance import ClipOperands
+
+    by_rate, weights = _store(url).read_features(sha, fdigest)
+    return {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
 
 
 def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
@@ -496,7 +501,7 @@ def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, stor
     Reads both clips' features from the store, builds the web coarse to fine and writes it under
     its key (the full grid on the side with ``keep_grids``). Returns small records only.
     """
-    from tasks.matchweb import build_web
+    from tasks.matchweb import build_web_operands
 
     store = _store(store_url)
     fdig = feature_digest(cfg)
@@ -505,13 +510,13 @@ def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, stor
     for key, a_sha, b_sha, self_pair in pairs:
         t = time.perf_counter()
         try:
-            fa, weights = _features(store_url, a_sha, fdig)
-            fb = fa if self_pair else _features(store_url, b_sha, fdig)[0]
-            web = build_web(fa, fb, weights, cfg.matchweb, self_pair)
+            oa = _operands(store_url, a_sha, fdig)
+            ob = oa if self_pair else _operands(store_url, b_sha, fdig)
+            web = build_web_operands(oa, ob, cfg.matchweb, self_pair)
             arrays = web.to_arrays()
             grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
             meta = {"a_sha": a_sha, "b_sha": b_sha, "rate": rate,
-                    "shape": [int(fa[rate].shape[0]), int(fb[rate].shape[0])], **web_counts(arrays)}
+                    "shape": [oa[rate].n_frames, ob[rate].n_frames], **web_counts(arrays)}
             store.write_web(key, arrays, meta)
             if grid is not None:
                 store.write_grid(key, grid)

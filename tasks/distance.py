@@ -68,45 +68,101 @@ def _check(f: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return f, w / s
 
 
+def _heights(f: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(F,) weighted mean height of each cloud (``w`` normalised)."""
+    return np.asarray(f[:, :, 1], dtype=np.float64) @ w
+
+
+def _shared_height(heights: list[np.ndarray]) -> float:
+    ys = [h for h in heights if len(h)]
+    return float(np.mean(np.concatenate(ys))) if ys else 0.0
+
+
 def vertical_shift(*features: np.ndarray, weights: np.ndarray) -> float:
     """A common vertical offset for clips compared together (their weighted mean height)."""
     w = np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
-    ys = [np.asarray(f[:, :, 1], dtype=np.float64) @ w for f in features if len(f)]
-    return float(np.mean(np.concatenate(ys))) if ys else 0.0
+    return _shared_height([_heights(f, w) for f in features])
+
+
+@dataclass(frozen=True)
+class ClipOperands:
+    """Everything of :func:`prepare_features` that does not depend on the vertical shift ``y0``.
+
+    Computed once per clip and rate (O(F·P)); :meth:`prepare` then finishes the operands for one
+    ``y0`` with a few elementwise passes, and :func:`prepare_operands_pair` for a pair of clips
+    with their shared ``y0`` — the same arrays as :func:`prepare_pair`, at a fraction of its
+    per-pair cost when a clip is compared with many others (an index chunk, KG04 §3.1).
+    """
+
+    w: np.ndarray  # (P,) weights normalised to sum 1
+    xx: np.ndarray  # (F, P) x² of the horizontally centred cloud, float64
+    zz: np.ndarray  # (F, P) z²
+    y: np.ndarray  # (F, P) heights, float64
+    heights: np.ndarray  # (F,) weighted mean heights (terms of vertical_shift)
+    left: np.ndarray
+    right: np.ndarray
+    right_rot: np.ndarray
+    centroid: np.ndarray
+    dtype: np.dtype
+
+    @classmethod
+    def of(cls, f: np.ndarray, weights: np.ndarray, dtype: DTypeLike = np.float32) -> ClipOperands:
+        f, w = _check(f, weights)
+        dt = np.dtype(dtype)
+        p = np.asarray(f, dtype=np.float64)
+        x, z = p[:, :, 0], p[:, :, 2]
+        cx = x @ w
+        cz = z @ w
+        x = x - cx[:, None]
+        z = z - cz[:, None]
+        return cls(
+            w=w, xx=x * x, zz=z * z, y=np.ascontiguousarray(p[:, :, 1]), heights=_heights(f, w),
+            left=np.ascontiguousarray(np.concatenate([x * w, z * w], axis=1), dtype=dt),
+            right=np.ascontiguousarray(np.concatenate([x, z], axis=1), dtype=dt),
+            right_rot=np.ascontiguousarray(np.concatenate([z, -x], axis=1), dtype=dt),
+            centroid=np.stack([cx, cz], axis=1),
+            dtype=dt,
+        )
+
+    @property
+    def n_frames(self) -> int:
+        return self.y.shape[0]
+
+    def prepare(self, y0: float = 0.0) -> PreparedFeatures:
+        """The GEMM operands with heights shifted by ``y0`` (O(F·P) elementwise)."""
+        y = self.y - y0
+        norms = (self.xx + y * y + self.zz) @ self.w
+        return PreparedFeatures(
+            left=self.left,
+            left_y=np.ascontiguousarray(y * self.w, dtype=self.dtype),
+            right=self.right,
+            right_rot=self.right_rot,
+            right_y=np.ascontiguousarray(y, dtype=self.dtype),
+            norms=norms.astype(self.dtype),
+            centroid=self.centroid,
+            y0=float(y0),
+        )
 
 
 def prepare_features(f: np.ndarray, weights: np.ndarray, y0: float = 0.0,
                      dtype: DTypeLike = np.float32) -> PreparedFeatures:
     """GEMM operands of one clip's clouds (O(F·P)); use the same ``y0`` for clips compared."""
-    f, w = _check(f, weights)
-    dt = np.dtype(dtype)
-    p = np.asarray(f, dtype=np.float64)
-    x, y, z = p[:, :, 0], p[:, :, 1] - y0, p[:, :, 2]
-    cx = x @ w
-    cz = z @ w
-    x = x - cx[:, None]
-    z = z - cz[:, None]
-    norms = (x * x + y * y + z * z) @ w
-    return PreparedFeatures(
-        left=np.ascontiguousarray(np.concatenate([x * w, z * w], axis=1), dtype=dt),
-        left_y=np.ascontiguousarray(y * w, dtype=dt),
-        right=np.ascontiguousarray(np.concatenate([x, z], axis=1), dtype=dt),
-        right_rot=np.ascontiguousarray(np.concatenate([z, -x], axis=1), dtype=dt),
-        right_y=np.ascontiguousarray(y, dtype=dt),
-        norms=norms.astype(dt),
-        centroid=np.stack([cx, cz], axis=1),
-        y0=float(y0),
-    )
+    return ClipOperands.of(f, weights, dtype).prepare(y0)
+
+
+def prepare_operands_pair(oa: ClipOperands, ob: ClipOperands) -> tuple[PreparedFeatures, PreparedFeatures]:
+    """:func:`prepare_pair` from per-clip operands (``ob`` may be ``oa``): O((Fa + Fb)·P)."""
+    y0 = _shared_height([oa.heights, ob.heights])
+    pa = oa.prepare(y0)
+    return pa, pa if ob is oa else ob.prepare(y0)
 
 
 def prepare_pair(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
                  dtype: DTypeLike = np.float32) -> tuple[PreparedFeatures, PreparedFeatures]:
     """Operands for a pair of clips with a shared vertical shift (``fb`` may be ``fa``)."""
-    y0 = vertical_shift(fa, fb, weights=weights)
-    pa = prepare_features(fa, weights, y0, dtype)
-    pb = pa if fb is fa else prepare_features(fb, weights, y0, dtype)
-    return pa, pb
+    oa = ClipOperands.of(fa, weights, dtype)
+    return prepare_operands_pair(oa, oa if fb is fa else ClipOperands.of(fb, weights, dtype))
 
 
 @njit(cache=True, fastmath=True)
@@ -152,9 +208,13 @@ def distance_grid(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
     O(Fa·Fb·P) flops (≈10·Fa·Fb·P) at GEMM speed; O(Fa·Fb) output memory. Values are squared
     metres (weighted mean squared point distance after alignment), tiny negatives clamped to 0.
     """
-    pa, pb = prepare_pair(fa, fb, weights, dtype)
+    return distance_grid_prepared(*prepare_pair(fa, fb, weights, dtype), tile=tile)
+
+
+def distance_grid_prepared(pa: PreparedFeatures, pb: PreparedFeatures, tile: int = 2048) -> np.ndarray:
+    """:func:`distance_grid` from prepared operands (e.g. :func:`prepare_operands_pair`)."""
     fa_n, fb_n = pa.n_frames, pb.n_frames
-    grid = np.empty((fa_n, fb_n), dtype=np.dtype(dtype))
+    grid = np.empty((fa_n, fb_n), dtype=pa.norms.dtype)
     for r0 in range(0, fa_n, tile):
         r1 = min(r0 + tile, fa_n)
         for c0 in range(0, fb_n, tile):

@@ -39,7 +39,14 @@ import numpy as np
 from numba import njit
 
 from flows.config import MatchWebConfig
-from tasks.distance import DTypeLike, PreparedFeatures, _cell_distance, distance_grid, prepare_pair
+from tasks.distance import (
+    ClipOperands,
+    DTypeLike,
+    PreparedFeatures,
+    _cell_distance,
+    distance_grid_prepared,
+    prepare_operands_pair,
+)
 
 INF = np.inf
 
@@ -1094,26 +1101,39 @@ def build_web(fa_by_rate: dict[float, np.ndarray], fb_by_rate: dict[float, np.nd
     """Match web between clips A and B, coarse to fine across the rates given (KG04 §3.2, Fig. 8).
 
     ``fa_by_rate[r]``: (F_r, P, 3) clouds of A at r Hz (``tasks.features.clip_features``), same
-    rates for B; the highest rate is the working rate of the result. The coarsest level evaluates
-    its full grid (O(Fa·Fb·P) at the coarsest rate, 1/9 of the working-rate cost for 10 → 30 Hz)
-    and runs :func:`build_web_full`; every finer level evaluates only the cells of the
-    padded, upsampled chains and bridges (:func:`refine_web`). With ``cfg.keep_grids`` the full
-    grid at the working rate is also computed and kept (O(Fa·Fb) memory).
+    rates for B; the highest rate is the working rate of the result. See :func:`build_web_operands`,
+    which this calls after preparing both clips (O((Fa + Fb)·P) per rate).
     """
-    rates = sorted(float(r) for r in fa_by_rate)
-    if sorted(float(r) for r in fb_by_rate) != rates or not rates:
-        raise ValueError(f"clips A and B must have features at the same rates, got {sorted(fa_by_rate)} "
-                         f"and {sorted(fb_by_rate)}")
-    feats_a = {float(r): v for r, v in fa_by_rate.items()}
-    feats_b = {float(r): v for r, v in fb_by_rate.items()}
+    oa = {float(r): ClipOperands.of(f, weights, dtype) for r, f in fa_by_rate.items()}
+    ob = {float(r): oa[float(r)] if f is fa_by_rate.get(r) else ClipOperands.of(f, weights, dtype)
+          for r, f in fb_by_rate.items()}
+    return build_web_operands(oa, ob, cfg, self_pair)
+
+
+def build_web_operands(oa_by_rate: dict[float, ClipOperands], ob_by_rate: dict[float, ClipOperands],
+                       cfg: MatchWebConfig, self_pair: bool) -> MatchWeb:
+    """Match web from per-clip operands (``tasks.distance.ClipOperands``, prepared once per clip
+    and rate, e.g. once per index worker; KG04 §3.2, Fig. 8).
+
+    The coarsest level evaluates its full grid (O(Fa·Fb·P) at the coarsest rate, 1/9 of the
+    working-rate cost for 10 → 30 Hz) and runs :func:`build_web_full`; every finer level
+    evaluates only the cells of the padded, upsampled chains and bridges (:func:`refine_web`).
+    Per level the pair's shared vertical shift finishes the operands (O((Fa + Fb)·P)). With
+    ``cfg.keep_grids`` the full grid at the working rate is also computed and kept (O(Fa·Fb)
+    memory).
+    """
+    rates = sorted(oa_by_rate)
+    if sorted(ob_by_rate) != rates or not rates:
+        raise ValueError(f"clips A and B must have features at the same rates, got {sorted(oa_by_rate)} "
+                         f"and {sorted(ob_by_rate)}")
     r0 = rates[0]
-    grid0 = distance_grid(feats_a[r0], feats_b[r0], weights, dtype=dtype)
+    grid0 = distance_grid_prepared(*prepare_operands_pair(oa_by_rate[r0], ob_by_rate[r0]))
     web = build_web_full(grid0, r0, cfg.model_copy(update={"keep_grids": False}), self_pair)
     for r in rates[1:]:
-        fa, fb = feats_a[r], feats_b[r]
-        pa, pb = prepare_pair(fa, fb, weights, dtype)
+        pa, pb = prepare_operands_pair(oa_by_rate[r], ob_by_rate[r])
         web = refine_web(web, pa, pb, r, cfg, self_pair)
-    if cfg.keep_grids:
-        web.grid = (grid0 if len(rates) == 1
-                    else distance_grid(feats_a[rates[-1]], feats_b[rates[-1]], weights, dtype=dtype))
+        if cfg.keep_grids and r == rates[-1]:
+            web.grid = distance_grid_prepared(pa, pb)
+    if cfg.keep_grids and len(rates) == 1:
+        web.grid = grid0
     return web
