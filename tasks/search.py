@@ -23,6 +23,9 @@ as KG04 §3.4 reports. The trivial identity match of a self web cannot occur: se
 band |i − j| ≤ ``self_band_s`` (``tasks.matchweb.mask_self_band``), and a match overlapping the
 query anyway is absorbed by the query node (dedup below).
 
+Matches shorter than the minimum chain length or with an overall slope outside [1/k, k] are not
+kept (they could not be queries of the next tier; see :meth:`MatchSearch.matches`).
+
 Redundancy removal (KG04 §3.3): matches sorted by average value, the best kept, every other
 overlapping it by more than ``SearchConfig.overlap_redundant`` dropped, repeat.
 
@@ -438,9 +441,18 @@ class MatchSearch:
         return g
 
     def matches(self, query: Segment, eps: float) -> list[WebMatch]:
-        """One tier: matches of ``query`` with average ≤ ``eps``, redundant ones removed."""
+        """One tier: matches of ``query`` with average ≤ ``eps``, redundant ones removed.
+
+        Matches must also be usable as queries of the next tier: spanning at least the minimum
+        chain length, and with an overall slope within [1/k, k] (the slope rule of KG04 §3.1 for
+        the whole match: a walk joining paths through bridges restarts the rule at each junction
+        and could otherwise shrink a match, and tier after tier a query, to a few frames)."""
         g = self.graph(query.clip)
-        found = find_matches(g, query.start, min(query.end, g.n_frames - 1), eps)
+        b = min(query.end, g.n_frames - 1)
+        rows, k = b - query.start + 1, self.web_cfg.slope_k
+        need = min_chain_extent(self.web_cfg, g.rate)
+        found = [m for m in find_matches(g, query.start, b, eps)
+                 if m.end - m.start >= need and rows <= k * (m.end - m.start + 1) and m.end - m.start + 1 <= k * rows]
         return remove_redundant(found, self.cfg.overlap_redundant)
 
     def search(self, query: Segment, eps: float) -> MatchGraph:

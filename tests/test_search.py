@@ -329,3 +329,19 @@ def test_dedup_new_node_merge_and_discard() -> None:
     assert len(graph.edges) == len(pairs)  # one edge per node pair
     for e in graph.edges:  # cells are (frame of u's clip, frame of v's clip)
         assert e.cells[0, 0] == 10 or graph.nodes[e.u].segment.clip != "A"
+
+
+def test_matches_too_short_or_too_steep_are_not_kept() -> None:
+    """A walk can chain paths and bridges into a match far steeper than the slope rule allows (here
+    a constructed vertical path): find_matches reports it, the tiered search does not keep it."""
+    steep = np.array([(i, 5 + i // 4) for i in range(60)])  # 4 rows per column: slope 1/4 < 1/3
+    web = MatchWeb(rate=30.0, shape=(60, 60), paths_cells=steep, paths_values=np.full(60, 0.1),
+                   paths_offsets=[0, 60])
+    assert [(m.start, m.end) for m in walk_web(web, 10, 40, 1.0)] == [(7, 15)]
+    graph = search(Segment("A", 10, 40), 1.0, {"A": [("B", web)], "B": [("A", transpose(web))]})
+    assert len(graph.nodes) == 1 and not graph.edges
+    short = MatchWeb(rate=30.0, shape=(60, 60), paths_cells=[(i, i) for i in range(60)], paths_values=np.full(60, 0.1),
+                     paths_offsets=[0, 60])
+    ms = MatchSearch({"A": [("B", short)], "B": [("A", transpose(short))]})
+    assert [m.segment for m in ms.matches(Segment("A", 10, 20), 1.0)] == [Segment("B", 10, 20)]
+    assert ms.matches(Segment("A", 10, 16), 1.0) == []  # 6 frames < the minimum chain length (8)
