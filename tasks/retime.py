@@ -120,8 +120,8 @@ class FeasiblePolygons:
         lambdas: per frame (K, nλ) contact magnitudes at each vertex.
         center: (F, 2) the fan centre (original timing (0, 1) when inside).
         center_lambda: (F, nλ) min-Σλ contact magnitudes at the centre.
-        residual: (F,) smallest root residual (N or N·m) over the whole box; tolerance: (F,)
-            the residual allowed in the polygon; infeasible: (F,) no timing has a residual
+        residual: (F,) smallest root residual (N or N·m) over the whole box; tolerance: (F, 6)
+            the residual allowed on each root row in the polygon; infeasible: (F,) no timing has a residual
             below ``infeasible_tol`` of body weight (the contact model cannot explain the frame);
             original_inside: (F,) whether (0, 1) is in the polygon.
         n_lps: LPs solved; seconds, cpu_seconds: wall and CPU time of this process.
@@ -201,8 +201,17 @@ class FrameLP:
             return None
         return np.asarray(self.h.getSolution().col_value)
 
-    def set_residual_bound(self, upper: float) -> None:
-        self.h.changeColBounds(2, 0.0, upper)
+    def set_residual_bound(self, upper: float | np.ndarray) -> None:
+        """Bound the root residual: |row i| ≤ upper (a scalar, or one bound per root row).
+
+        Per-row bounds scale the residual column's coefficients (row i: |r_i| ≤ w_i s, s ≤ max).
+        """
+        up = np.broadcast_to(np.asarray(upper, dtype=float), (N_ROOT,))
+        top = max(float(up.max()), 1e-300)
+        for r in range(N_ROOT):
+            self.h.changeCoeff(r, 2, -up[r] / top)
+            self.h.changeCoeff(N_ROOT + r, 2, up[r] / top)
+        self.h.changeColBounds(2, 0.0, top)
 
     def fix_timing(self, x: tuple[float, float] | None) -> None:
         o = self.opts
@@ -352,10 +361,14 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
                       original_residual: np.ndarray | None = None) -> FeasiblePolygons:
     """Feasible (p̈, ṗ²) polygons of every frame (MPS06 §3.3) with λ at vertices and centre (§3.4).
 
-    Per frame: an LP for the smallest root residual s* over the box (0 when contacts can explain
-    the frame), the residual bounded by max(1.05 s*, s₀) + ``abs_tol``·weight with s₀ the
-    original timing's residual under the original physics (``original_residual``: mocap is never
-    exactly consistent, and its own timing must stay feasible), the direction sweep, then
+    Mocap is never exactly consistent with the body model: the original timing leaves a root
+    residual ρ (``original_residual``, (F, 6), under the original physics) that its own timing
+    must be allowed. Each root row i gets its own bound |ρ_i| + ``abs_tol``·weight, so that a large
+    inconsistency in one row (e.g. angular momentum in flight) does not loosen the others (the
+    vertical force that makes a flight ballistic). Where no timing meets those bounds (changed
+    physics), every row gets max(1.05 s*, max|ρ|) + ``abs_tol``·weight with s* the smallest
+    uniform residual over the box (an LP; 0 when contacts explain the frame). Then the
+    direction sweep, then
     the centre (0, 1) — or, when outside, its closest polygon point pulled 5 % toward the
     vertex mean — and its min-Σλ forces. Flight frames (no contact) give a thin polygon around the
     ballistic segment or point. Cost O(F · max_lps) LPs of (3 + nλ) columns.
@@ -368,7 +381,8 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     center = np.zeros((f, 2))
     clam = np.zeros((f, nl_all))
     res = np.zeros(f)
-    tol = np.zeros(f)
+    tol = np.zeros((f, N_ROOT))
+    rho = np.zeros((f, N_ROOT)) if original_residual is None else np.abs(original_residual)
     inside = np.zeros(f, bool)
     n_lps = 0
     highs = new_highs()
@@ -378,10 +392,13 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
         lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs)
         x = lp.solve(_lp_cost(len(cols), s=-1.0))
         res[i] = x[2] if x is not None else np.inf
-        s0 = 0.0 if original_residual is None else float(original_residual[i])
-        tol[i] = max(1.05 * res[i], s0) + opts.abs_tol * weight
+        tol[i] = rho[i] + opts.abs_tol * weight
         lp.set_residual_bound(tol[i])
         v, lv = sweep_polygon(lp, opts)
+        if not len(v):
+            tol[i] = max(1.05 * res[i], rho[i].max()) + opts.abs_tol * weight
+            lp.set_residual_bound(tol[i])
+            v, lv = sweep_polygon(lp, opts)
         full = np.zeros((len(v), nl_all))
         full[:, cols] = lv
         o = np.array([0.0, 1.0])
@@ -1012,7 +1029,7 @@ def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.nd
     original = original_forces(A0, B0, C0, contacts, opts.torque_margin, weight, popts)
     tm["original_forces"] = time.perf_counter() - t
     A, B, C = terms.combine(g, factors)
-    polys = feasible_polygons(A, B, C, contacts, original.limits, weight, popts, original_residual=original.residual)
+    polys = feasible_polygons(A, B, C, contacts, original.limits, weight, popts, original_residual=original.tau[:, :N_ROOT])
     tm["polygons"] = polys.seconds
     t = time.perf_counter()
     target = original.tau if opts.objective == "match" else np.zeros_like(original.tau)
