@@ -131,8 +131,9 @@ class RetimeConfig(_Section):
     contact_speed: float = 0.3
     torque_margin: float = 1.5
     samples_per_frame: int = 4
-    #: MPS06 Eqn. 14 weights, both unit-free: α on the squared (p̈, ṗ²) distance to the feasible
-    #: polygon, β on the mean squared torque deviation in units of the torque limits
+    #: MPS06 Eqn. 14 weights, both unit-free: α on the squared distance to the feasible polygon
+    #: priced as unexplained root force in body weights, β on the mean squared torque deviation
+    #: in units of the torque limits
     alpha: float = 1.0
     beta: float = 0.1
     objective: Literal["match", "minimize"] = "match"

@@ -453,7 +453,8 @@ class BakedObjective:
             vertex angles relative to theta0 in [0, 2π) (padding 10).
         coef: (F, K, 6) torque-term coefficients of p̈², p̈ṗ², ṗ⁴, p̈, ṗ², 1 per sector (β included).
         lam_center: (F, nλ); lam_slope: (F, K, nλ, 2): λ(x) = λ_c + Λ_k (x − c) in sector k.
-        alpha, beta: weights.
+        alpha: (F,) per-frame weight of the squared distance to the polygon (α times the frame's
+            root force per unit of (p̈, ṗ²), squared, see :func:`bake`); beta: torque weight.
     """
 
     verts: np.ndarray
@@ -466,7 +467,7 @@ class BakedObjective:
     coef: np.ndarray
     lam_center: np.ndarray
     lam_slope: np.ndarray
-    alpha: float
+    alpha: np.ndarray
     beta: float
 
     @property
@@ -483,7 +484,14 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
     is β times the mean squared deviation in units of the limits, and α, β compare unit-free
     quantities whatever the body's size. With D = diag(1/tau_scale)/√nv and τ(x) − τ' =
     a_k p̈ + b_k ṗ² + e_k in sector k (a, b, e scaled by D), the term is β(a·a p̈² + 2a·b p̈ṗ² +
-    b·b ṗ⁴ + 2a·e p̈ + 2b·e ṗ² + e·e). O(F · K · nv · nλ).
+    b·b ṗ⁴ + 2a·e p̈ + 2b·e ṗ² + e·e).
+
+    The feasibility term is priced in force as well: a step δ = [p̈, ṗ²] − c out of frame i's
+    polygon asks the unactuated root for [A, B]_root δ that no contact can supply, so the frame's
+    weight is α σ_i² with σ_i = ‖[A_i, B_i]_root / tau_scale_root‖₂ (body weights per unit of
+    (p̈, ṗ²)). A flight frame, whose whole weight rides on ṗ², pays ~(g·mass)² per unit; a still
+    frame (q' = q'' = 0) pays nothing — so the squared-distance penalty of MPS06 Eqn. 14 no
+    longer trades a ballistic flight against a standing pose one to one. O(F · K · nv · nλ).
     """
     f = A.shape[0]
     K = max(max((len(v) for v in polys.vertices), default=1), 1)
@@ -532,8 +540,11 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
         edge[i, :k] = np.roll(verts[i, :k], -1, axis=0) - verts[i, :k]
     len2 = (edge * edge).sum(axis=2)
     inv_len2 = np.divide(1.0, len2, out=np.zeros_like(len2), where=len2 > 0)
+    root = np.stack([A[:, :N_ROOT], B[:, :N_ROOT]], axis=2) / np.asarray(tau_scale, float)[None, :N_ROOT, None]
+    sigma = np.linalg.norm(root, ord=2, axis=(1, 2))
     return BakedObjective(verts=verts, count=count, inv_len2=inv_len2, solid=solid, center=polys.center.copy(), theta0=theta0, theta=theta,
-                          coef=coef, lam_center=polys.center_lambda.copy(), lam_slope=slope, alpha=alpha, beta=beta)
+                          coef=coef, lam_center=polys.center_lambda.copy(), lam_slope=slope,
+                          alpha=alpha * sigma**2, beta=beta)
 
 
 def _sector(obj: BakedObjective, fr: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -563,8 +574,8 @@ def _frame_terms(obj: BakedObjective, fr: np.ndarray, x: np.ndarray) -> tuple[np
     cp = proj[np.arange(len(fr)), j]
     cp[inside] = x[inside]
     diff = x - cp
-    val = val + obj.alpha * (diff * diff).sum(axis=1)
-    grad = grad + 2 * obj.alpha * diff
+    val = val + obj.alpha[fr] * (diff * diff).sum(axis=1)
+    grad = grad + 2 * obj.alpha[fr][:, None] * diff
     return val, grad, cp
 
 
@@ -616,7 +627,7 @@ def _frame_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alp
             d, px, py = _edge_point(verts, inv_len2, fr, k, K, x0, x1)
             if d < best:
                 best, b0, b1 = d, px, py
-    return val + alpha * best, g0 + 2 * alpha * (x0 - b0), g1 + 2 * alpha * (x1 - b1)
+    return val + alpha[fr] * best, g0 + 2 * alpha[fr] * (x0 - b0), g1 + 2 * alpha[fr] * (x1 - b1)
 
 
 @njit(cache=True, inline="always")
@@ -692,7 +703,7 @@ def evaluate(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[np.ndar
     reference is :func:`evaluate_numpy`.
     """
     return _evaluate_kernel(obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef,
-                            float(obj.alpha), np.ascontiguousarray(u, dtype=np.float64),
+                            obj.alpha, np.ascontiguousarray(u, dtype=np.float64),
                             np.ascontiguousarray(x, dtype=np.float64))
 
 
@@ -914,7 +925,7 @@ def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, du
     edges = np.linspace(0.0, duration, n_s + 1)
     ctrl, w = spline.design(0.5 * (edges[1:] + edges[:-1]))
     dt = duration / n_s
-    args = (obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, float(obj.alpha), ctrl, w)
+    args = (obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, obj.alpha, ctrl, w)
 
     n_ctrl = np.asarray(spline.n_ctrl, np.int64)
 

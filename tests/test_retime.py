@@ -164,7 +164,14 @@ def real_jump(deepmimic_dir):
     from store.deepmimic import read_deepmimic, read_humanoid_urdf
 
     motion = read_deepmimic(deepmimic_dir / "motions" / "humanoid3d_jump.txt")
-    return motion, prepare(motion, OPTS, humanoid=read_humanoid_urdf(deepmimic_dir / "humanoid.urdf"))
+    humanoid = read_humanoid_urdf(deepmimic_dir / "humanoid.urdf")
+    return motion, humanoid, prepare(motion, OPTS, humanoid=humanoid)
+
+
+def _inner_flight(plan, motion) -> tuple[float, float]:
+    flights = [(a, b) for a, b in flight_intervals(plan.contacts.active, motion.fps) if a > 0 and b < motion.duration]
+    assert len(flights) == 1
+    return flights[0]
 
 
 def test_real_jump_flight_held_when_the_ground_phases_can_absorb(real_jump) -> None:
@@ -174,12 +181,29 @@ def test_real_jump_flight_held_when_the_ground_phases_can_absorb(real_jump) -> N
     unilateral contacts cannot speed up much), so the bound of ``shortest_duration`` exceeds half
     the clip; a shortening the ground phases can absorb keeps the flight near normal speed.
     """
-    motion, plan = real_jump
-    flights = flight_intervals(plan.contacts.active, motion.fps)
-    inner = [(a, b) for a, b in flights if a > 0 and b < motion.duration]
-    assert len(inner) == 1 and 0.45 < inner[0][1] - inner[0][0] < 0.6  # one ~0.53 s flight
+    motion, _, plan = real_jump
+    t0, t1 = _inner_flight(plan, motion)
+    assert 0.45 < t1 - t0 < 0.6  # one ~0.53 s flight
     assert shortest_duration(plan.polygons, motion.fps) > motion.duration / 2
     _, res = retime_plan(plan, 0.85 * motion.duration, None, OPTS)
-    pd, _ = _flight_speed(res, *inner[0])
+    pd, _ = _flight_speed(res, t0, t1)
     assert np.abs(pd - 1).max() < 0.15
     assert res.pd.max() > 1.3  # the ground phases took the change
+
+
+def test_real_jump_with_idle_time_halved_keeps_its_flight(real_jump) -> None:
+    """MPS06 Fig. 1 on real data: given idle time (1 s standing before and after), halving the
+    DeepMimic jump speeds up the standing and keeps the flight at normal speed."""
+    motion, humanoid, _ = real_jump
+    pad = int(motion.fps)
+    still = replace(motion, name="jump_idle",
+                    root_positions=np.concatenate([motion.root_positions[:1].repeat(pad, 0), motion.root_positions,
+                                                   motion.root_positions[-1:].repeat(pad, 0)]),
+                    rotations=np.concatenate([motion.rotations[:1].repeat(pad, 0), motion.rotations,
+                                              motion.rotations[-1:].repeat(pad, 0)]))
+    plan = prepare(still, OPTS, humanoid=humanoid)
+    t0, t1 = _inner_flight(plan, still)
+    _, res = retime_plan(plan, still.duration / 2, None, OPTS)
+    pd, _ = _flight_speed(res, t0, t1)
+    assert np.abs(pd - 1).max() < 0.10
+    assert res.pd.max() > 3.0  # the standing absorbed the change
