@@ -163,7 +163,7 @@ def experiments() -> None:
     for label, frac in (("jump in half the time", 0.5), ("jump in 0.85 of the time", 0.85)):
         _, res = retime_plan(base, frac * jump.duration, None, OPTS)
         print(f"  {label:34} {describe(base, res)}")
-    pad = int(jump.fps)  # MPS06 Fig. 1's clip has idle time; give the jump 1 s of standing each side
+    pad = int(1.5 * jump.fps)  # MPS06 Fig. 1's clip has idle time; give the jump 1.5 s of standing each side
     idle = replace(jump, name="jump_idle",
                    root_positions=np.concatenate([jump.root_positions[:1].repeat(pad, 0), jump.root_positions,
                                                   jump.root_positions[-1:].repeat(pad, 0)]),
@@ -171,7 +171,7 @@ def experiments() -> None:
                                              jump.rotations[-1:].repeat(pad, 0)]))
     plan = prepare(idle, OPTS, humanoid=hum)
     _, res = retime_plan(plan, idle.duration / 2, None, OPTS)
-    print(f"  {'jump + 1 s idle each side, half':34} {describe(plan, res)}; bound "
+    print(f"  {'jump + 1.5 s idle each side, half':34} {describe(plan, res)}; bound "
           f"{shortest_duration(plan.polygons, idle.fps):.3f} s, max speed x{res.pd.max():.2f}")
     for k in (0.5, 2.0):
         plan = prepare(jump, OPTS, humanoid=hum, gravity=g0 * k)

@@ -489,9 +489,10 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
     The feasibility term is priced in force as well: a step δ = [p̈, ṗ²] − c out of frame i's
     polygon asks the unactuated root for [A, B]_root δ that no contact can supply, so the frame's
     weight is α σ_i² with σ_i = ‖[A_i, B_i]_root / tau_scale_root‖₂ (body weights per unit of
-    (p̈, ṗ²)). A flight frame, whose whole weight rides on ṗ², pays ~(g·mass)² per unit; a still
-    frame (q' = q'' = 0) pays nothing — so the squared-distance penalty of MPS06 Eqn. 14 no
-    longer trades a ballistic flight against a standing pose one to one. O(F · K · nv · nλ).
+    (p̈, ṗ²)). A flight frame, whose whole weight rides on ṗ², pays ~1 per unit; a still frame
+    (q' = q'' = 0) only the floor of 0.1 body weight per unit that keeps it inside the box
+    (``speed_max``, ``pdd_max``) — so the squared-distance penalty of MPS06 Eqn. 14 no longer
+    trades a ballistic flight against a standing pose one to one. O(F · K · nv · nλ).
     """
     f = A.shape[0]
     K = max(max((len(v) for v in polys.vertices), default=1), 1)
@@ -544,7 +545,7 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
     sigma = np.linalg.norm(root, ord=2, axis=(1, 2))
     return BakedObjective(verts=verts, count=count, inv_len2=inv_len2, solid=solid, center=polys.center.copy(), theta0=theta0, theta=theta,
                           coef=coef, lam_center=polys.center_lambda.copy(), lam_slope=slope,
-                          alpha=alpha * sigma**2, beta=beta)
+                          alpha=alpha * (sigma**2 + 0.1**2), beta=beta)
 
 
 def _sector(obj: BakedObjective, fr: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -192,10 +192,10 @@ def test_real_jump_flight_held_when_the_ground_phases_can_absorb(real_jump) -> N
 
 
 def test_real_jump_with_idle_time_halved_keeps_its_flight(real_jump) -> None:
-    """MPS06 Fig. 1 on real data: given idle time (1 s standing before and after), halving the
+    """MPS06 Fig. 1 on real data: given idle time (1.5 s standing before and after), halving the
     DeepMimic jump speeds up the standing and keeps the flight at normal speed."""
     motion, humanoid, _ = real_jump
-    pad = int(motion.fps)
+    pad = int(1.5 * motion.fps)
     still = replace(motion, name="jump_idle",
                     root_positions=np.concatenate([motion.root_positions[:1].repeat(pad, 0), motion.root_positions,
                                                    motion.root_positions[-1:].repeat(pad, 0)]),
