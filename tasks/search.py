@@ -223,14 +223,22 @@ def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
                 n += 1
                 stack[sp] = t
                 sp += 1
-    rank = np.empty(n, np.int64)
+    lo = rows[s0] + cols[s0]  # the start has the least rank; counting sort by rank into ``stack``
+    hi = lo
     for q in range(n):
-        rank[q] = rows[reach[q]] + cols[reach[q]]
-    order = np.argsort(rank, kind="mergesort")
-    tmp = reach[:n][order].copy()
+        hi = max(hi, rows[reach[q]] + cols[reach[q]])
+    count = np.zeros(hi - lo + 2, np.int64)
     for q in range(n):
-        reach[q] = tmp[q]
-        local[tmp[q]] = q
+        count[rows[reach[q]] + cols[reach[q]] - lo + 1] += 1
+    for r in range(hi - lo + 1):
+        count[r + 1] += count[r]
+    for q in range(n):
+        r = rows[reach[q]] + cols[reach[q]] - lo
+        stack[count[r]] = reach[q]
+        count[r] += 1
+    for q in range(n):
+        reach[q] = stack[q]
+        local[stack[q]] = q
     return n
 
 
