@@ -777,10 +777,6 @@ class TimingSpline:
         c = self.controls(z)[ctrl]
         return (w[0] * c).sum(axis=1), (w[1] * c).sum(axis=1), (w[2] * c).sum(axis=1)
 
-    def chain(self, z: np.ndarray, grad: np.ndarray) -> np.ndarray:
-        """d/dz from d/d(concatenated control points) (through cumsum and softmax per segment)."""
-        return _chain(np.asarray(z, float), np.asarray(grad, float), np.asarray(self.n_ctrl, np.int64), self.src)
-
 
 @njit(cache=True)
 def _controls(z, n_ctrl, src):  # pragma: no cover - numba
