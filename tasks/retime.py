@@ -7,15 +7,17 @@ Pipeline (each stage a pure function, data passed in dataclasses):
    torque limits are τ₀'s peaks times a margin (MPS06 §4: limits observed from the motion).
 2. ``feasible_polygons`` — per frame, the projection onto (p̈, ṗ²) of the polytope of MPS06
    Eqn. 13 by LPs maximizing a sweep of directions, refined where edges are long (MPS06 §3.3,
-   Fig. 4). One HiGHS model per frame; only the objective changes between directions.
+   Fig. 4), root rows bounded per row by the original timing's own residual. One HiGHS
+   instance for all frames; only the objective changes between directions (primal simplex).
 3. ``bake`` — λ at every vertex (from its LP), λ at the centre (≈ original timing) from a
    min-Σλ LP, barycentric interpolation in a fan triangulation around the centre (MPS06 §3.4,
    Fig. 5), so τ is affine in (p̈, ṗ²) per fan sector and β‖τ − τ'‖² is six coefficients per
-   sector and frame (MPS06 §3.6).
+   sector and frame (MPS06 §3.6), torques in units of their limits; the distance to the
+   polygon is priced per frame by the root force a unit of (p̈, ṗ²) asks for.
 4. ``optimize_timing`` — p(t) (output → source time) a clamped cubic B-spline per keytime
    segment with strictly increasing control points (positive increments by a softmax), so p is
    strictly monotone and meets endpoints and keytimes exactly; objective MPS06 Eqn. 14 sampled
-   ≥ 4 times per source frame, analytic gradient, L-BFGS-B.
+   ≥ 4 times per source frame in one compiled pass (value and analytic gradient), L-BFGS-B.
 
 Costs: polygons O(F · n_LP · LP), baking O(F · K · nv · nλ), one objective evaluation
 O(S · K) with S samples and K polygon vertices (independent of the number of dofs).
