@@ -3,9 +3,10 @@
 Layout under the store root (a local folder or any fsspec URL)::
 
     zarr.json                                    root group
-    features/<sha[:2]>/<sha>/<fdig>/             one group per clip and feature parameters
-        r10, r20, r30 ...                        (F_rate, P, 3) point clouds per rate (SPEC §3)
-        weights                                  (P,) point weights
+    features/<sha[:2]>/<sha>/<fdig>              one packed uint8 array per clip and feature
+                                                 parameters: its (F_rate, P, 3) point clouds per
+                                                 rate (r10, r20, r30 ..., SPEC §3) and (P,) point
+                                                 weights back to back, laid out in its attributes
     webs/<sha_a[:2]>/<sha_a>-<sha_b>/<wdig>      one packed uint8 array per ordered clip pair and
                                                  web parameters: the flat arrays of
                                                  MatchWeb.to_arrays() (ragged paths as values +
@@ -50,11 +51,13 @@ if TYPE_CHECKING:
     from tasks.matchweb import MatchWeb
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
-STORE_SCHEMA = 1
+STORE_SCHEMA = 2
 #: Blosc lz4 + byte shuffle: fastest writes and a better ratio on float32 (STACK-NOTES, Zarr 3)
 COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
 #: frames per chunk along the first axis of large arrays (STACK-NOTES: 2000-4000 write fastest)
 CHUNK_ROWS = 4096
+#: bytes per chunk of a packed object (one chunk for webs and most clips' features)
+PACKED_CHUNK = 1 << 24
 POINTER = "current"
 PACKAGES = ("motionweb", "numpy", "scipy", "dask", "distributed", "zarr", "fsspec", "prefect", "prefect-dask")
 
@@ -223,10 +226,11 @@ class MotionStore:
         return g is not None and bool(g.attrs.get("complete", False))
 
     def _write_packed(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None:
-        """Write small flat arrays as ONE uint8 Zarr array (bytes concatenated, layout in attrs).
+        """Write small arrays as ONE uint8 Zarr array (bytes concatenated, layout in attrs).
 
-        A web is ~10 small arrays; one Zarr array per web costs ~10 ms to write instead of ~100 ms
-        for ten (zarr's per-array overhead dominates small objects). Marked complete last.
+        A web is ~10 small arrays, a clip's features 4; zarr's per-array overhead (~2 ms of CPU
+        per array created, plus one per write) dominates such objects, so one array each costs
+        a fraction of a group of arrays. Marked complete last.
         """
         layout, parts, start = [], [], 0
         for name, value in arrays.items():
@@ -235,7 +239,8 @@ class MotionStore:
             parts.append(a.view(np.uint8).reshape(-1))
             start += a.nbytes
         buf = np.concatenate(parts) if parts else np.zeros(0, np.uint8)
-        z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, buf.size),), dtype=np.uint8,
+        z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, min(buf.size, PACKED_CHUNK)),),
+                              dtype=np.uint8,
                               compressors=COMPRESSORS, overwrite=True,
                               attributes={**attrs, "layout": layout, "written": now_iso()})
         if buf.size:
@@ -278,34 +283,33 @@ class MotionStore:
 
     # features
     def has_features(self, sha: str, fdigest: str, rates: list[float]) -> bool:
-        g = self._open(feature_key(sha, fdigest))
-        if g is None or not g.attrs.get("complete", False):
+        z = self._open(feature_key(sha, fdigest))
+        if z is None or not z.attrs.get("complete", False):
             return False
-        have = set(g.array_keys())
+        have = {entry[0] for entry in z.attrs.get("layout", [])}
         return all(rate_tag(r) in have for r in rates) and "weights" in have
 
     def write_features(
         self, sha: str, fdigest: str, by_rate: dict[float, np.ndarray], weights: np.ndarray,
         attrs: dict[str, Any] | None = None,
     ) -> str:
-        """Store a clip's point clouds at each rate plus its point weights; returns the key."""
+        """Store a clip's point clouds at each rate plus its point weights (packed); returns the key."""
         key = feature_key(sha, fdigest)
         arrays = {rate_tag(r): f for r, f in by_rate.items()}
         arrays["weights"] = np.asarray(weights)
-        self._write_group(key, arrays, {"sha256": sha, "rates": sorted(map(float, by_rate)), **(attrs or {})})
+        self._write_packed(key, arrays, {"sha256": sha, "rates": sorted(map(float, by_rate)), **(attrs or {})})
         return key
 
     def read_features(
         self, sha: str, fdigest: str, rates: list[float] | None = None
     ) -> tuple[dict[float, np.ndarray], np.ndarray]:
         """(features by rate, point weights) of one clip."""
-        key = feature_key(sha, fdigest)
-        g = self._open(key)
-        if g is None or not g.attrs.get("complete", False):
-            raise KeyError(f"{self.url}: no features for clip {sha[:12]} with parameters {fdigest}")
-        rates = rates if rates is not None else g.attrs["rates"]
-        feats = {float(r): np.asarray(g[rate_tag(r)][...]) for r in rates}
-        return feats, np.asarray(g["weights"][...])
+        try:
+            arrays, attrs = self._read_packed(feature_key(sha, fdigest))
+        except KeyError:
+            raise KeyError(f"{self.url}: no features for clip {sha[:12]} with parameters {fdigest}") from None
+        rates = rates if rates is not None else attrs["rates"]
+        return {float(r): arrays[rate_tag(r)] for r in rates}, arrays["weights"]
 
     # webs
     def write_web(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = None) -> None:
