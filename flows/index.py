@@ -418,9 +418,10 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list
     fdig = feature_digest(cfg)
     rates = [float(r) for r in cfg.features.rates]
     listed = {w["key"] for w in prev.webs} if prev else set()
+    stored = store.web_keys(web_digest(cfg))  # one listing of the web shards, not a lookup per pair
     listed_f = {sha for sha, rs in (prev.features if prev else {}).items()
                 if prev.params.get("features") == fdig and {rate_tag(r) for r in rates} <= set(rs)}
-    plans = [plan_chunk(c, cfg, lambda k: k in listed or store.has(k),
+    plans = [plan_chunk(c, cfg, lambda k: k in listed or k in stored,
                         lambda sha: sha in listed_f or store.has_features(sha, fdig, rates)) for c in chunks]
     logger = get_run_logger()
     for p in plans:
@@ -502,8 +503,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     cached_keys = {j.key for p in plans for j in p.cached}
     cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
     for key in cached_keys - set(cached_meta):
-        g = store._open(key)
-        cached_meta[key] = dict(g.attrs) if g is not None else {}
+        cached_meta[key] = store.web_attrs(key)
     gen = build_generation(cfg, catalog, plans, results, failed, parent, timings, cached_meta=cached_meta)
     gen.timings["before_commit_s"] = time.perf_counter() - t0
     commit_task(gen, cfg.store.path)

@@ -7,20 +7,24 @@ Layout under the store root (a local folder or any fsspec URL)::
                                                  parameters: its (F_rate, P, 3) point clouds per
                                                  rate (r10, r20, r30 ..., SPEC §3) and (P,) point
                                                  weights back to back, laid out in its attributes
-    webs/<sha_a[:2]>/<sha_a>-<sha_b>/<wdig>      one packed uint8 array per ordered clip pair and
-                                                 web parameters: the flat arrays of
-                                                 MatchWeb.to_arrays() (ragged paths as values +
-                                                 offsets, KG04 §3.2) back to back, their names,
-                                                 dtypes, shapes and byte ranges in its attributes
+    webs/shards/<wdig>/<shard id>                one packed uint8 array per written batch of webs:
+                                                 the flat arrays of MatchWeb.to_arrays() (ragged
+                                                 paths as values + offsets, KG04 §3.2) of each web
+                                                 back to back; its attributes map every web key
+                                                 (webs/<sha_a[:2]>/<sha_a>-<sha_b>/<wdig>, one
+                                                 per ordered clip pair and web parameters) to its
+                                                 byte range, array layout and attributes
     grids/...                                    full grids, only with matchweb.keep_grids
     generations/<id>.json                        manifest of one complete run
     current                                      JSON pointer {"generation": <id>}
 
 Objects are keyed by content: a clip by the SHA-256 of its file, a derived array additionally by
 a digest of the parameters that produce it, so objects are shared by every generation that
-lists them and a rerun recomputes only what is missing. An object group is marked ``complete``
-in its attributes only after all its arrays are written; a half-written object is never seen as
-present. A generation becomes visible only when its manifest is written and ``current`` is
+lists them and a rerun recomputes only what is missing. An object is marked ``complete`` in its
+attributes only after all its arrays are written; a half-written object is never seen as
+present. Webs are many and small (zarr costs ~2 ms of CPU per array created), so a batch of webs
+shares one array (a shard) and a web key is found through the index of the shards' attributes,
+listed once per store instance and again when a key is not found. A generation becomes visible only when its manifest is written and ``current`` is
 switched to it (an atomic rename on local disks, a single-object put on object stores), so
 readers never see a half-written index and a crashed run leaves the previous one current.
 """
@@ -56,8 +60,12 @@ STORE_SCHEMA = 2
 COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
 #: frames per chunk along the first axis of large arrays (STACK-NOTES: 2000-4000 write fastest)
 CHUNK_ROWS = 4096
-#: bytes per chunk of a packed object (one chunk for webs and most clips' features)
+#: bytes per chunk of a packed object (one chunk for most clips' features)
 PACKED_CHUNK = 1 << 24
+#: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
+SHARD_CHUNK = 1 << 18
+#: web shards live under webs/ next to the (logical) web keys webs/<sha_a[:2]>/...
+SHARDS = "webs/shards"
 POINTER = "current"
 PACKAGES = ("motionweb", "numpy", "scipy", "dask", "distributed", "zarr", "fsspec", "prefect", "prefect-dask")
 
@@ -118,6 +126,28 @@ def web_key(sha_a: str, sha_b: str, wdigest: str) -> str:
 
 def grid_key(web: str) -> str:
     return "grids/" + web.removeprefix("webs/")
+
+
+def _web_digest_of(key: str) -> str:
+    """The web parameter digest at the end of a web key (names the key's shard folder)."""
+    return key.rsplit("/", 1)[-1]
+
+
+def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
+    """Byte views of arrays and their layout rows ``[name, dtype, shape, start, nbytes]``."""
+    layout, parts = [], []
+    for name, value in arrays.items():
+        a = np.ascontiguousarray(value)
+        layout.append([name, a.dtype.str, list(a.shape), start, a.nbytes])
+        parts.append(a.view(np.uint8).reshape(-1))
+        start += a.nbytes
+    return parts, layout, start
+
+
+def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0) -> dict[str, np.ndarray]:
+    """Inverse of :func:`_pack` on ``buf`` holding the bytes from offset ``base`` on."""
+    return {name: buf[start - base:start - base + nbytes].view(np.dtype(dtype)).reshape(shape).copy()
+            for name, dtype, shape, start, nbytes in layout}
 
 
 def package_versions() -> dict[str, str]:
@@ -205,6 +235,9 @@ class MotionStore:
             self.zstore = LocalStore(self.root, read_only=read_only)
         else:
             self.zstore = FsspecStore.from_url(self.url, read_only=read_only)
+        # web key -> (shard key, its entry), from the attributes of the complete shards seen so far
+        self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
+        self._shards_seen: set[str] = set()
 
     def __reduce__(self):
         return (MotionStore, (self.url, self.read_only))
@@ -221,7 +254,9 @@ class MotionStore:
             return None
 
     def has(self, key: str) -> bool:
-        """True when the object group exists and was completely written."""
+        """True when the object (a web, or a features / grid group) exists and was completely written."""
+        if key.startswith("webs/"):
+            return self._web_entry(key) is not None
         g = self._open(key)
         return g is not None and bool(g.attrs.get("complete", False))
 
@@ -232,17 +267,15 @@ class MotionStore:
         per array created, plus one per write) dominates such objects, so one array each costs
         a fraction of a group of arrays. Marked complete last.
         """
-        layout, parts, start = [], [], 0
-        for name, value in arrays.items():
-            a = np.ascontiguousarray(value)
-            layout.append([name, a.dtype.str, list(a.shape), start, a.nbytes])
-            parts.append(a.view(np.uint8).reshape(-1))
-            start += a.nbytes
+        parts, layout, _ = _pack(arrays)
+        self._write_bytes(key, parts, PACKED_CHUNK, {**attrs, "layout": layout})
+
+    def _write_bytes(self, key: str, parts: list[np.ndarray], chunk: int, attrs: dict[str, Any]) -> None:
+        """One uint8 Zarr array of the concatenated ``parts``, marked complete after its data."""
         buf = np.concatenate(parts) if parts else np.zeros(0, np.uint8)
-        z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, min(buf.size, PACKED_CHUNK)),),
-                              dtype=np.uint8,
-                              compressors=COMPRESSORS, overwrite=True,
-                              attributes={**attrs, "layout": layout, "written": now_iso()})
+        z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, min(buf.size, chunk)),),
+                              dtype=np.uint8, compressors=COMPRESSORS, overwrite=True,
+                              attributes={**attrs, "written": now_iso()})
         if buf.size:
             z[...] = buf
         z.update_attributes({"complete": True})
@@ -253,10 +286,7 @@ class MotionStore:
             raise KeyError(f"{self.url}: no complete object {key!r}")
         attrs = dict(z.attrs)
         buf = np.asarray(z[...]) if z.shape[0] else np.zeros(0, np.uint8)
-        out = {}
-        for name, dtype, shape, start, nbytes in attrs.pop("layout"):
-            out[name] = buf[start:start + nbytes].view(np.dtype(dtype)).reshape(shape).copy()
-        return out, attrs
+        return _unpack(buf, attrs.pop("layout")), attrs
 
     def _write_group(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None:
         """Write arrays into a fresh group; mark it complete last (a crash leaves it incomplete)."""
@@ -312,19 +342,74 @@ class MotionStore:
         return {float(r): arrays[rate_tag(r)] for r in rates}, arrays["weights"]
 
     # webs
+    def write_webs(self, webs: list[tuple[str, dict[str, np.ndarray], dict[str, Any]]]) -> None:
+        """Store webs ``(key, flat arrays of MatchWeb.to_arrays(), attributes)`` as one shard per
+        web parameter digest: one Zarr array for the whole batch, O(1) Zarr calls per batch."""
+        by_digest: dict[str, list[tuple[str, dict[str, np.ndarray], dict[str, Any]]]] = {}
+        for item in webs:
+            by_digest.setdefault(_web_digest_of(item[0]), []).append(item)
+        for wdig, items in by_digest.items():
+            parts, entries, start = [], {}, 0
+            for key, arrays, attrs in items:
+                p, layout, end = _pack(arrays, start)
+                parts += p
+                entries[key] = {"start": start, "nbytes": end - start, "layout": layout, "attrs": attrs}
+                start = end
+            shard = f"{SHARDS}/{wdig}/{new_generation_id()}"
+            self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries})
+            self._webs.update({key: (shard, e) for key, e in entries.items()})
+            self._shards_seen.add(shard)
+
     def write_web(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = None) -> None:
-        """Store one web's flat arrays (``MatchWeb.to_arrays()``) under ``key`` (packed, one array)."""
-        self._write_packed(key, arrays, attrs or {})
+        """Store one web's flat arrays (``MatchWeb.to_arrays()``) under ``key``."""
+        self.write_webs([(key, arrays, attrs or {})])
+
+    def _web_entry(self, key: str) -> tuple[str, dict[str, Any]] | None:
+        """(shard, entry) of a web key; lists the digest's shards again when the key is unknown."""
+        if key not in self._webs:
+            self._load_shards(_web_digest_of(key))
+        return self._webs.get(key)
+
+    def _load_shards(self, wdig: str) -> None:
+        try:
+            entries = self.fs.ls(self._path(f"{SHARDS}/{wdig}"), detail=True)
+        except FileNotFoundError:
+            return
+        for name in sorted(e["name"] for e in entries if e["type"] == "directory"):
+            shard = f"{SHARDS}/{wdig}/{os.path.basename(name.rstrip('/'))}"
+            if shard in self._shards_seen:
+                continue
+            z = self._open(shard)
+            if z is None or not z.attrs.get("complete", False):
+                continue  # being written, or its writer died: not seen yet
+            self._shards_seen.add(shard)
+            self._webs.update({key: (shard, e) for key, e in z.attrs["webs"].items()})
+
+    def web_keys(self, wdig: str) -> set[str]:
+        """Every completely written web key with parameter digest ``wdig`` (one shard listing)."""
+        self._load_shards(wdig)
+        return {k for k in self._webs if _web_digest_of(k) == wdig}
+
+    def web_attrs(self, key: str) -> dict[str, Any]:
+        """The attributes a web was written with ({} when absent)."""
+        found = self._web_entry(key)
+        return dict(found[1]["attrs"]) if found else {}
 
     def read_web_arrays(self, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """The flat arrays of a web (names, dtypes and shapes as written) and its attributes."""
-        return self._read_packed(key)
+        found = self._web_entry(key)
+        z = self._open(found[0]) if found else None
+        if z is None:
+            raise KeyError(f"{self.url}: no complete web {key!r}")
+        e = found[1]
+        buf = np.asarray(z[e["start"]:e["start"] + e["nbytes"]]) if e["nbytes"] else np.zeros(0, np.uint8)
+        return _unpack(buf, e["layout"], e["start"]), dict(e["attrs"])
 
     def read_web(self, key: str) -> MatchWeb:
         """The stored web as a ``tasks.matchweb.MatchWeb``."""
         from tasks.matchweb import MatchWeb
 
-        arrays, _ = self._read_packed(key)
+        arrays, _ = self.read_web_arrays(key)
         return MatchWeb.from_arrays(arrays)
 
     def write_grid(self, web: str, grid: np.ndarray) -> None:
@@ -386,7 +471,9 @@ class MotionStore:
         """
         if self.read_only:
             raise PermissionError(f"{self.url}: store opened read-only")
-        missing = [w["key"] for w in gen.webs if not self.has(w["key"])]
+        for wdig in {_web_digest_of(w["key"]) for w in gen.webs}:
+            self._load_shards(wdig)
+        missing = [w["key"] for w in gen.webs if w["key"] not in self._webs]
         missing += [k for rates in gen.features.values() for k in set(rates.values()) if not self.has(k)]
         if missing:
             raise RuntimeError(f"refusing to commit generation {gen.id}: {len(missing)} objects missing, "
@@ -419,11 +506,19 @@ class MotionStore:
             live |= {w["key"] for w in g.webs} | {grid_key(w["key"]) for w in g.webs}
             live |= {k for rates in g.features.values() for k in rates.values()}
         dropped: list[str] = []
-        for top, depth in (("features", 3), ("webs", 3), ("grids", 3)):
+        for top, depth in (("features", 3), ("grids", 3)):
             for key in self._leaf_keys(top, depth):
                 if key not in live:
                     self.fs.rm(self._path(key), recursive=True)
                     dropped.append(key)
+        for shard in self._leaf_keys(SHARDS, 2):  # a shard goes when none of its webs is live
+            z = self._open(shard)
+            keys = sorted(z.attrs.get("webs", {})) if z is not None else []
+            if not live.intersection(keys):
+                self.fs.rm(self._path(shard), recursive=True)
+                dropped += keys
+        self._webs.clear()
+        self._shards_seen.clear()
         for gid in set(ids) - kept:
             self.fs.rm(self._path(f"generations/{gid}.json"))
         return dropped
@@ -502,15 +597,18 @@ def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) 
 def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, store_url: str) -> list[dict[str, Any]]:
     """Match webs (KG04 §3.1-3.2) of ``(key, rows sha, columns sha, self pair)`` tuples.
 
-    Reads both clips' features from the store, builds the web coarse to fine and writes it under
-    its key (the full grid on the side with ``keep_grids``). Returns small records only.
+    Takes both clips' operands from the worker's cache (read and prepared once per clip), builds
+    each web coarse to fine and writes the batch's webs as one shard at the end (the full grid on
+    the side with ``keep_grids``): a failed batch leaves nothing behind and is recomputed whole.
+    Returns small records only.
     """
     from tasks.matchweb import build_web_operands
 
     store = _store(store_url)
     fdig = feature_digest(cfg)
     rate = float(max(cfg.features.rates))
-    out = []
+    out: list[dict[str, Any]] = []
+    done: list[tuple[str, dict[str, np.ndarray], dict[str, Any]]] = []
     for key, a_sha, b_sha, self_pair in pairs:
         t = time.perf_counter()
         try:
@@ -521,10 +619,11 @@ def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, stor
             grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
             meta = {"a_sha": a_sha, "b_sha": b_sha, "rate": rate,
                     "shape": [oa[rate].n_frames, ob[rate].n_frames], **web_counts(arrays)}
-            store.write_web(key, arrays, meta)
+            done.append((key, arrays, meta))
             if grid is not None:
                 store.write_grid(key, grid)
             out.append({"key": key, "seconds": time.perf_counter() - t, **meta})
         except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
             out.append({"key": key, "error": f"{type(exc).__name__}: {exc}"})
+    store.write_webs(done)
     return out

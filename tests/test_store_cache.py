@@ -85,11 +85,39 @@ def test_incomplete_object_is_not_present(tmp_path):
     store = MotionStore(str(tmp_path / "s"))
     key = web_key(SHA_A, SHA_B, "wd1")
     store.write_web(key, ragged_web(np.random.default_rng(2)))
-    g = zarr.open(store=store.zstore, path=key, mode="r+")
+    (shard,) = [p.relative_to(tmp_path / "s") for p in (tmp_path / "s" / "webs" / "shards" / "wd1").iterdir() if p.is_dir()]
+    g = zarr.open(store=store.zstore, path=str(shard), mode="r+")
     g.attrs["complete"] = False  # as if the writer died before marking it
-    assert not store.has(key)
+    fresh = MotionStore(str(tmp_path / "s"))
+    assert not fresh.has(key)
     with pytest.raises(KeyError):
-        store.read_web_arrays(key)
+        fresh.read_web_arrays(key)
+    store.write_features(SHA_A, "fd1", {10.0: np.zeros((3, 2, 3), np.float32)}, np.ones(2))
+    g = zarr.open(store=store.zstore, path=feature_key(SHA_A, "fd1"), mode="r+")
+    g.attrs["complete"] = False
+    assert not store.has_features(SHA_A, "fd1", [10.0])
+    with pytest.raises(KeyError):
+        store.read_features(SHA_A, "fd1")
+
+
+def test_a_batch_of_webs_shares_one_shard(tmp_path):
+    """compute_web_batch writes its webs together: one Zarr array, every web readable by key
+    (also from another store instance, e.g. a reader), attributes kept per web."""
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(6)
+    keys = [web_key(SHA_A, SHA_B, "wd1"), web_key(SHA_A, SHA_A, "wd1"), web_key(SHA_B, SHA_B, "wd2")]
+    webs = {k: ragged_web(rng) for k in keys}
+    store.write_webs([(k, a, {"n": i}) for i, (k, a) in enumerate(webs.items())])
+    assert sum(p.is_dir() for p in (tmp_path / "s" / "webs" / "shards" / "wd1").iterdir()) == 1  # per digest
+    reader = MotionStore(str(tmp_path / "s"), read_only=True)
+    assert reader.web_keys("wd1") == set(keys[:2]) and reader.web_keys("wd2") == {keys[2]}
+    for i, (k, arrays) in enumerate(webs.items()):
+        got, attrs = reader.read_web_arrays(k)
+        assert attrs == {"n": i} and reader.web_attrs(k) == {"n": i}
+        for name, v in arrays.items():
+            np.testing.assert_array_equal(got[name], v)
+            assert got[name].dtype == v.dtype and got[name].shape == v.shape
+    assert not reader.has(web_key(SHA_B, SHA_A, "wd1")) and reader.web_attrs(web_key(SHA_B, SHA_A, "wd1")) == {}
 
 
 def test_parameter_digests():
