@@ -12,6 +12,11 @@ store with the index flow (Prefect + a local Dask cluster, 2 single-threaded wor
 Then the growth of wall time and memory with the frames of a single chunk is fitted
 (t ~ frames^p).
 
+Ratio measured in the same run: after each index run, the same webs are rebuilt serially in
+this process from the stored features (every ``--serial-every``-th pair, scaled up; no Prefect,
+Dask or Zarr): "serial s" is that compute alone on one core, and "wall/serial" what the whole
+flow costs against it (2 workers with no overhead would give 0.5).
+
     .venv/bin/python bench/corpus.py [--frames 37000] [--rates 30 60] [--growth 2000 4000 8000 16000 32000]
 
 Peak memory is the largest sum of RSS over this process and its Dask worker processes (the
@@ -192,6 +197,27 @@ def rates_for(rate: float) -> list[float]:
     return sorted({10.0, 20.0, float(rate)})
 
 
+def serial_compute_s(store: Path, every: int) -> float:
+    """Seconds to rebuild every ``every``-th web of the store's current generation in this
+    process, scaled to all its pairs: the web computation alone (operands read and prepared
+    beforehand, compiled kernels warmed up), the baseline the flow's wall time is compared with."""
+    from store.cache import _operands
+    from tasks.matchweb import build_web_operands
+
+    gen = MotionStore(str(store)).generation()
+    cfg = Config.model_validate(gen.config)
+    fdig = gen.params["features"]
+    webs = sorted({w["key"]: w for w in gen.webs}.values(), key=lambda w: w["key"])
+    jobs = [(_operands(str(store), w["a_sha"], fdig), _operands(str(store), w["b_sha"], fdig), w["self"])
+            for w in webs[::every]]
+    build_web_operands(*jobs[0][:2], cfg.matchweb, jobs[0][2])  # warm-up (compiled kernels load)
+    t = time.perf_counter()
+    for oa, ob, self_pair in jobs:
+        build_web_operands(oa, oa if self_pair else ob, cfg.matchweb, self_pair)
+    _operands.cache_clear()
+    return (time.perf_counter() - t) * len(webs) / len(jobs)
+
+
 def run_index(corpus: Path, store: Path, rate: float, chunk_by: str, workers: int) -> dict:
     from flows.index import index_library
 
@@ -227,6 +253,7 @@ def main() -> None:
     ap.add_argument("--growth-rate", type=float, default=60.0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--keep", help="keep the temp folder here instead of deleting it")
+    ap.add_argument("--serial-every", type=int, default=10, help="sample for the serial baseline")
     args = ap.parse_args()
 
     from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
@@ -246,18 +273,19 @@ def main() -> None:
     with temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
         print(f"{'rate':>5} {'split':>9} {'chunks':>6} {'clips':>5} {'frames':>7} {'max chunk':>9} "
               f"{'pairs':>6} {'chains':>7} {'bridges':>7} {'wall s':>7} {'call s':>7} {'peak GB':>7} "
-              f"{'store MB':>8}  target")
+              f"{'store MB':>8} {'serial s':>8} {'wall/serial':>11}  target")
         n = 0
         for rate in args.rates:
             for mode in args.modes:
                 s = run_index(work / "corpus", work / f"store-{n}", rate, mode, args.workers)
+                serial = serial_compute_s(work / f"store-{n}", args.serial_every)
                 n += 1
                 target = "<= 20 s" if mode == "category" else "<= 120 s"
                 print(f"{rate:5g} {'category' if mode == 'category' else 'unsplit':>9} {s['chunks']:6d} "
                       f"{s['clips']:5d} {s['frames']:7d} {s['max_chunk_frames']:9d} {s['pairs']:6d} "
                       f"{s['chains']:7d} {s['bridges']:7d} {s['wall_s']:7.1f} {s['call_s']:7.1f} "
-                      f"{s['peak_gb']:7.2f} {s['store_bytes'] / 1e6:8.1f}  {target} (KG04 60 Hz: "
-                      f"{'3.4' if mode == 'category' else '50.2'} min)", flush=True)
+                      f"{s['peak_gb']:7.2f} {s['store_bytes'] / 1e6:8.1f} {serial:8.1f} {s['wall_s'] / serial:11.2f}"
+                      f"  {target} (KG04 60 Hz: {'3.4' if mode == 'category' else '50.2'} min)", flush=True)
                 if s["broken"]:
                     print(f"      broken: {s['broken']}")
         # a rerun with nothing changed (nightly): everything from the cache

@@ -356,7 +356,8 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     unless ``n_workers`` says otherwise); small runs use threads, which start in ~1 s.
     """
     if dcfg.address:
-        yield dcfg.address
+        with _client_for(dcfg.address):
+            yield dcfg.address
         return
     from distributed import LocalCluster
 
@@ -364,38 +365,57 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     processes = dcfg.processes if dcfg.processes is not None else not small
     kwargs: dict[str, Any] = {"host": "127.0.0.1"} if processes else {}
     with LocalCluster(n_workers=n, threads_per_worker=dcfg.threads_per_worker, processes=processes,
-                      dashboard_address=None, **kwargs) as cluster:
+                      dashboard_address=None, **kwargs) as cluster, _client_for(cluster.scheduler_address):
         yield cluster.scheduler_address
+
+
+#: one Dask client per scheduler address while a run uses it, shared by the chunk tasks' threads
+#: (a client per task cost a connection, a config scatter and a close each: ~50 chunk tasks)
+_CLIENTS: dict[str, Any] = {}
+
+
+@contextmanager
+def _client_for(address: str) -> Iterator[Any]:
+    from distributed import Client
+
+    client = _CLIENTS[address] = Client(address, set_as_default=False)
+    try:
+        yield client
+    finally:
+        _CLIENTS.pop(address, None)
+        client.close()
+
+
+def _client(address: str) -> Any:
+    """The run's shared client for ``address`` (see :func:`dask_scheduler`)."""
+    return _CLIENTS[address]
 
 
 def _run_on_dask(address: str, fn: Callable, batches: list[list], cfg: Config, store_url: str,
                  stage: str, logger: Any) -> list[dict[str, Any]]:
     """Submit one Dask task per batch, gather records as they finish and report progress."""
-    from distributed import Client, as_completed
+    from distributed import as_completed
 
     out: list[dict[str, Any]] = []
     total = sum(len(b) for b in batches)
-    with Client(address, set_as_default=False) as client:
-        cfg_f = client.scatter(cfg, broadcast=True)
-        futures = [client.submit(fn, b, cfg_f, store_url, pure=False, key=f"{stage}-{i}-{os.urandom(4).hex()}")
-                   for i, b in enumerate(batches)]
-        step = max(1, total // 10)
-        last = 0
-        for fut in as_completed(futures, loop=client.loop):
-            out.extend(fut.result())
-            if PROGRESS is not None:
-                PROGRESS(stage, len(out), total)
-            if len(out) - last >= step or len(out) == total:
-                logger.info("%s: %d/%d", stage, len(out), total)
-                last = len(out)
+    client = _client(address)
+    cfg_f = client.scatter(cfg, broadcast=True)
+    futures = [client.submit(fn, b, cfg_f, store_url, pure=False, key=f"{stage}-{i}-{os.urandom(4).hex()}")
+               for i, b in enumerate(batches)]
+    step = max(1, total // 10)
+    last = 0
+    for fut in as_completed(futures, loop=client.loop):
+        out.extend(fut.result())
+        if PROGRESS is not None:
+            PROGRESS(stage, len(out), total)
+        if len(out) - last >= step or len(out) == total:
+            logger.info("%s: %d/%d", stage, len(out), total)
+            last = len(out)
     return out
 
 
 def _workers(address: str) -> int:
-    from distributed import Client
-
-    with Client(address, set_as_default=False) as client:
-        return max(1, len(client.scheduler_info().get("workers", {})))
+    return max(1, len(_client(address).scheduler_info().get("workers", {})))
 
 
 # ---------------------------------------------------------------------------- Prefect tasks

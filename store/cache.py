@@ -23,10 +23,11 @@ a digest of the parameters that produce it, so objects are shared by every gener
 lists them and a rerun recomputes only what is missing. An object is marked ``complete`` in its
 attributes only after all its arrays are written; a half-written object is never seen as
 present. Webs are many and small (zarr costs ~2 ms of CPU per array created), so a batch of webs
-shares one array (a shard) and a web key is found through the index of the shards' attributes,
-listed once per store instance and again when a key is not found. A generation becomes visible only when its manifest is written and ``current`` is
-switched to it (an atomic rename on local disks, a single-object put on object stores), so
-readers never see a half-written index and a crashed run leaves the previous one current.
+shares one array (a shard) and a web key is found through the index in the shards' attributes,
+listed once per store instance and again when a key is not found. A generation becomes visible
+only when its manifest is written and ``current`` is switched to it (an atomic rename on local
+disks, a single-object put on object stores), so readers never see a half-written index and a
+crashed run leaves the previous one current.
 """
 
 from __future__ import annotations
