@@ -25,7 +25,7 @@ from store.datasets import mocap_root
 from store.deepmimic import default_urdf, read_deepmimic, read_humanoid_urdf
 from store.motion import Motion
 from tasks.dynamics import dynamics_terms
-from tasks.kinematics import resample
+from tasks.kinematics import hold_ends, resample
 from tasks.retime import (
     N_ROOT,
     RetimeOptions,
@@ -163,12 +163,8 @@ def experiments() -> None:
     for label, frac in (("jump in half the time", 0.5), ("jump in 0.85 of the time", 0.85)):
         _, res = retime_plan(base, frac * jump.duration, None, OPTS)
         print(f"  {label:34} {describe(base, res)}")
-    pad = int(1.5 * jump.fps)  # MPS06 Fig. 1's clip has idle time; give the jump 1.5 s of standing each side
-    idle = replace(jump, name="jump_idle",
-                   root_positions=np.concatenate([jump.root_positions[:1].repeat(pad, 0), jump.root_positions,
-                                                  jump.root_positions[-1:].repeat(pad, 0)]),
-                   rotations=np.concatenate([jump.rotations[:1].repeat(pad, 0), jump.rotations,
-                                             jump.rotations[-1:].repeat(pad, 0)]))
+    # MPS06 Fig. 1's clip has idle time; give the jump 1.5 s of standing each side
+    idle = replace(hold_ends(jump, 1.5), name="jump_idle")
     plan = prepare(idle, OPTS, humanoid=hum)
     _, res = retime_plan(plan, idle.duration / 2, None, OPTS)
     print(f"  {'jump + 1.5 s idle each side, half':34} {describe(plan, res)}; bound "

@@ -236,6 +236,17 @@ def resample(motion: Motion, fps: float) -> Motion:
     return replace(sample_motion(motion, frames), fps=float(fps))
 
 
+def hold_ends(motion: Motion, seconds: float) -> Motion:
+    """The motion with its first and last poses held still for ``seconds`` before and after."""
+    pad = round(seconds * motion.fps)
+
+    def held(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([a[:1].repeat(pad, 0), a, a[-1:].repeat(pad, 0)])
+
+    return replace(motion, root_positions=held(motion.root_positions), rotations=held(motion.rotations),
+                   translations={j: held(t) for j, t in motion.translations.items()})
+
+
 def heading(rotations: np.ndarray, up: str = "y") -> np.ndarray:
     """Rotation about the vertical axis contained in ``rotations`` (..., 4): its twist about ``up``.
 

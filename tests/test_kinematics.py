@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from store.demo_corpus import generate_clip
 from store.motion import Motion, Skeleton
 from tasks.kinematics import (
     forward_kinematics,
     heading,
     heading_angle,
+    hold_ends,
     quat_average,
     quat_exp,
     quat_from_euler,
@@ -152,3 +154,12 @@ def test_heading_extracts_vertical_twist() -> None:
     pts = (root_pos + fwd)[:, None, :]
     local = to_heading_frame(pts, root_pos, q)
     np.testing.assert_allclose(local[:, 0], np.tile([0.0, 0.9, 1.0], (5, 1)), atol=1e-9)
+
+
+def test_hold_ends_repeats_first_and_last_pose() -> None:
+    motion = generate_clip("walk", 0, 0, fps=30.0)[0]
+    held = hold_ends(motion, 0.5)
+    assert held.n_frames == motion.n_frames + 30
+    np.testing.assert_array_equal(held.rotations[:16], np.repeat(motion.rotations[:1], 16, 0))
+    np.testing.assert_array_equal(held.root_positions[15:-15], motion.root_positions)
+    np.testing.assert_array_equal(held.root_positions[-15:], np.repeat(motion.root_positions[-1:], 15, 0))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
+from tasks.kinematics import hold_ends
 from tasks.retime import (
     N_ROOT,
     FrameLP,
@@ -195,12 +196,7 @@ def test_real_jump_with_idle_time_halved_keeps_its_flight(real_jump) -> None:
     """MPS06 Fig. 1 on real data: given idle time (1.5 s standing before and after), halving the
     DeepMimic jump speeds up the standing and keeps the flight at normal speed."""
     motion, humanoid, _ = real_jump
-    pad = int(1.5 * motion.fps)
-    still = replace(motion, name="jump_idle",
-                    root_positions=np.concatenate([motion.root_positions[:1].repeat(pad, 0), motion.root_positions,
-                                                   motion.root_positions[-1:].repeat(pad, 0)]),
-                    rotations=np.concatenate([motion.rotations[:1].repeat(pad, 0), motion.rotations,
-                                              motion.rotations[-1:].repeat(pad, 0)]))
+    still = replace(hold_ends(motion, 1.5), name="jump_idle")
     plan = prepare(still, OPTS, humanoid=humanoid)
     t0, t1 = _inner_flight(plan, still)
     _, res = retime_plan(plan, still.duration / 2, None, OPTS)
