@@ -23,7 +23,7 @@ from prefect.cache_policies import NO_CACHE
 
 from flows.config import Config, load_config
 from store.bvh import write_bvh
-from store.cache import Generation, MotionStore, feature_digest, package_versions
+from store.cache import Generation, MotionStore, package_versions
 from store.formats import read_motion
 from store.motion import Motion
 from tasks.kinematics import sample_motion
@@ -131,15 +131,37 @@ def segment_motion(motion: Motion, frames: np.ndarray, rate: float) -> Motion:
     return replace(sample_motion(motion, np.asarray(frames, np.float64) * motion.fps / rate), fps=float(rate))
 
 
-def plan_query(cfg: Config, request: QueryRequest) -> Segment:
-    """Every check of a request that needs no search (store indexed, clip known, range inside it
-    and long enough), so the CLI can refuse a bad request before a flow run starts."""
+@dataclass
+class PreparedQuery:
+    """A request resolved against the committed generation: its clip record, the query segment
+    at the web rate and the webs it searches."""
+
+    store: MotionStore
+    gen: Generation
+    gen_cfg: Config
+    record: dict[str, Any]
+    segment: Segment
+    webs: StoreWebs
+
+
+def prepare_query(cfg: Config, request: QueryRequest) -> PreparedQuery:
+    """Resolve ``request`` on the store's committed generation (ValueError for a store never
+    indexed, an unknown clip, a range outside it)."""
     store, gen = committed_generation(cfg.store.path)
     gen_cfg = indexed_config(gen)
     rate = max(float(r) for r in gen_cfg.features.rates)
-    seg = query_segment(resolve_clip(gen, request.clip), request.start, request.end, rate)
-    MatchSearch(StoreWebs.for_query(store, seg.clip, True, generation=gen), cfg.search, gen_cfg.matchweb).check(seg)
-    return seg
+    rec = resolve_clip(gen, request.clip)
+    seg = query_segment(rec, request.start, request.end, rate)
+    all_cats = cfg.search.all_categories if request.all_categories is None else request.all_categories
+    return PreparedQuery(store, gen, gen_cfg, rec, seg, StoreWebs.for_query(store, seg.clip, all_cats, generation=gen))
+
+
+def plan_query(cfg: Config, request: QueryRequest) -> Segment:
+    """Every check of a request that needs no search (also: the range is long enough), so the
+    CLI can refuse a bad request before a flow run starts."""
+    q = prepare_query(cfg, request)
+    MatchSearch(q.webs, cfg.search, q.gen_cfg.matchweb).check(q.segment)
+    return q.segment
 
 
 # ------------------------------------------------------------------------------------ outputs
@@ -227,18 +249,12 @@ def write_warps(reg: Registration, rows: list[dict[str, Any]], out: Path) -> lis
 
 # ----------------------------------------------------------------------------------- the flow
 @task(name="search", cache_policy=NO_CACHE)
-def search_task(store: MotionStore, gen: Generation, cfg: Config, gen_cfg: Config, request: QueryRequest,
-                ) -> tuple[MatchGraph, float, dict[str, Any]]:
-    """Resolve the query, choose ε and run the tiered search on the committed generation."""
-    rate = max(float(r) for r in gen_cfg.features.rates)
-    rec = resolve_clip(gen, request.clip)
-    seg = query_segment(rec, request.start, request.end, rate)
-    all_cats = cfg.search.all_categories if request.all_categories is None else request.all_categories
-    webs = StoreWebs.for_query(store, seg.clip, all_cats, generation=gen)
+def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[MatchGraph, float]:
+    """Choose ε and run the tiered search on the committed generation; (graph, ε)."""
     eps = (request.threshold if request.threshold is not None
-           else epsilon_from_quantile(webs.all_webs(), request.quantile))
+           else epsilon_from_quantile(q.webs.all_webs(), request.quantile))
     scfg = cfg.search if request.tiers is None else cfg.search.model_copy(update={"max_tiers": request.tiers})
-    return search(seg, eps, webs, scfg, gen_cfg.matchweb), eps, rec
+    return search(q.segment, eps, q.webs, scfg, q.gen_cfg.matchweb), eps
 
 
 @task(name="register", cache_policy=NO_CACHE)
@@ -262,11 +278,9 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     cfg = config if isinstance(config, Config) else load_config(config)
     logger = get_run_logger()
     t0 = time.perf_counter()
-    store, gen = committed_generation(cfg.store.path)
-    gen_cfg = indexed_config(gen)
-    if feature_digest(gen_cfg) != gen.params["features"]:
-        raise ValueError(f"generation {gen.id} records inconsistent feature parameters; re-index")
-    graph, eps, rec = search_task(store, gen, cfg, gen_cfg, request)
+    q = prepare_query(cfg, request)
+    store, gen, gen_cfg = q.store, q.gen, q.gen_cfg
+    graph, eps = search_task(q, cfg, request)
     timings = {"search_s": time.perf_counter() - t0}
     clips = {c["path"]: c for c in gen.clips}
     rows = match_rows(graph, clips)
@@ -278,8 +292,8 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     files[0].write_text(json.dumps({**meta, "matches": rows}, indent=1))
     files[1].write_text(json.dumps({**meta, **graph_dict(graph)}))
     plot_graph(graph, rows, files[2])
-    logger.info("query %s [%d, %d]: ε = %.4g, %d matches", rec["path"], graph.nodes[0].segment.start,
-                graph.nodes[0].segment.end, eps, len(graph.nodes) - 1)
+    logger.info("query %s [%d, %d]: ε = %.4g, %d matches", q.segment.clip, q.segment.start, q.segment.end,
+                eps, len(graph.nodes) - 1)
 
     motions: dict[str, Motion] = {}
 
