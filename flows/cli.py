@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -264,7 +265,7 @@ def run_index(cfg: Config, progress: bool) -> dict:
             acc[1] += t
         typer.echo("\r  " + "  ".join(f"{k} {d}/{t}" for k, (d, t) in sums.items()), err=True, nl=False)
 
-    idx.PROGRESS = show if progress else None
+    idx.PROGRESS = show if progress and sys.stderr.isatty() else None  # no \r lines in a log file
     try:
         summary = idx.index_library(cfg)
     except (FileNotFoundError, MotionFormatError, ValueError) as exc:
@@ -280,7 +281,7 @@ def run_index(cfg: Config, progress: bool) -> dict:
 @app.command()
 def index(
     config: Annotated[Path, typer.Argument(help="Config file (corpus, features, matchweb, dask, store, index).")],
-    progress: Annotated[bool, typer.Option(help="Show a progress counter on stderr.")] = True,
+    progress: Annotated[bool, typer.Option(help="Show a progress counter on stderr (when it is a terminal).")] = True,
 ) -> None:
     """Index the corpus into match webs (Prefect flow); print the run summary."""
     run_index(config_or_fail(config), progress)
