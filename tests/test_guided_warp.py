@@ -18,6 +18,7 @@ import pytest
 from store.motion import Motion, Skeleton
 from tasks.guided_warp import (
     Track,
+    _blocks,
     dag_path,
     feasible_windows,
     feature_spec,
@@ -31,6 +32,8 @@ from tasks.guided_warp import (
     reduce_to_compression,
     reference_features,
     smooth_warp,
+    triple_features,
+    triple_index,
 )
 from tasks.kinematics import quat_from_euler, sample_motion
 
@@ -177,6 +180,16 @@ def test_local_scores_match_slow_loop(walkjump):
     slow = slow_scores(track, ref, 3, 3, spec)
     assert np.array_equal(np.isinf(fast), np.isinf(slow))
     np.testing.assert_allclose(fast[np.isfinite(fast)], slow[np.isfinite(slow)], rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("root_motion", [True, False])
+def test_triple_kernel_matches_numpy_blocks(walkjump, root_motion):
+    motion, _ = walkjump
+    track = motion_track(motion.slice(100, 160), 3)
+    spec = feature_spec(track, (1.0, 2.0, 0.5), root_motion=root_motion)
+    j, a, b = triple_index(len(track), 4)
+    slow = spec.combine(_blocks(track.take(j - a), track.take(j), track.take(j + b), root_motion))
+    np.testing.assert_allclose(triple_features(track, j, a, b, spec), slow, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("n,m,s,seed", [(9, 5, 3, 0), (10, 4, 4, 1), (8, 8, 2, 2), (11, 6, 3, 3), (7, 2, 6, 4)])
