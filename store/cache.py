@@ -238,7 +238,8 @@ class MotionStore:
             self.zstore = FsspecStore.from_url(self.url, read_only=read_only)
         # web key -> (shard key, its entry), from the attributes of the complete shards seen so far
         self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
-        self._shards_seen: set[str] = set()
+        # complete shards seen so far, kept open: opening one parses its whole index of webs
+        self._shards: dict[str, zarr.Array] = {}
 
     def __reduce__(self):
         return (MotionStore, (self.url, self.read_only))
@@ -271,7 +272,7 @@ class MotionStore:
         parts, layout, _ = _pack(arrays)
         self._write_bytes(key, parts, PACKED_CHUNK, {**attrs, "layout": layout})
 
-    def _write_bytes(self, key: str, parts: list[np.ndarray], chunk: int, attrs: dict[str, Any]) -> None:
+    def _write_bytes(self, key: str, parts: list[np.ndarray], chunk: int, attrs: dict[str, Any]) -> zarr.Array:
         """One uint8 Zarr array of the concatenated ``parts``, marked complete after its data."""
         buf = np.concatenate(parts) if parts else np.zeros(0, np.uint8)
         z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, min(buf.size, chunk)),),
@@ -280,6 +281,7 @@ class MotionStore:
         if buf.size:
             z[...] = buf
         z.update_attributes({"complete": True})
+        return z
 
     def _read_packed(self, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         z = self._open(key)
@@ -357,9 +359,8 @@ class MotionStore:
                 entries[key] = {"start": start, "nbytes": end - start, "layout": layout, "attrs": attrs}
                 start = end
             shard = f"{SHARDS}/{wdig}/{new_generation_id()}"
-            self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries})
+            self._shards[shard] = self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries})
             self._webs.update({key: (shard, e) for key, e in entries.items()})
-            self._shards_seen.add(shard)
 
     def write_web(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = None) -> None:
         """Store one web's flat arrays (``MatchWeb.to_arrays()``) under ``key``."""
@@ -378,12 +379,12 @@ class MotionStore:
             return
         for name in sorted(e["name"] for e in entries if e["type"] == "directory"):
             shard = f"{SHARDS}/{wdig}/{os.path.basename(name.rstrip('/'))}"
-            if shard in self._shards_seen:
+            if shard in self._shards:
                 continue
             z = self._open(shard)
             if z is None or not z.attrs.get("complete", False):
                 continue  # being written, or its writer died: not seen yet
-            self._shards_seen.add(shard)
+            self._shards[shard] = z
             self._webs.update({key: (shard, e) for key, e in z.attrs["webs"].items()})
 
     def web_keys(self, wdig: str) -> set[str]:
@@ -399,7 +400,7 @@ class MotionStore:
     def read_web_arrays(self, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """The flat arrays of a web (names, dtypes and shapes as written) and its attributes."""
         found = self._web_entry(key)
-        z = self._open(found[0]) if found else None
+        z = (self._shards.get(found[0]) or self._open(found[0])) if found else None
         if z is None:
             raise KeyError(f"{self.url}: no complete web {key!r}")
         e = found[1]
@@ -519,7 +520,7 @@ class MotionStore:
                 self.fs.rm(self._path(shard), recursive=True)
                 dropped += keys
         self._webs.clear()
-        self._shards_seen.clear()
+        self._shards.clear()
         for gid in set(ids) - kept:
             self.fs.rm(self._path(f"generations/{gid}.json"))
         return dropped
