@@ -118,6 +118,15 @@ def test_a_batch_of_webs_shares_one_shard(tmp_path):
             np.testing.assert_array_equal(got[name], v)
             assert got[name].dtype == v.dtype and got[name].shape == v.shape
     assert not reader.has(web_key(SHA_B, SHA_A, "wd1")) and reader.web_attrs(web_key(SHA_B, SHA_A, "wd1")) == {}
+    # a shard is opened once per store instance, not once per web read (its index can be large)
+    opened = []
+    fresh = MotionStore(str(tmp_path / "s"), read_only=True)
+    original = fresh._open
+    fresh._open = lambda key: opened.append(key) or original(key)
+    for _ in range(3):
+        for k in keys:
+            fresh.read_web_arrays(k)
+    assert sorted(opened) == sorted(set(opened)) and len(opened) == 2  # wd1's and wd2's shard
 
 
 def test_parameter_digests():
