@@ -20,6 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.timing import best_of
 from flows.config import FeatureConfig, MatchWebConfig
 from store.motion import Motion, Skeleton
 from tasks.distance import distance_grid, prepare_pair, rigid_align_2d
@@ -30,22 +31,13 @@ from tasks.matchweb import build_web, build_web_full
 ROT = ("Zrotation", "Xrotation", "Yrotation")
 
 
-def best_of(fn, repeat: int = 3) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
-
-
 def bench_grid(n: int, points: int) -> None:
     rng = np.random.default_rng(0)
     fa = rng.normal(size=(n, points, 3)).astype(np.float32)
     fb = rng.normal(size=(n, points, 3)).astype(np.float32)
     w = np.full(points, 1.0 / points)
     distance_grid(fa[:64], fb[:64], w)  # compile / warm up
-    t_gemm = best_of(lambda: distance_grid(fa, fb, w))
+    t_gemm, _ = best_of(lambda: distance_grid(fa, fb, w))
     pa, pb = prepare_pair(fa, fb, w)
     rb = np.concatenate([pb.right, pb.right_rot], axis=0)
 
@@ -53,7 +45,7 @@ def bench_grid(n: int, points: int) -> None:
         np.matmul(pa.left, rb.T)
         np.matmul(pa.left_y, pb.right_y.T)
 
-    t_bare = best_of(bare)
+    t_bare, _ = best_of(bare)
     m = 300
     t0 = time.perf_counter()
     for k in range(m):

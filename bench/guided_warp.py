@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.timing import best_of
 from flows.config import WarpConfig
 from store.datasets import mocap_root
 from store.deepmimic import read_deepmimic
@@ -145,15 +145,6 @@ def python_dp(table: np.ndarray, m: int) -> tuple[list[int], float]:
         b = a
     path.append(k - b)
     return path[::-1], total
-
-
-def best_of(fn, repeat: int):
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
 
 
 def bench_row(row, repeat: int, run_python: bool) -> dict:

@@ -10,23 +10,17 @@ Prints MB/s parsed and joint-frames/s of FK for our readers, then the same clips
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
-import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench.timing import best_of
 from store.bvh import read_bvh, write_bvh
 from store.datasets import mocap_root
 from store.formats import is_clip, read_motion
 from tasks.kinematics import forward_kinematics, resample
-
-
-def best_of(repeat: int, fn) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def main() -> None:
@@ -40,9 +34,9 @@ def main() -> None:
         raise SystemExit(f"no clips under {root} (set MOTIONWEB_MOCAP)")
     motions = [read_motion(p) for p in files]  # warm-up (numba compile, page cache)
     size = sum(p.stat().st_size for p in files)
-    t_load = best_of(args.repeat, lambda: [read_motion(p) for p in files])
+    t_load = best_of(lambda: [read_motion(p) for p in files], args.repeat)[0]
     jf = sum(m.n_frames * m.skeleton.n_joints for m in motions)
-    t_fk = best_of(args.repeat, lambda: [forward_kinematics(m) for m in motions])
+    t_fk = best_of(lambda: [forward_kinematics(m) for m in motions], args.repeat)[0]
     print(f"real clips: {len(files)} files under {root}, {size / 1e6:.2f} MB, "
           f"{sum(m.n_frames for m in motions)} frames")
     print(f"  load (native format)   {size / 1e6 / t_load:8.1f} MB/s   ({t_load * 1e3:.1f} ms)")
@@ -58,9 +52,9 @@ def main() -> None:
             bvh_files.append(out)
         bsize = sum(p.stat().st_size for p in bvh_files)
         bm = [read_bvh(p) for p in bvh_files]
-        t_ours = best_of(args.repeat, lambda: [read_bvh(p) for p in bvh_files])
-        t_fk2 = best_of(args.repeat, lambda: [forward_kinematics(m) for m in bm])
-        t_bvhio = best_of(max(1, args.repeat // 2), lambda: [bvhio.readAsBvh(str(p)) for p in bvh_files])
+        t_ours = best_of(lambda: [read_bvh(p) for p in bvh_files], args.repeat)[0]
+        t_fk2 = best_of(lambda: [forward_kinematics(m) for m in bm], args.repeat)[0]
+        t_bvhio = best_of(lambda: [bvhio.readAsBvh(str(p)) for p in bvh_files], max(1, args.repeat // 2))[0]
         jf2 = sum(m.n_frames * m.skeleton.n_joints for m in bm)
         print(f"BVH copies at {args.upsample:g} Hz: {len(bvh_files)} files, {bsize / 1e6:.2f} MB, "
               f"{sum(m.n_frames for m in bm)} frames")

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -29,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.timing import best_of
 from flows.config import FeatureConfig, MatchWebConfig
 from store.datasets import ENV_VAR, mocap_root
 from store.deepmimic import read_deepmimic
@@ -71,15 +71,6 @@ def planted_graph(base: Motion, n_matches: int, seed: int):
     edges = [edge(0, c, 1.0 + 0.1 * c) for c in range(1, n_matches + 1)]
     edges += [edge(c - 1, c, 0.05) for c in range(3, n_matches + 1, 2)]
     return MatchGraph(RATE, nodes, edges), feats, w, truth
-
-
-def best_of(fn, repeat: int):
-    times, out = [], None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def bench(label: str, base: Motion, n_matches: int, repeat: int) -> None:
