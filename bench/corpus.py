@@ -42,15 +42,14 @@ os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
 
 import numpy as np
 import psutil
-
-from flows.config import Config
-from store.bvh import write_bvh
-from store.cache import MotionStore
-from store.catalog import load_clip, scan_corpus
-from store.datasets import mocap_root
-from store.demo_corpus import random_warp, time_warp_clip, write_demo_corpus
-from store.motion import Motion
-from tasks.kinematics import resample
+from motionweb.flows.config import Config
+from motionweb.store.bvh import write_bvh
+from motionweb.store.cache import MotionStore
+from motionweb.store.catalog import load_clip, scan_corpus
+from motionweb.store.datasets import mocap_root
+from motionweb.store.demo.corpus import random_warp, time_warp_clip, write_demo_corpus
+from motionweb.store.kinematics import resample
+from motionweb.store.motion import Motion
 
 RATE = 60.0
 
@@ -201,25 +200,25 @@ def serial_compute_s(store: Path, every: int) -> float:
     """Seconds to rebuild every ``every``-th web of the store's current generation in this
     process, scaled to all its pairs: the web computation alone (operands read and prepared
     beforehand, compiled kernels warmed up), the baseline the flow's wall time is compared with."""
-    from store.cache import _operands
-    from tasks.matchweb import build_web_operands
+    from motionweb.flows.workers import clip_operands
+    from motionweb.tasks.matchweb import build_web_operands
 
     gen = MotionStore(str(store)).generation()
     cfg = Config.model_validate(gen.config)
     fdig = gen.params["features"]
     webs = sorted({w["key"]: w for w in gen.webs}.values(), key=lambda w: w["key"])
-    jobs = [(_operands(str(store), w["a_sha"], fdig), _operands(str(store), w["b_sha"], fdig), w["self"])
+    jobs = [(clip_operands(str(store), w["a_sha"], fdig), clip_operands(str(store), w["b_sha"], fdig), w["self"])
             for w in webs[::every]]
     build_web_operands(*jobs[0][:2], cfg.matchweb, jobs[0][2])  # warm-up (compiled kernels load)
     t = time.perf_counter()
     for oa, ob, self_pair in jobs:
         build_web_operands(oa, oa if self_pair else ob, cfg.matchweb, self_pair)
-    _operands.cache_clear()
+    clip_operands.cache_clear()
     return (time.perf_counter() - t) * len(webs) / len(jobs)
 
 
 def run_index(corpus: Path, store: Path, rate: float, chunk_by: str, workers: int) -> dict:
-    from flows.index import index_library
+    from motionweb.flows.index import index_library
 
     cfg = Config.model_validate({
         "corpus": {"path": str(corpus), "length_unit": "m"},

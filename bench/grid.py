@@ -20,13 +20,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from motionweb.store.kinematics import quat_from_euler, sample_motion
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.tasks.distance import distance_grid, prepare_pair, rigid_align_2d
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from motionweb.tasks.matchweb import MatchWebParams, build_web, build_web_full
+
 from bench.timing import best_of
-from flows.config import FeatureConfig, MatchWebConfig
-from store.motion import Motion, Skeleton
-from tasks.distance import distance_grid, prepare_pair, rigid_align_2d
-from tasks.features import clip_features, point_weights
-from tasks.kinematics import quat_from_euler, sample_motion
-from tasks.matchweb import build_web, build_web_full
 
 ROT = ("Zrotation", "Xrotation", "Yrotation")
 
@@ -97,7 +97,7 @@ def warp(n_out: int, n_in: int, seed: int) -> np.ndarray:
 
 
 def bench_webs(frames: list[int], full_max: int) -> None:
-    fc, cfg = FeatureConfig(), MatchWebConfig()
+    fc, cfg = FeatureParams(), MatchWebParams()
     print("\nmatch webs, clip vs time-warped copy (frames at the 30 Hz working rate):")
     print(f"{'frames':>7} {'features':>9} {'c2f':>8} {'paths':>6} {'bridges':>7} | {'grid30':>8} "
           f"{'web30':>8} {'full':>8} {'paths':>6} {'bridges':>7} | {'full/c2f':>8}")

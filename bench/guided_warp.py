@@ -25,13 +25,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.timing import best_of
-from flows.config import WarpConfig
-from store.datasets import mocap_root
-from store.deepmimic import read_deepmimic
-from store.motion import Motion
-from tasks.guided_warp import (
+from motionweb.store.datasets import mocap_root
+from motionweb.store.deepmimic import read_deepmimic
+from motionweb.store.kinematics import forward_kinematics, resample, sample_motion
+from motionweb.store.motion import Motion
+from motionweb.tasks.guided_warp import (
     Reduction,
+    WarpParams,
     band_windows,
     coarse_solution,
     dag_path,
@@ -45,7 +45,8 @@ from tasks.guided_warp import (
     path_cost,
     reference_features,
 )
-from tasks.kinematics import forward_kinematics, resample, sample_motion
+
+from bench.timing import best_of
 
 # HDP07 Table 1: trial, n, m, r, s, objective s, optimization s, heuristic s (None: not reported)
 TABLE1 = [
@@ -70,7 +71,7 @@ CLIPS = {
     "V8": (["backflip", "spinkick"], ["spinkick"]),
 }
 RATE = 30.0
-BAND = WarpConfig().band
+BAND = WarpParams().band
 
 
 def clip(name: str) -> Motion:

@@ -16,11 +16,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from motionweb.store.bvh import read_bvh, write_bvh
+from motionweb.store.datasets import mocap_root
+from motionweb.store.formats import is_clip, read_motion
+from motionweb.store.kinematics import forward_kinematics, resample
+
 from bench.timing import best_of
-from store.bvh import read_bvh, write_bvh
-from store.datasets import mocap_root
-from store.formats import is_clip, read_motion
-from tasks.kinematics import forward_kinematics, resample
 
 
 def main() -> None:

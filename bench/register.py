@@ -28,27 +28,27 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from motionweb.store.datasets import ENV_VAR, mocap_root
+from motionweb.store.deepmimic import read_deepmimic
+from motionweb.store.demo.corpus import generate_clip, pose_noise, random_warp, time_warp_clip
+from motionweb.store.motion import Motion
+from motionweb.tasks.distance import distance_grid
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
+from motionweb.tasks.matchweb import MatchWebParams, optimal_path
+from motionweb.tasks.register import register
+
 from bench.timing import best_of
-from flows.config import FeatureConfig, MatchWebConfig
-from store.datasets import ENV_VAR, mocap_root
-from store.deepmimic import read_deepmimic
-from store.demo_corpus import generate_clip, pose_noise, random_warp, time_warp_clip
-from store.motion import Motion
-from tasks.distance import distance_grid
-from tasks.features import clip_features, point_weights
-from tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from tasks.matchweb import optimal_path
-from tasks.register import register
 
 RATE = 30.0
-CFG = MatchWebConfig()
+CFG = MatchWebParams()
 REAL = ("walk", "kick", "punch", "cartwheel", "getup_faceup")
 
 
 def planted_graph(base: Motion, n_matches: int, seed: int):
     """Query = the whole clip at RATE; copies under random warps with pose noise; truth maps."""
     rng = np.random.default_rng(seed)
-    fc = FeatureConfig()
+    fc = FeatureParams()
     feats = {"query": clip_features(base, RATE, fc)}
     w = point_weights(base.skeleton, fc)
     nodes = [MatchNode(Segment("query", 0, len(feats["query"]) - 1))]

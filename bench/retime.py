@@ -19,16 +19,14 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linprog
-
-from store.datasets import mocap_root
-from store.deepmimic import default_urdf, read_deepmimic, read_humanoid_urdf
-from store.motion import Motion
-from tasks.dynamics import dynamics_terms
-from tasks.kinematics import hold_ends, resample
-from tasks.retime import (
+from motionweb.store.datasets import mocap_root
+from motionweb.store.deepmimic import default_urdf, read_deepmimic, read_humanoid_urdf
+from motionweb.store.kinematics import hold_ends, resample
+from motionweb.store.motion import Motion
+from motionweb.tasks.dynamics import dynamics_terms
+from motionweb.tasks.retime import (
     N_ROOT,
-    RetimeOptions,
+    RetimeParams,
     RetimePlan,
     evaluate_numpy,
     objective_function,
@@ -38,8 +36,9 @@ from tasks.retime import (
     retime_plan,
     shortest_duration,
 )
+from scipy.optimize import linprog
 
-OPTS = RetimeOptions(knots_per_second=8.0)
+OPTS = RetimeParams()
 PAPER = {"dyn": 66.0, "poly": 12.0, "obj": 0.0014}  # MPS06 Fig. 12, 16_16 walk, ms/frame
 TARGET = {"dyn": 1.0, "poly": 5.0, "obj": 0.002}
 

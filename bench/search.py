@@ -8,8 +8,8 @@ synthetic demo corpus; the index flow, split by category and unsplit). Printed:
   * per-query time of one tier (find + redundancy removal) for random 1.5 s queries (best of 5
     batches each), with the
     webs in memory (read and packed once per clip, like KG04's in-memory web), and the one-off
-    cost of reading + packing a clip's webs from the store; baseline in the same run: the
-    brute-force enumeration of match sequences (tests/test_search.ref_matches) on the same queries;
+    cost of reading + packing a clip's webs from the store (the retrieval baseline, subsequence
+    DTW, is measured in bench/retrieval.py);
   * a full tiered search (a 0.5 s walk query) whose ε is chosen to return ~100 matches, warm and cold;
   * a walk-cycle query and a kick query on the real DeepMimic clips: their matches.
 
@@ -35,13 +35,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from motionweb.store.cache import MotionStore
+from motionweb.store.datasets import mocap_root
+from motionweb.store.webs import StoreWebs
+from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.search import MatchSearch, SearchParams, epsilon_from_quantile
+
 from bench.corpus import build_corpus, run_index
-from flows.config import SearchConfig
-from store.cache import MotionStore
-from store.datasets import mocap_root
-from tasks.matchgraph import MatchGraph, Segment
-from tasks.search import MatchSearch, StoreWebs, epsilon_from_quantile
-from tests.test_search import TooManySequences, ref_matches
 
 QUERY_S = 1.5
 
@@ -58,10 +58,10 @@ def random_queries(gen, n: int, rate: float, rng: np.random.Generator) -> list[S
     return out
 
 
-def per_query(store: MotionStore, queries: list[Segment], all_categories: bool, eps: float, n_ref: int) -> dict:
-    """One-tier query times (warm), the load + pack time per clip, and the brute-force baseline."""
+def per_query(store: MotionStore, queries: list[Segment], all_categories: bool, eps: float) -> dict:
+    """One-tier query times (warm) and the load + pack time per clip."""
     gen = store.generation()
-    cfg = SearchConfig(max_tiers=1)
+    cfg = SearchParams(max_tiers=1)
     load, warm, n_match, n_webs, cells = [], [], [], [], []
     searchers: dict[str, MatchSearch] = {}
     for s in queries:
@@ -83,22 +83,8 @@ def per_query(store: MotionStore, queries: list[Segment], all_categories: bool, 
         n_match.append(len(found))
         n_webs.append(len(g.others))
         cells.append(g.n_states)
-    ref_t, fast_t, skipped = [], [], 0
-    for s, fast in zip(queries, warm, strict=True):
-        if len(ref_t) == n_ref:
-            break
-        webs = searchers[s.clip].webs[s.clip]
-        t = time.perf_counter()
-        try:
-            for _, w in webs:
-                ref_matches(w, s.start, s.end, max_sequences=200_000)
-        except (TooManySequences, RecursionError):  # exponential / too deep for Python recursion
-            skipped += 1
-            continue
-        ref_t.append(time.perf_counter() - t)
-        fast_t.append(fast)
-    return {"ref_skipped": skipped, "warm": np.array(warm), "load": np.array(load), "matches": np.array(n_match),
-            "webs": np.array(n_webs), "cells": np.array(cells), "ref": np.array(ref_t), "fast": np.array(fast_t)}
+    return {"warm": np.array(warm), "load": np.array(load), "matches": np.array(n_match),
+            "webs": np.array(n_webs), "cells": np.array(cells)}
 
 
 #: thresholds tried (ascending) to find an ε giving ~100 matches
@@ -172,7 +158,7 @@ def real_queries(store: MotionStore, rate: float, q_eps: float = 0.75) -> None:
         src = StoreWebs.for_query(store, q.clip, all_categories=True, generation=gen)
         eps = epsilon_from_quantile([w for _, w in src[q.clip]], q_eps)
         t = time.perf_counter()
-        graph = MatchSearch(src, SearchConfig(max_tiers=1)).search(q, eps)
+        graph = MatchSearch(src, SearchParams(max_tiers=1)).search(q, eps)
         dt = time.perf_counter() - t
         print(f"  {label}: {q.clip} frames {q.start}-{q.end} ({seconds[0]:g}-{seconds[1]:g} s), "
               f"{len(src[q.clip])} webs (the real clips), ε = {q_eps:g} quantile of their values = {eps:.4g}, "
@@ -185,7 +171,6 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=37000, help="corpus size in frames at 60 Hz")
     ap.add_argument("--rate", type=float, default=30.0, help="working rate of the webs (Hz)")
     ap.add_argument("--queries", type=int, default=40)
-    ap.add_argument("--ref-queries", type=int, default=5, help="queries also run by the brute-force baseline")
     ap.add_argument("--quantile", type=float, default=0.05, help="ε of the per-query timing, as a quantile")
     ap.add_argument("--tiered-s", type=float, default=0.5,
                     help="length of the walk query of the full tiered search (one step: many matches)")
@@ -227,13 +212,10 @@ def main() -> None:
     print(f"  {'index':12s} {'webs/q':>7s} {'cells/q':>9s} {'matches':>7s} {'median ms':>9s} {'mean ms':>8s} "
           f"{'p90 ms':>7s} {'load+pack ms':>12s}  target (KG04)")
     for mode, all_cats, target in (("none", True, "<= 5 ms (24 ms)"), ("category", False, "<= 2 ms (6 ms)")):
-        r = per_query(stores[mode], queries, all_cats, eps, args.ref_queries)
+        r = per_query(stores[mode], queries, all_cats, eps)
         print(f"  {'unsplit' if mode == 'none' else 'by category':12s} {r['webs'].mean():7.1f} {r['cells'].mean():9.0f} "
               f"{r['matches'].mean():7.1f} {1e3 * np.median(r['warm']):9.3f} {1e3 * r['warm'].mean():8.3f} "
               f"{1e3 * np.quantile(r['warm'], 0.9):7.3f} {1e3 * r['load'].mean():12.1f}  {target}")
-        print(f"  {'':12s} baseline (brute-force enumeration, {len(r['ref'])} queries; {r['ref_skipped']} more "
-              f"skipped: > 200,000 sequences or too deep): mean {1e3 * r['ref'].mean():.1f} ms vs {1e3 * r['fast'].mean():.3f} "
-              f"ms: {r['ref'].sum() / r['fast'].sum():.0f}x")
     print()
     walk = next((c for c in gen.clips if c["category"] == "walk" and c["duration"] > 3), None)
     if walk is not None:

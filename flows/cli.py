@@ -7,9 +7,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-
-from flows.config import CONFIG_DIR, Config, ConfigError, load_config
-from store.errors import MotionFormatError
+from motionweb.flows.config import Config, ConfigError, load_config, packaged_config
+from motionweb.store.errors import MotionFormatError
 
 app = typer.Typer(
     name="motionweb",
@@ -65,7 +64,7 @@ def catalog(
     json_out: Annotated[bool, typer.Option("--json", help="Print the catalog as JSON.")] = False,
 ) -> None:
     """Scan a corpus folder: category, frames, fps, duration and hash of every clip."""
-    from store.catalog import scan_corpus
+    from motionweb.store.catalog import scan_corpus
 
     cfg = config_or_fail(config)
     try:
@@ -84,8 +83,8 @@ def preview(
     up: Annotated[str, typer.Option(help="Vertical axis of the clip.")] = "y",
 ) -> None:
     """Render a stick-figure animation of a clip to a GIF (headless)."""
-    from flows.preview import render_gif
-    from store.formats import read_motion
+    from motionweb.flows.preview import render_gif
+    from motionweb.store.formats import read_motion
 
     try:
         m = read_motion(motion)
@@ -108,11 +107,10 @@ def demo(
     command can be pointed at the same corpus and store: ``motionweb index WORKDIR/config.yaml``.
     """
     import yaml
+    from motionweb.store.catalog import scan_corpus
+    from motionweb.store.demo.corpus import write_demo_corpus
 
-    from store.catalog import scan_corpus
-    from store.demo_corpus import write_demo_corpus
-
-    cfg = config_or_fail(config or CONFIG_DIR / "demo.yaml")
+    cfg = config_or_fail(config or packaged_config("demo.yaml"))
     workdir.mkdir(parents=True, exist_ok=True)
     data = cfg.model_dump(mode="json")
     data["corpus"]["path"], data["store"]["path"], data["output"] = "corpus", "store", "out"
@@ -126,7 +124,7 @@ def demo(
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
     typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")
     run_index(cfg, progress=True)
-    from flows.query import QueryRequest
+    from motionweb.flows.query import QueryRequest
 
     d = cfg.demo
     typer.echo(f"\nsearching (KG04 §3.3) for {d.query_clip} {d.query_start:g}-{d.query_end:g} s, registering the matches ...")
@@ -164,8 +162,8 @@ def warp(
         except ValueError:
             fail(f"--keytime {text!r}: expected IN_S:OUT_S (seconds), e.g. 1.5:1.0")
     cfg = config_or_fail(config)
-    from flows.warp import WarpRequest, format_summary, plan_warp
-    from flows.warp import warp as warp_flow
+    from motionweb.flows.warp import WarpRequest, format_summary, plan_warp
+    from motionweb.flows.warp import warp as warp_flow
 
     request = WarpRequest(input=str(input_path), out=str(out), reference=str(reference) if reference else None,
                           duration=duration, frames=frames, unconstrained=unconstrained, keytimes=tuple(keys),
@@ -220,7 +218,7 @@ def retime(
         except ValueError:
             fail(f"--mass {text!r}: expected JOINT=FACTOR with a positive factor, e.g. left_hip=10")
     cfg = config_or_fail(config)
-    from flows.retime import retime_flow
+    from motionweb.flows.retime import retime_flow
 
     try:
         rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
@@ -251,7 +249,7 @@ def _quiet_services() -> None:
 
 def run_index(cfg: Config, progress: bool) -> dict:
     """Run the index flow with an optional progress counter on stderr; errors become ``fail``."""
-    import flows.index as idx
+    import motionweb.flows.index as idx
 
     seen: dict[str, tuple[int, int]] = {}
 
@@ -296,7 +294,7 @@ def serve(
     import os
 
     cfg = config_or_fail(config)
-    from flows.index import index_library
+    from motionweb.flows.index import index_library
 
     if not os.environ.get("PREFECT_API_URL"):
         typer.secho("warning: PREFECT_API_URL is not set; scheduled runs need a Prefect server "
@@ -317,7 +315,7 @@ def matches_table(rows: list[dict]) -> str:
 
 def run_query(cfg: Config, request) -> dict:
     """Check the request, run the query flow and print its matches; errors become ``fail``."""
-    from flows.query import plan_query, query
+    from motionweb.flows.query import plan_query, query
 
     try:
         plan_query(cfg, request)
@@ -350,7 +348,7 @@ def search(
     out: Annotated[Path | None, typer.Option(help="Output folder (default: the config's output).")] = None,
 ) -> None:
     """Search the index for motions like CLIP[START, END] (KG04 §3.3); print the matches."""
-    from flows.query import QueryRequest
+    from motionweb.flows.query import QueryRequest
 
     cfg = config_or_fail(config)
     try:
@@ -370,7 +368,7 @@ def plot_web(
     out: Annotated[Path, typer.Option(help="Output image (PNG, PDF, SVG).")] = Path("web.png"),
 ) -> None:
     """Draw the distance grid of two clips with minima, valid region, chains and bridges (KG04 Fig. 4/7)."""
-    from flows.plots import plot_web as draw
+    from motionweb.flows.plots import plot_web as draw
 
     cfg = config_or_fail(config)
     try:

@@ -28,15 +28,11 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from prefect import flow, get_run_logger, task
-from prefect.cache_policies import NO_CACHE
-
-from flows.config import Config, DaskConfig, load_config
-from store.cache import (
+from motionweb.flows.config import Config, DaskConfig, load_config
+from motionweb.flows.workers import compute_features_batch, compute_web_batch
+from motionweb.store.cache import (
     Generation,
     MotionStore,
-    compute_features_batch,
-    compute_web_batch,
     feature_digest,
     feature_key,
     feature_params,
@@ -48,7 +44,9 @@ from store.cache import (
     web_key,
     web_params,
 )
-from store.catalog import Catalog, ClipEntry, scan_corpus
+from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
+from prefect import flow, get_run_logger, task
+from prefect.cache_policies import NO_CACHE
 
 log = logging.getLogger(__name__)
 

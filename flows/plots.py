@@ -12,8 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from flows.config import Config
+from motionweb.flows.config import Config
 
 
 @dataclass
@@ -72,9 +71,9 @@ def draw_web(grid: np.ndarray, minima: np.ndarray, valid: np.ndarray, web, rate:
 
 def plot_web(cfg: Config, clip_a: str, clip_b: str, out: str | Path) -> WebPlot:
     """Compute the web of two catalogued clips (path, stem or file) and draw it to ``out``."""
-    from store.catalog import load_clip, scan_corpus
-    from tasks.features import clip_features, point_weights
-    from tasks.matchweb import build_web, local_minima, mask_self_band, self_band, valid_region
+    from motionweb.store.catalog import load_clip, scan_corpus
+    from motionweb.tasks.features import clip_features, point_weights
+    from motionweb.tasks.matchweb import build_web, local_minima, mask_self_band, self_band, valid_region
 
     catalog = scan_corpus(cfg.corpus.path, cfg.corpus)
     ea, eb = catalog.find(clip_a), catalog.find(clip_b)

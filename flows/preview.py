@@ -10,9 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.animation import FuncAnimation, PillowWriter
-
-from store.motion import Motion
-from tasks.kinematics import axis_index, end_site_positions, forward_kinematics
+from motionweb.store.kinematics import axis_index, end_site_positions, forward_kinematics
+from motionweb.store.motion import Motion
 
 
 def stick_segments(motion: Motion, up: str = "y") -> tuple[np.ndarray, list[tuple[int, int]]]:

@@ -18,18 +18,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.config import Config, load_config
+from motionweb.store.bvh import write_bvh
+from motionweb.store.cache import Generation, MotionStore, package_versions
+from motionweb.store.formats import read_motion
+from motionweb.store.kinematics import sample_motion
+from motionweb.store.motion import Motion
+from motionweb.store.webs import StoreWebs
+from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.register import Registration, register
+from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
-
-from flows.config import Config, load_config
-from store.bvh import write_bvh
-from store.cache import Generation, MotionStore, package_versions
-from store.formats import read_motion
-from store.motion import Motion
-from tasks.kinematics import sample_motion
-from tasks.matchgraph import MatchGraph, Segment
-from tasks.register import Registration, register
-from tasks.search import MatchSearch, StoreWebs, epsilon_from_quantile, search
 
 
 @dataclass

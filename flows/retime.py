@@ -6,24 +6,12 @@ import json
 from pathlib import Path
 
 import numpy as np
+from motionweb.flows.config import Config
+from motionweb.store.bvh import write_bvh
+from motionweb.store.formats import read_motion
+from motionweb.store.motion import Motion
+from motionweb.tasks.retime import RetimeParams, RetimePlan, RetimeResult, prepare, report, retime_plan
 from prefect import flow, task
-
-from flows.config import Config, RetimeConfig
-from store.bvh import write_bvh
-from store.formats import read_motion
-from store.motion import Motion
-from tasks.retime import RetimeOptions, RetimePlan, RetimeResult, prepare, report, retime_plan
-
-
-def options_from_config(cfg: RetimeConfig, objective: str | None = None, up_axis: str = "y") -> RetimeOptions:
-    """``RetimeOptions`` from the config section."""
-    return RetimeOptions(
-        body_model=cfg.body_model, total_mass=cfg.total_mass, friction=cfg.friction,
-        contact_height=cfg.contact_height, contact_speed=cfg.contact_speed, ground_height=cfg.ground_height,
-        torque_margin=cfg.torque_margin, samples_per_frame=cfg.samples_per_frame,
-        knots_per_second=cfg.knots_per_second, alpha=cfg.alpha, beta=cfg.beta,
-        objective=objective or cfg.objective, speed_max=cfg.speed_max, allow_flight_only=cfg.allow_flight_only,
-        up_axis="xyz".index(up_axis))
 
 
 def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
@@ -31,20 +19,20 @@ def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
     motion = read_motion(path, unit=cfg.corpus.length_unit, scale_to_m=cfg.corpus.scale_to_m)
     humanoid = None
     if Path(path).suffix.lower() == ".txt":
-        from store.deepmimic import default_urdf, read_humanoid_urdf
+        from motionweb.store.deepmimic import default_urdf, read_humanoid_urdf
 
         humanoid = read_humanoid_urdf(default_urdf(path))
     return motion, humanoid
 
 
 @task
-def prepare_task(motion: Motion, opts: RetimeOptions, gravity: np.ndarray | None, mass: dict[str, float],
-                 humanoid: object | None, intervals: dict | None) -> RetimePlan:
-    return prepare(motion, opts, gravity=gravity, mass=mass, humanoid=humanoid, contact_intervals=intervals)
+def prepare_task(motion: Motion, opts: RetimeParams, up_axis: str, gravity: np.ndarray | None,
+                 mass: dict[str, float], humanoid: object | None, intervals: dict | None) -> RetimePlan:
+    return prepare(motion, opts, up_axis=up_axis, gravity=gravity, mass=mass, humanoid=humanoid, contact_intervals=intervals)
 
 
 @task
-def retime_task(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]], opts: RetimeOptions
+def retime_task(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]], opts: RetimeParams
                 ) -> tuple[Motion, RetimeResult]:
     return retime_plan(plan, duration, keytimes, opts)
 
@@ -91,7 +79,7 @@ def plot_retiming(plan: RetimePlan, res: RetimeResult, out_dir: str | Path, n_po
 
 
 def report_flights(plan: RetimePlan, res: RetimeResult) -> list[dict]:
-    from tasks.retime import flight_intervals
+    from motionweb.tasks.retime import flight_intervals
 
     return [{"source": [a, b]} for a, b in flight_intervals(plan.contacts.active, plan.motion.fps)]
 
@@ -103,9 +91,9 @@ def retime_flow(input_path: str, cfg: Config, out: str, duration: float | None =
                 plot_dir: str | None = None) -> dict:
     """Retime one clip: write the BVH, a JSON report beside it, and optional plots."""
     motion, humanoid = load_clip(input_path, cfg)
-    opts = options_from_config(cfg.retime, objective, cfg.corpus.up_axis)
+    opts = cfg.retime if objective is None else cfg.retime.model_copy(update={"objective": objective})
     intervals = cfg.retime.contact_intervals.get(motion.name) or None
-    plan = prepare_task(motion, opts, None if gravity is None else np.asarray(gravity, float), mass or {},
+    plan = prepare_task(motion, opts, cfg.corpus.up_axis, None if gravity is None else np.asarray(gravity, float), mass or {},
                         humanoid, intervals)
     keytimes = list(keytimes or [])
     total = duration if duration is not None else motion.duration

@@ -13,18 +13,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from prefect import flow, task
-from prefect.cache_policies import NO_CACHE
-
-from flows.config import Config, WarpConfig
-from store.motion import Motion
-from tasks.guided_warp import (
+from motionweb.flows.config import Config
+from motionweb.store.motion import Motion
+from motionweb.tasks.guided_warp import (
+    WarpParams,
     WarpResult,
     check_compatible,
     guided_warp,
     linear_warp,
     reduce_to_compression,
 )
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
 
 
 @dataclass(frozen=True)
@@ -53,12 +53,12 @@ class WarpPlan:
     reference: Motion | None
     n_out: int | None
     keytimes: tuple[tuple[float, float], ...]
-    config: WarpConfig
+    config: WarpParams
 
 
 def load_motion(path: str | Path) -> Motion:
     """A clip from .bvh (store.bvh), .amc (store.asfamc) or DeepMimic .txt (store.deepmimic)."""
-    from store.formats import read_motion
+    from motionweb.store.formats import read_motion
 
     p = Path(path)
     if not p.is_file():
@@ -94,13 +94,8 @@ def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
 
 def solve(plan: WarpPlan, fast: bool = False, backward: bool = False) -> WarpResult:
     """The guided warp of a checked plan with the config's parameters."""
-    c = plan.config
-    return guided_warp(
-        plan.motion, plan.reference, n_out=plan.n_out, keytimes=plan.keytimes, skip=c.skip,
-        neighbours=c.neighbours, filter_width=c.filter_width, weights=c.weights, fast=fast,
-        heuristic_rate=c.heuristic_rate, band=c.band, smooth_width=c.smooth_width,
-        adaptive=c.adaptive_smoothing, backward=backward, normalize=c.normalize, root_motion=c.root_motion,
-    )
+    return guided_warp(plan.motion, plan.reference, n_out=plan.n_out, keytimes=plan.keytimes,
+                       params=plan.config, fast=fast, backward=backward)
 
 
 def plot_warp(result: WarpResult, fps: float, path: str | Path, linear: WarpResult | None = None,
@@ -131,7 +126,7 @@ def plot_warp(result: WarpResult, fps: float, path: str | Path, linear: WarpResu
 
 def write_outputs(plan: WarpPlan, result: WarpResult, request: WarpRequest) -> dict[str, Any]:
     """Write the warped BVH (input skeleton, channel orders, unit) and the optional plot."""
-    from store.bvh import write_bvh
+    from motionweb.store.bvh import write_bvh
 
     out = Path(request.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -43,8 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-
-from store.errors import (
+from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
@@ -53,8 +52,8 @@ from store.errors import (
     UnknownChannelError,
     UnknownJointError,
 )
-from store.motion import UNIT_SCALES, Motion, Skeleton
-from tasks.kinematics import quat_from_axis_angle, quat_identity, quat_inv, quat_mul, quat_rotate
+from motionweb.store.kinematics import quat_from_axis_angle, quat_identity, quat_inv, quat_mul, quat_rotate
+from motionweb.store.motion import UNIT_SCALES, Motion, Skeleton
 
 #: the frame rate of the CMU library's AMC files (the files do not record it)
 CMU_FPS = 120.0

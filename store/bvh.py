@@ -15,9 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numba import njit
-
-from store.errors import (
+from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
@@ -25,8 +23,9 @@ from store.errors import (
     TruncatedFileError,
     UnknownChannelError,
 )
-from store.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
-from tasks.kinematics import quat_from_euler, quat_identity, quat_to_euler
+from motionweb.store.kinematics import quat_from_euler, quat_identity, quat_to_euler
+from motionweb.store.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
+from numba import njit
 
 _CHANNELS = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}
 

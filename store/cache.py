@@ -35,25 +35,31 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import time
 import uuid
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
-from functools import lru_cache
 from importlib import metadata
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import fsspec
 import numpy as np
 import zarr
+from motionweb.store.params import Params
+from motionweb.store.web import MatchWeb
 from zarr.codecs import BloscCodec
 from zarr.storage import FsspecStore, LocalStore
 
 if TYPE_CHECKING:
-    from flows.config import Config
-    from store.catalog import ClipEntry
-    from tasks.distance import ClipOperands
-    from tasks.matchweb import MatchWeb
+    from motionweb.store.catalog import CorpusParams
+
+
+class IndexSettings(Protocol):
+    """What keys the index: a run config's corpus, features and matchweb sections (duck-typed, so
+    the store needs none of the stages that define them)."""
+
+    corpus: CorpusParams
+    features: Params
+    matchweb: Params
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
 STORE_SCHEMA = 2
@@ -75,7 +81,7 @@ def _digest(data: Any) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def feature_params(cfg: Config) -> dict[str, Any]:
+def feature_params(cfg: IndexSettings) -> dict[str, Any]:
     """Everything that changes a clip's features at one rate (the rate list itself excluded)."""
     feats = cfg.features.model_dump(mode="json")
     feats.pop("rates", None)
@@ -89,12 +95,12 @@ def feature_params(cfg: Config) -> dict[str, Any]:
     }
 
 
-def feature_digest(cfg: Config) -> str:
+def feature_digest(cfg: IndexSettings) -> str:
     """Parameter hash keying features: clip sha256 + this + rate (SPEC §9)."""
     return _digest(feature_params(cfg))[:16]
 
 
-def web_params(cfg: Config) -> dict[str, Any]:
+def web_params(cfg: IndexSettings) -> dict[str, Any]:
     """Everything that changes a web: feature parameters, the rate ladder and the matchweb section."""
     mw = cfg.matchweb.model_dump(mode="json")
     mw.pop("keep_grids", None)  # storing grids on the side does not change a web
@@ -106,7 +112,7 @@ def web_params(cfg: Config) -> dict[str, Any]:
     }
 
 
-def web_digest(cfg: Config) -> str:
+def web_digest(cfg: IndexSettings) -> str:
     """Parameter hash keying webs: ordered pair of clip hashes + this (SPEC §9)."""
     return _digest(web_params(cfg))[:16]
 
@@ -409,7 +415,6 @@ class MotionStore:
 
     def read_web(self, key: str) -> MatchWeb:
         """The stored web as a ``tasks.matchweb.MatchWeb``."""
-        from tasks.matchweb import MatchWeb
 
         arrays, _ = self.read_web_arrays(key)
         return MatchWeb.from_arrays(arrays)
@@ -538,94 +543,3 @@ class MotionStore:
                         if e["type"] == "directory"]
             level = nxt
         return level
-
-
-# ------------------------------------------------------------------ producers run on Dask workers
-# They live here, not in flows/index.py, so that worker processes never import Prefect (~5 s per
-# worker); they take plain values (clip entries, keys, the config) and return small records.
-
-
-@lru_cache(maxsize=8)
-def _store(url: str) -> MotionStore:
-    return MotionStore(url)
-
-
-@lru_cache(maxsize=128)
-def _operands(url: str, sha: str, fdigest: str) -> dict[float, ClipOperands]:
-    """A clip's distance operands by rate (``tasks.distance.ClipOperands``), cached per worker:
-    a clip appears in many pairs, and is read and prepared once, not once per pair."""
-    from tasks.distance import ClipOperands
-
-    by_rate, weights = _store(url).read_features(sha, fdigest)
-    return {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
-
-
-def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
-    """Chains and bridges of a web from its flat arrays (ragged: ``*_offsets`` hold N+1 bounds)."""
-
-    def count(prefix: str) -> int:
-        off = arrays.get(f"{prefix}_offsets")
-        return max(0, len(off) - 1) if off is not None else 0
-
-    return {"n_chains": count("paths"), "n_bridges": count("bridges")}
-
-
-def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
-    """Features of clips at every rate plus point weights, written to the store (SPEC §3).
-
-    Returns one small record per clip (``error`` when the clip cannot be read or featurized).
-    """
-    from store.catalog import load_clip
-    from tasks.features import clip_features, point_weights
-
-    store = _store(store_url)
-    fdig = feature_digest(cfg)
-    out = []
-    for c in clips:
-        t = time.perf_counter()
-        try:
-            motion = load_clip(c, cfg.corpus)
-            by_rate = {float(r): clip_features(motion, float(r), cfg.features, up=cfg.corpus.up_axis)
-                       for r in cfg.features.rates}
-            weights = point_weights(motion.skeleton, cfg.features)
-            store.write_features(c.sha256, fdig, by_rate, weights,
-                                 {"path": c.path, "skeleton": c.skeleton, "fps": c.fps})
-            out.append({"sha256": c.sha256, "seconds": time.perf_counter() - t})
-        except Exception as exc:  # noqa: BLE001 - a broken clip is recorded, the run goes on
-            out.append({"sha256": c.sha256, "path": c.path, "error": f"{type(exc).__name__}: {exc}"})
-    return out
-
-
-def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, store_url: str) -> list[dict[str, Any]]:
-    """Match webs (KG04 §3.1-3.2) of ``(key, rows sha, columns sha, self pair)`` tuples.
-
-    Takes both clips' operands from the worker's cache (read and prepared once per clip), builds
-    each web coarse to fine and writes the batch's webs as one shard at the end (the full grid on
-    the side with ``keep_grids``): a failed batch leaves nothing behind and is recomputed whole.
-    Returns small records only.
-    """
-    from tasks.matchweb import build_web_operands
-
-    store = _store(store_url)
-    fdig = feature_digest(cfg)
-    rate = float(max(cfg.features.rates))
-    out: list[dict[str, Any]] = []
-    done: list[tuple[str, dict[str, np.ndarray], dict[str, Any]]] = []
-    for key, a_sha, b_sha, self_pair in pairs:
-        t = time.perf_counter()
-        try:
-            oa = _operands(store_url, a_sha, fdig)
-            ob = oa if self_pair else _operands(store_url, b_sha, fdig)
-            web = build_web_operands(oa, ob, cfg.matchweb, self_pair)
-            arrays = web.to_arrays()
-            grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
-            meta = {"a_sha": a_sha, "b_sha": b_sha, "rate": rate,
-                    "shape": [oa[rate].n_frames, ob[rate].n_frames], **web_counts(arrays)}
-            done.append((key, arrays, meta))
-            if grid is not None:
-                store.write_grid(key, grid)
-            out.append({"key": key, "seconds": time.perf_counter() - t, **meta})
-        except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
-            out.append({"key": key, "error": f"{type(exc).__name__}: {exc}"})
-    store.write_webs(done)
-    return out

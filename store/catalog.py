@@ -13,11 +13,34 @@ import json
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal
 
-from flows.config import CorpusConfig
-from store.errors import MotionFormatError
-from store.formats import is_clip, read_motion
-from store.motion import Motion
+from motionweb.store.errors import MotionFormatError
+from motionweb.store.formats import is_clip, read_motion
+from motionweb.store.motion import Motion
+from motionweb.store.params import Params
+from pydantic import Field
+
+
+class CategoryRule(Params):
+    """Clips whose corpus-relative path matches ``pattern`` (Python regex, searched) get ``category``."""
+
+    pattern: str
+    category: str
+
+
+class CorpusParams(Params):
+    path: str = "demo-corpus"
+    #: regex rules tried in order; the first folder level labels clips no rule matches
+    category_rules: list[CategoryRule] = Field(default_factory=list)
+    #: CSV with columns ``path,category`` (paths relative to the corpus); overrides rules
+    manifest: str | None = None
+    #: length unit of files that do not declare one (BVH): m, cm, mm, in, ft
+    length_unit: str | None = None
+    scale_to_m: float | None = None
+    up_axis: Literal["x", "y", "z"] = "y"
+
+
 
 UNCATEGORIZED = "uncategorized"
 FORMAT_NAMES = {".bvh": "bvh", ".amc": "asfamc", ".txt": "deepmimic"}
@@ -94,7 +117,7 @@ def _read_manifest(path: str) -> dict[str, str]:
     return labels
 
 
-def label(rel: str, cfg: CorpusConfig, manifest: dict[str, str]) -> str:
+def label(rel: str, cfg: CorpusParams, manifest: dict[str, str]) -> str:
     """The category of a corpus-relative path (manifest, then rules, then first folder level)."""
     if rel in manifest:
         return manifest[rel]
@@ -105,7 +128,7 @@ def label(rel: str, cfg: CorpusConfig, manifest: dict[str, str]) -> str:
     return parts[0] if len(parts) > 1 else UNCATEGORIZED
 
 
-def load_clip(entry: ClipEntry, cfg: CorpusConfig) -> Motion:
+def load_clip(entry: ClipEntry, cfg: CorpusParams) -> Motion:
     """Read the clip of a catalog entry, with the config's unit for files that declare none."""
     motion = read_motion(entry.abs_path, unit=cfg.length_unit, scale_to_m=cfg.scale_to_m)
     if motion.content_hash != entry.sha256:
@@ -113,9 +136,9 @@ def load_clip(entry: ClipEntry, cfg: CorpusConfig) -> Motion:
     return motion
 
 
-def scan_corpus(root: str | Path, cfg: CorpusConfig | None = None) -> Catalog:
+def scan_corpus(root: str | Path, cfg: CorpusParams | None = None) -> Catalog:
     """Scan ``root`` recursively; every readable clip becomes a :class:`ClipEntry` (sorted by path)."""
-    cfg = cfg or CorpusConfig(path=str(root))
+    cfg = cfg or CorpusParams(path=str(root))
     root = Path(root).resolve()
     if not root.is_dir():
         raise FileNotFoundError(f"corpus folder {root} does not exist")

@@ -40,8 +40,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-
-from store.errors import (
+from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
@@ -49,8 +48,7 @@ from store.errors import (
     TruncatedFileError,
     UnknownJointError,
 )
-from store.motion import Motion, Skeleton
-from tasks.kinematics import (
+from motionweb.store.kinematics import (
     forward_kinematics,
     quat_from_axis_angle,
     quat_identity,
@@ -60,6 +58,7 @@ from tasks.kinematics import (
     quat_to_matrix,
     sample_motion,
 )
+from motionweb.store.motion import Motion, Skeleton
 
 #: DeepMimic's ``globalScaling`` for humanoid.urdf: metres per URDF unit.
 URDF_SCALE = 0.25

@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from store.errors import MissingSectionError
-from store.motion import Motion
+from motionweb.store.errors import MissingSectionError
+from motionweb.store.motion import Motion
 
 #: suffixes of files that hold a clip (an .asf alone is a skeleton, not a clip)
 CLIP_SUFFIXES = (".bvh", ".amc", ".txt")
@@ -58,16 +58,16 @@ def read_motion(path: str | Path, *, unit: str | None = None, scale_to_m: float 
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".bvh":
-        from store.bvh import read_bvh
+        from motionweb.store.bvh import read_bvh
 
         meta = sidecar(path)
         return read_bvh(path, unit=meta.get("unit", unit), scale_to_m=meta.get("scale_to_m", scale_to_m))
     if suffix == ".amc":
-        from store.asfamc import read_asfamc
+        from motionweb.store.asfamc import read_asfamc
 
         return read_asfamc(find_asf(path), path)
     if suffix == ".txt":
-        from store.deepmimic import read_deepmimic
+        from motionweb.store.deepmimic import read_deepmimic
 
         return read_deepmimic(path)
     raise MissingSectionError(str(path), None, f"unknown motion file type {suffix!r} (expected .bvh, .amc, .txt)")

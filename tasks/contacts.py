@@ -15,9 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-
-from store.motion import Skeleton
-from tasks.dynamics import BodyModel
+from motionweb.store.motion import Skeleton
+from motionweb.tasks.dynamics import BodyModel
 
 EDGES_PER_CORNER = 4
 CORNERS = 4

@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-
-from store.motion import Motion, Skeleton
+from motionweb.store.motion import Motion, Skeleton
 
 WATER_DENSITY = 1000.0  # kg / m^3
 DEFAULT_RADIUS_RATIO = 0.15  # cylinder radius / bone length

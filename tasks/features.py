@@ -15,11 +15,24 @@ O(F·P) copies.
 
 from __future__ import annotations
 
-import numpy as np
+from typing import Literal
 
-from flows.config import FeatureConfig
-from store.motion import Motion, Skeleton
-from tasks.kinematics import axis_index, forward_kinematics, resample
+import numpy as np
+from motionweb.store.kinematics import axis_index, forward_kinematics, resample
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.params import Params
+from pydantic import Field
+
+
+class FeatureParams(Params):
+    """Point-cloud features (SPEC §3)."""
+
+    rates: list[float] = Field(default_factory=lambda: [10.0, 20.0, 30.0])
+    window: int = 5
+    joint_weights: dict[str, float] = Field(default_factory=dict)
+    dtype: Literal["float32", "float64"] = "float32"
+
+
 
 #: proper rotations taking each up axis to column 1 (y): rows are the new x, y, z axes.
 _TO_Y_UP: dict[int, np.ndarray] = {
@@ -43,7 +56,7 @@ def joint_positions_m(motion: Motion, up: str = "y") -> np.ndarray:
     return (gpos @ rot.T) * motion.metres()
 
 
-def clip_features(motion: Motion, rate: float, cfg: FeatureConfig, up: str = "y") -> np.ndarray:
+def clip_features(motion: Motion, rate: float, cfg: FeatureParams, up: str = "y") -> np.ndarray:
     """(F_rate, P, 3) windowed point clouds of ``motion`` resampled to ``rate`` Hz (KG04 §3.1).
 
     The clip is resampled first (slerp), then each frame's cloud holds the joints of the
@@ -58,7 +71,7 @@ def clip_features(motion: Motion, rate: float, cfg: FeatureConfig, up: str = "y"
     return np.ascontiguousarray(clouds, dtype=np.dtype(cfg.dtype))
 
 
-def point_weights(skeleton: Skeleton, cfg: FeatureConfig) -> np.ndarray:
+def point_weights(skeleton: Skeleton, cfg: FeatureParams) -> np.ndarray:
     """(P,) point weights summing to 1, matching ``clip_features``' point order.
 
     Joint weights come from ``cfg.joint_weights`` by joint name (1 for joints not named; unknown

@@ -29,10 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
-from scipy.ndimage import uniform_filter1d
-
-from store.motion import Motion
-from tasks.kinematics import (
+from motionweb.store.kinematics import (
     axis_index,
     forward_kinematics,
     heading_angle,
@@ -40,8 +37,31 @@ from tasks.kinematics import (
     resample,
     sample_motion,
 )
+from motionweb.store.motion import Motion
+from motionweb.store.params import Params
+from scipy.ndimage import uniform_filter1d
 
 Keytime = tuple[float, float]
+
+
+class WarpParams(Params):
+    """Guided time warping (SPEC §7, HDP07 §3)."""
+
+    skip: int = 8
+    neighbours: int = 3
+    filter_width: int = 5
+    weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    heuristic_rate: int = 8
+    #: half-width (working frames) of the full-rate band around the coarse solution (--fast)
+    band: int = 48
+    #: moving-average width of the warp, output frames (HDP07 §3.4)
+    smooth_width: int = 5
+    #: average each output frame over the local compression (HDP07 §3.4)
+    adaptive_smoothing: bool = True
+    #: divide pose/velocity/acceleration features by the reference's RMS spread of each
+    normalize: bool = True
+    #: velocities include the root's travel and turning (differences in the middle frame's torso frame)
+    root_motion: bool = True
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -687,18 +707,9 @@ def guided_warp(
     *,
     n_out: int | None,
     keytimes: Sequence[Keytime] = (),
-    skip: int = 8,
-    neighbours: int = 3,
-    filter_width: int = 5,
-    weights: Sequence[float] = (1.0, 1.0, 1.0),
+    params: WarpParams | None = None,
     fast: bool = False,
-    heuristic_rate: int = 8,
-    band: int = 48,
-    smooth_width: int = 5,
-    adaptive: bool = True,
     backward: bool = False,
-    normalize: bool = True,
-    root_motion: bool = True,
     up: str = "y",
     resample_motion: bool = True,
 ) -> WarpResult:
@@ -709,21 +720,18 @@ def guided_warp(
         reference: the timing model z_1..z_r (same skeleton); None uses the input itself (§4.1).
         n_out: output frame count m (at the input's fps), or None for the unconstrained warp.
         keytimes: intermediate (input frame, output frame) pairs the warp must interpolate.
-        skip: s, the largest step between consecutive output frames (in working frames).
-        neighbours: k of the k-nearest-neighbour score (eq. 2).
-        filter_width: box prefilter of the pose features, frames.
-        weights: weights of the pose, velocity and acceleration parts of the features.
-        normalize: divide each part by the reference's RMS spread of it first (see FeatureSpec).
-        root_motion: velocities include the root's travel and turning (see :func:`_blocks`).
-        fast: use the §3.3 heuristic (coarse solve at 1/``heuristic_rate``, then a full-rate search
-            within ``band`` working frames of it; falls back to the full search if the band is empty).
-        smooth_width: moving-average width of the warp, output frames (§3.4).
-        adaptive: average each output frame over the local compression (§3.4).
+        params: the warp's parameters (:class:`WarpParams`: skip s, k of the kNN score, prefilter,
+            feature weights and normalisation, heuristic rate and band, smoothing).
+        fast: use the §3.3 heuristic (coarse solve at 1/``params.heuristic_rate``, then a full-rate
+            search within ``params.band`` working frames of it; falls back to the full search if the
+            band is empty).
         backward: play the input backwards (keytime input frames then decrease).
         resample_motion: build the output motion (else ``motion`` in the result is None).
 
     Cost: O(n s² (r + D)) for the scores and O(m n s²) for the path (O(n s²) unconstrained).
     """
+    p = params if params is not None else WarpParams()
+    skip, neighbours, filter_width = p.skip, p.neighbours, p.filter_width
     reference = motion if reference is None else reference
     check_compatible(motion, reference)
     n0 = motion.n_frames
@@ -734,7 +742,7 @@ def guided_warp(
     track0 = motion_track(motion, filter_width, up)
     ref_track = motion_track(_with_fps(reference, motion.fps), filter_width, up)
     track = track0.sample(red.to_source(np.arange(red.n), n0))
-    spec = feature_spec(ref_track, weights, normalize, root_motion)
+    spec = feature_spec(ref_track, p.weights, p.normalize, p.root_motion)
     ref_f = reference_features(ref_track, spec)
     timings["features"] = time.perf_counter() - t0
 
@@ -751,9 +759,9 @@ def guided_warp(
         lo, hi = feasible_windows(red.n, red.m, skip, red.keys)
         path, cost = np.zeros(0, dtype=np.int64), np.inf
         if fast:
-            coarse = coarse_solution(table, red, skip, heuristic_rate)
+            coarse = coarse_solution(table, red, skip, p.heuristic_rate)
             if coarse is not None:
-                blo, bhi = band_windows(coarse, red.m, band, lo, hi)
+                blo, bhi = band_windows(coarse, red.m, p.band, lo, hi)
                 if np.all(blo <= bhi):
                     path, cost = fixed_length_path(table, red.m, blo, bhi)
             used_heuristic = bool(np.isfinite(cost))
@@ -768,10 +776,10 @@ def guided_warp(
     t0 = time.perf_counter()
     raw = red.to_source(path, n0)
     anchors = [o for _, o in red.keys]
-    times = smooth_warp(raw, smooth_width, anchors)
+    times = smooth_warp(raw, p.smooth_width, anchors)
     out = None
     if resample_motion:
-        out = replace(apply_warp(motion, times, adaptive), name=f"{motion.name}_warped", content_hash="",
+        out = replace(apply_warp(motion, times, p.adaptive_smoothing), name=f"{motion.name}_warped", content_hash="",
                       source=None)
     timings["postprocess"] = time.perf_counter() - t0
     keys_src = [(float(red.to_source(np.array([i]), n0)[0]), float(o)) for i, o in red.keys]

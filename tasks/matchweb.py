@@ -33,13 +33,11 @@ costs linearly in the cells of its search regions rather than Fa·Fb.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
-
-from flows.config import MatchWebConfig
-from tasks.distance import (
+from motionweb.store.params import Params
+from motionweb.store.web import MatchWeb, empty_cells
+from motionweb.tasks.distance import (
     ClipOperands,
     DTypeLike,
     PreparedFeatures,
@@ -47,119 +45,22 @@ from tasks.distance import (
     distance_grid_prepared,
     prepare_operands_pair,
 )
+from numba import njit
+
+
+class MatchWebParams(Params):
+    """Match webs (SPEC §4, KG04 §3.1-3.2)."""
+
+    valid_a: float = 0.15
+    slope_k: int = 3
+    min_chain_s: float = 0.25
+    bridge_max_s: float = 2.0
+    self_band_s: float = 0.25
+    keep_grids: bool = False
+
+
 
 INF = np.inf
-
-# ----------------------------------------------------------------------------------------------
-# the web
-# ----------------------------------------------------------------------------------------------
-
-
-def _empty_cells() -> np.ndarray:
-    return np.zeros((0, 2), dtype=np.int32)
-
-
-@dataclass
-class MatchWeb:
-    """A match web between clips A (rows) and B (columns) at ``rate`` Hz (KG04 §3.2, Fig. 7).
-
-    Paths (the refined minima chains) are ragged: path ``p`` is
-    ``paths_cells[paths_offsets[p]:paths_offsets[p + 1]]`` (monotone cells, row = frame of A,
-    column = frame of B) with the grid values there in ``paths_values``.
-
-    Bridge ``b`` is a junction ``bridges[b] = (from_path, from_index, to_path, to_index)``: it
-    leaves path ``from_path`` at its cell number ``from_index`` (index within that path) and joins
-    path ``to_path`` at its cell number ``to_index``. Its own cells are
-    ``bridges_cells[bridges_offsets[b]:bridges_offsets[b + 1]]``, monotone, the first equal to the
-    from-cell and the last to the to-cell (both included).
-
-    ``grid`` is the full distance grid at ``rate`` when asked for (``keep_grids``), else None.
-    """
-
-    rate: float
-    shape: tuple[int, int]
-    paths_cells: np.ndarray = field(default_factory=_empty_cells)
-    paths_values: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    paths_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
-    bridges: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
-    bridges_cells: np.ndarray = field(default_factory=_empty_cells)
-    bridges_values: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    bridges_offsets: np.ndarray = field(default_factory=lambda: np.zeros(1, np.int64))
-    self_pair: bool = False
-    grid: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        self.rate = float(self.rate)
-        self.shape = (int(self.shape[0]), int(self.shape[1]))
-        self.paths_cells = np.asarray(self.paths_cells, dtype=np.int32).reshape(-1, 2)
-        self.paths_values = np.asarray(self.paths_values, dtype=np.float32).reshape(-1)
-        self.paths_offsets = np.asarray(self.paths_offsets, dtype=np.int64).reshape(-1)
-        self.bridges = np.asarray(self.bridges, dtype=np.int64).reshape(-1, 4)
-        self.bridges_cells = np.asarray(self.bridges_cells, dtype=np.int32).reshape(-1, 2)
-        self.bridges_values = np.asarray(self.bridges_values, dtype=np.float32).reshape(-1)
-        self.bridges_offsets = np.asarray(self.bridges_offsets, dtype=np.int64).reshape(-1)
-        if self.paths_offsets[-1] != len(self.paths_cells) or len(self.paths_values) != len(self.paths_cells):
-            raise ValueError("path offsets, cells and values disagree")
-        if self.bridges_offsets[-1] != len(self.bridges_cells) or len(self.bridges_offsets) != len(self.bridges) + 1:
-            raise ValueError("bridge offsets, cells and junctions disagree")
-
-    @property
-    def n_paths(self) -> int:
-        return len(self.paths_offsets) - 1
-
-    @property
-    def n_bridges(self) -> int:
-        return len(self.bridges)
-
-    def path(self, p: int) -> tuple[np.ndarray, np.ndarray]:
-        """(cells (n, 2), values (n,)) of path ``p``."""
-        a, b = self.paths_offsets[p], self.paths_offsets[p + 1]
-        return self.paths_cells[a:b], self.paths_values[a:b]
-
-    def bridge(self, b: int) -> tuple[np.ndarray, np.ndarray]:
-        """(cells (n, 2), values (n,)) of bridge ``b``."""
-        s, e = self.bridges_offsets[b], self.bridges_offsets[b + 1]
-        return self.bridges_cells[s:e], self.bridges_values[s:e]
-
-    def paths(self) -> list[np.ndarray]:
-        return [self.path(p)[0] for p in range(self.n_paths)]
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Flat arrays only (scalars as shape-(1,) arrays), e.g. for a Zarr group."""
-        d = {
-            "rate": np.array([self.rate], dtype=np.float64),
-            "shape": np.array(self.shape, dtype=np.int64),
-            "self_pair": np.array([self.self_pair], dtype=np.bool_),
-            "paths_cells": self.paths_cells,
-            "paths_values": self.paths_values,
-            "paths_offsets": self.paths_offsets,
-            "bridges": self.bridges,
-            "bridges_cells": self.bridges_cells,
-            "bridges_values": self.bridges_values,
-            "bridges_offsets": self.bridges_offsets,
-        }
-        if self.grid is not None:
-            d["grid"] = self.grid
-        return d
-
-    @classmethod
-    def from_arrays(cls, d: dict[str, np.ndarray]) -> MatchWeb:
-        """Inverse of :meth:`to_arrays` (accepts anything indexable like numpy arrays)."""
-        arr = {k: np.asarray(v[...]) for k, v in d.items()}
-        return cls(
-            rate=float(arr["rate"].reshape(-1)[0]),
-            shape=tuple(int(x) for x in arr["shape"].reshape(-1)),
-            paths_cells=arr["paths_cells"],
-            paths_values=arr["paths_values"],
-            paths_offsets=arr["paths_offsets"],
-            bridges=arr["bridges"],
-            bridges_cells=arr["bridges_cells"],
-            bridges_values=arr["bridges_values"],
-            bridges_offsets=arr["bridges_offsets"],
-            self_pair=bool(arr["self_pair"].reshape(-1)[0]) if "self_pair" in arr else False,
-            grid=arr.get("grid"),
-        )
-
 
 # ----------------------------------------------------------------------------------------------
 # parameters
@@ -173,17 +74,17 @@ def max_run(slope_k: int) -> int:
     return int(slope_k) - 1
 
 
-def min_chain_extent(cfg: MatchWebConfig, rate: float) -> int:
+def min_chain_extent(cfg: MatchWebParams, rate: float) -> int:
     """Frames a chain must span (max of its row and column extents) to be kept (KG04: 0.25 s)."""
     return math.ceil(cfg.min_chain_s * rate - 1e-9)
 
 
-def bridge_cells(cfg: MatchWebConfig, rate: float) -> int:
+def bridge_cells(cfg: MatchWebParams, rate: float) -> int:
     """Bridge Manhattan length bound L in cells: bridges satisfy Δi + Δj < L (KG04: 2 s)."""
     return max(1, math.ceil(cfg.bridge_max_s * rate - 1e-9))
 
 
-def self_band(cfg: MatchWebConfig, rate: float) -> int:
+def self_band(cfg: MatchWebParams, rate: float) -> int:
     """Half-width in cells of the ignored diagonal band of a self pair (|i − j| ≤ band)."""
     return math.floor(cfg.self_band_s * rate + 1e-9)
 
@@ -742,7 +643,7 @@ def _values_at(grid: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.asarray(grid[cells[:, 0], cells[:, 1]], dtype=np.float32)
 
 
-def build_web_full(grid: np.ndarray, rate: float, cfg: MatchWebConfig, self_pair: bool) -> MatchWeb:
+def build_web_full(grid: np.ndarray, rate: float, cfg: MatchWebParams, self_pair: bool) -> MatchWeb:
     """Match web from a full grid at one rate (KG04 §3.1-3.2; SPEC §4 steps 1-4).
 
     Self pairs ignore the band |i − j| ≤ ``self_band_s·rate``. Cost: O(Fa·Fb) for minima and the
@@ -1057,7 +958,7 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
     return jn, _concat_cells(out_c), _concat_values(out_v), _offsets_of(out_c)
 
 
-def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: float, cfg: MatchWebConfig,
+def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: float, cfg: MatchWebParams,
                self_pair: bool, pad: float = 1.0) -> MatchWeb:
     """One coarse-to-fine step (KG04 §3.2, Fig. 8) from ``web`` to ``rate``.
 
@@ -1091,13 +992,13 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
         jn, bc, bv, bo = _refine_bridges(old_cells, web.paths_offsets, web.bridges, old_bcells, web.bridges_offsets,
                                          new_id, pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
     else:
-        jn, bc, bv, bo = np.zeros((0, 4), np.int64), _empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
+        jn, bc, bv, bo = np.zeros((0, 4), np.int64), empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
     return MatchWeb(rate=rate, shape=(fa, fb), paths_cells=pc, paths_values=pv, paths_offsets=po, bridges=jn,
                     bridges_cells=bc, bridges_values=bv, bridges_offsets=bo, self_pair=self_pair)
 
 
 def build_web(fa_by_rate: dict[float, np.ndarray], fb_by_rate: dict[float, np.ndarray], weights: np.ndarray,
-              cfg: MatchWebConfig, self_pair: bool, dtype: DTypeLike = np.float32) -> MatchWeb:
+              cfg: MatchWebParams, self_pair: bool, dtype: DTypeLike = np.float32) -> MatchWeb:
     """Match web between clips A and B, coarse to fine across the rates given (KG04 §3.2, Fig. 8).
 
     ``fa_by_rate[r]``: (F_r, P, 3) clouds of A at r Hz (``tasks.features.clip_features``), same
@@ -1111,7 +1012,7 @@ def build_web(fa_by_rate: dict[float, np.ndarray], fb_by_rate: dict[float, np.nd
 
 
 def build_web_operands(oa_by_rate: dict[float, ClipOperands], ob_by_rate: dict[float, ClipOperands],
-                       cfg: MatchWebConfig, self_pair: bool) -> MatchWeb:
+                       cfg: MatchWebParams, self_pair: bool) -> MatchWeb:
     """Match web from per-clip operands (``tasks.distance.ClipOperands``, prepared once per clip
     and rate, e.g. once per index worker; KG04 §3.2, Fig. 8).
 

@@ -43,20 +43,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
-from scipy.interpolate import PchipInterpolator
-
-from flows.config import MatchWebConfig
-from tasks.distance import (
+from motionweb.tasks.distance import (
     PreparedFeatures,
     distance_cells,
     distance_prepared,
     prepare_features,
     vertical_shift,
 )
-from tasks.matchgraph import MatchGraph, Segment
-from tasks.matchweb import (
+from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.matchweb import (
     INF,
+    MatchWebParams,
     _backtrack,
     _band_buffers,
     _band_dp,
@@ -65,6 +62,8 @@ from tasks.matchweb import (
     _upsample_band,
     max_run,
 )
+from numba import njit
+from scipy.interpolate import PchipInterpolator
 
 # ----------------------------------------------------------------------------------------------
 # search regions: the rectangle, or a band around the web path
@@ -223,7 +222,7 @@ class Alignment:
 
 
 def align_segments(pa: PreparedFeatures, pb: PreparedFeatures, seg_a: Segment, seg_b: Segment,
-                   guide_cells: np.ndarray, cfg: MatchWebConfig, radius: int | None) -> Alignment:
+                   guide_cells: np.ndarray, cfg: MatchWebParams, radius: int | None) -> Alignment:
     """Time alignment of ``seg_a`` with ``seg_b`` by DP in the valid region (KG04 §3.1, §4.1).
 
     ``pa``, ``pb``: prepared clouds of the two segments' frames only (row 0 = ``seg_a.start``);
@@ -418,7 +417,7 @@ def _check(graph: MatchGraph, features: Mapping[str, np.ndarray]) -> None:
             raise ValueError(f"edge {e} ({edge.u}-{edge.v}): cells are not a monotone path")
 
 
-def register(graph: MatchGraph, features: Mapping[str, np.ndarray], weights: np.ndarray, cfg: MatchWebConfig,
+def register(graph: MatchGraph, features: Mapping[str, np.ndarray], weights: np.ndarray, cfg: MatchWebParams,
              band_s: float | None = 0.25) -> Registration:
     """Register every node of ``graph`` to the query, node 0 (KG04 §4.1; SPEC §6).
 

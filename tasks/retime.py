@@ -31,18 +31,52 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Literal
 
 import highspy
 import numpy as np
+from motionweb.store.kinematics import sample_motion
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.params import Params
+from motionweb.tasks.contacts import Contacts, contacts_for
+from motionweb.tasks.dynamics import BodyModel, DynamicsTerms, body_model_for, dynamics_terms, mass_factors
 from numba import njit
+from pydantic import Field
 from scipy.interpolate import BSpline
 from scipy.optimize import minimize
 
-from store.motion import Motion, Skeleton
-from tasks.contacts import Contacts, contacts_for
-from tasks.dynamics import BodyModel, DynamicsTerms, body_model_for, dynamics_terms, mass_factors
-from tasks.kinematics import sample_motion
+
+class RetimeParams(Params):
+    """Physics-based retiming (SPEC §8, MPS06 §3)."""
+
+    body_model: Literal["cylinders", "table"] = "cylinders"
+    total_mass: float | None = None
+    friction: float = 0.5
+    contact_height: float = 0.05
+    contact_speed: float = 0.3
+    torque_margin: float = 1.5
+    samples_per_frame: int = 4
+    #: MPS06 Eqn. 14 weights, both unit-free: α on the squared distance to the feasible polygon
+    #: priced as unexplained root force in body weights, β on the mean squared torque deviation
+    #: in units of the torque limits
+    alpha: float = 1.0
+    beta: float = 0.1
+    objective: Literal["match", "minimize"] = "match"
+    ground_height: float = 0.0
+    #: per clip name: {foot joint: [[start_s, end_s], ...]} replacing detected contacts
+    contact_intervals: dict[str, dict[str, list[tuple[float, float]]]] = Field(default_factory=dict)
+    #: retime clips with no ground contact as pure flight instead of failing
+    allow_flight_only: bool = False
+    #: box of the (p̈, ṗ²) plane the feasible polygons are clipped to (MPS06 §3.4)
+    speed_max: float = 6.0
+    pdd_max: float = 40.0
+    #: initial sweep directions and the LP budget per frame of the polygon sweep
+    directions: int = 8
+    max_lps: int = 16
+    #: knots of the monotone timing spline p(t) per second of output
+    knots_per_second: float = 8.0
+
+
 
 N_ROOT = 6
 INF = highspy.kHighsInf
@@ -85,15 +119,22 @@ class RetimeError(ValueError):
 
 @dataclass(frozen=True)
 class PolygonOptions:
-    """Sweep settings: box of (p̈, ṗ²), initial directions, LP budget, refinement threshold."""
+    """Sweep settings: box of (p̈, ṗ²), initial directions, LP budget (from :class:`RetimeParams`,
+    see :func:`polygon_options`), refinement threshold."""
 
-    pdd_max: float = 40.0
-    speed_max: float = 6.0
-    directions: int = 8
-    max_lps: int = 16
+    pdd_max: float
+    speed_max: float
+    directions: int
+    max_lps: int
     edge_tol: float = 0.5
     abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
     infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
+
+
+def polygon_options(params: RetimeParams) -> PolygonOptions:
+    """The polygon sweep's settings of a retiming's parameters."""
+    return PolygonOptions(pdd_max=params.pdd_max, speed_max=params.speed_max, directions=params.directions,
+                          max_lps=params.max_lps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,7 +290,7 @@ def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Conta
     the root residual s first). Limits: ``margin`` × the peak |τ₀| of each joint's dofs, at least
     2 % of the largest. O(F) LPs.
     """
-    opts = opts or PolygonOptions()
+    opts = opts or polygon_options(RetimeParams())
     f, nv = A.shape
     nl_all = contacts.basis.shape[2]
     tau = np.zeros((f, nv))
@@ -375,7 +416,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     vertex mean — and its min-Σλ forces. Flight frames (no contact) give a thin polygon around the
     ballistic segment or point. Cost O(F · max_lps) LPs of (3 + nλ) columns.
     """
-    opts = opts or PolygonOptions()
+    opts = opts or polygon_options(RetimeParams())
     t0, c0 = time.perf_counter(), time.process_time()
     f = A.shape[0]
     nl_all = contacts.basis.shape[2]
@@ -939,30 +980,6 @@ def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, du
 # --------------------------------------------------------------------------- end to end
 
 
-@dataclass(frozen=True)
-class RetimeOptions:
-    """Settings of a retiming (mirrors ``flows.config.RetimeConfig``)."""
-
-    body_model: str = "cylinders"
-    total_mass: float | None = None
-    friction: float = 0.5
-    contact_height: float = 0.05
-    contact_speed: float = 0.3
-    ground_height: float = 0.0
-    torque_margin: float = 1.5
-    samples_per_frame: int = 4
-    knots_per_second: float = 12.0
-    alpha: float = 1.0
-    beta: float = 0.1
-    objective: str = "match"
-    speed_max: float = 6.0
-    pdd_max: float = 40.0
-    directions: int = 8
-    max_lps: int = 16
-    allow_flight_only: bool = False
-    up_axis: int = 1
-
-
 @dataclass(frozen=True, eq=False)
 class RetimePlan:
     """Everything precomputed for one clip and one physics setting (reused across timings).
@@ -998,7 +1015,7 @@ def humanoid_foot_corners(humanoid: Any, skeleton: Skeleton) -> dict[int, np.nda
     return out
 
 
-def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.ndarray | None = None,
+def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = "y", gravity: np.ndarray | None = None,
             mass: dict[str, float] | None = None, humanoid: Any | None = None,
             contact_intervals: dict[str, list[tuple[float, float]]] | None = None) -> RetimePlan:
     """Dynamics, contacts, original forces, feasible polygons and the baked objective (MPS06 §3.1-3.6).
@@ -1006,10 +1023,11 @@ def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.nd
     Raises ``RetimeError`` when no foot touches the ground (unless ``allow_flight_only``), and
     ``ValueError`` for an unknown unit or an unknown joint in ``mass``.
     """
-    opts = opts or RetimeOptions()
+    opts = opts or RetimeParams()
     tm: dict[str, float] = {}
+    up = "xyz".index(up_axis)
     t = time.perf_counter()
-    body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=opts.up_axis,
+    body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up,
                           humanoid=humanoid)
     factors = mass_factors(body, mass or {})
     terms = dynamics_terms(body, motion)
@@ -1022,7 +1040,7 @@ def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.nd
     tm["contacts"] = time.perf_counter() - t
     if not contacts.active.any() and not opts.allow_flight_only:
         feet = ", ".join(f.name for f in contacts.feet)
-        low = contacts.corner_positions[..., opts.up_axis].min() - opts.ground_height
+        low = contacts.corner_positions[..., up].min() - opts.ground_height
         raise RetimeError(
             f"no ground contact detected in {motion.name or 'the clip'}: feet ({feet}) never come within "
             f"{opts.contact_height} m of the ground at y={opts.ground_height} (lowest {low:.3f} m above) while "
@@ -1032,8 +1050,7 @@ def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.nd
     g0 = body.default_gravity()
     g = g0 if gravity is None else np.asarray(gravity, dtype=float)
     weight = body.total_mass * float(np.linalg.norm(g0))
-    popts = PolygonOptions(pdd_max=opts.pdd_max, speed_max=opts.speed_max, directions=opts.directions,
-                           max_lps=opts.max_lps)
+    popts = polygon_options(opts)
     t = time.perf_counter()
     A0, B0, C0 = terms.combine(g0)
     original = original_forces(A0, B0, C0, contacts, opts.torque_margin, weight, popts)
@@ -1053,9 +1070,9 @@ def prepare(motion: Motion, opts: RetimeOptions | None = None, *, gravity: np.nd
 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
-                opts: RetimeOptions | None = None) -> tuple[Motion, RetimeResult]:
+                opts: RetimeParams | None = None) -> tuple[Motion, RetimeResult]:
     """Optimize the timing of a prepared clip and sample the retimed motion at the source fps."""
-    opts = opts or RetimeOptions()
+    opts = opts or RetimeParams()
     m = plan.motion
     res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes, samples_per_frame=opts.samples_per_frame,
                           knots_per_second=opts.knots_per_second, speed_max=opts.speed_max)
@@ -1168,7 +1185,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
 
 
 def pyramid_edges(cont: Contacts, up_axis: int) -> np.ndarray:
-    from tasks.contacts import pyramid
+    from motionweb.tasks.contacts import pyramid
     up = np.zeros(3)
     up[up_axis] = 1.0
     return pyramid(up, cont.friction)

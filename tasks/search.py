@@ -27,7 +27,7 @@ Matches shorter than the minimum chain length or with an overall slope outside [
 kept (they could not be queries of the next tier; see :meth:`MatchSearch.matches`).
 
 Redundancy removal (KG04 §3.3): matches sorted by average value, the best kept, every other
-overlapping it by more than ``SearchConfig.overlap_redundant`` dropped, repeat.
+overlapping it by more than ``SearchParams.overlap_redundant`` dropped, repeat.
 
 Tiers and the match graph (KG04 §3.3, Fig. 10): every new node becomes a query in turn, up to
 ``max_tiers`` tiers, until nothing new appears. A match M' of query node M is compared with every
@@ -39,43 +39,40 @@ cheaper kept). Edge cost = average cell value; node distance = shortest-path cos
 node.
 
 Webs come from a mapping ``clip -> [(other clip, web with clip as rows), ...]`` (:data:`WebSource`),
-so the core needs no store; :class:`StoreWebs` builds that mapping from a store generation.
+so the core needs no store; :class:`motionweb.store.webs.StoreWebs` builds that mapping from a
+store generation.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from motionweb.store.params import Params
+from motionweb.store.web import MatchWeb
+from motionweb.store.webs import WebSource
+from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
+from motionweb.tasks.matchweb import MatchWebParams, min_chain_extent
 from numba import njit
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from flows.config import MatchWebConfig, SearchConfig
-from tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from tasks.matchweb import MatchWeb, min_chain_extent
 
-if TYPE_CHECKING:
-    from store.cache import Generation, MotionStore
+class SearchParams(Params):
+    """Search and match graph (SPEC §5)."""
+
+    overlap_redundant: float = 0.5
+    new_node_below: float = 0.2
+    merge_above: float = 0.8
+    max_tiers: int = 10
+    all_categories: bool = False
+
+
+
 
 INF = np.inf
 
-#: clip key -> [(other clip key, web oriented with the clip as rows)]
-WebSource = Mapping[str, Sequence[tuple[str, MatchWeb]]]
-
-
-def transpose(web: MatchWeb) -> MatchWeb:
-    """The web with rows and columns swapped: cells (i, j) -> (j, i). Paths and bridges stay
-    monotone and keep their order, so junction indices are unchanged. O(cells)."""
-    return MatchWeb(
-        rate=web.rate, shape=(web.shape[1], web.shape[0]),
-        paths_cells=web.paths_cells[:, ::-1].copy(), paths_values=web.paths_values, paths_offsets=web.paths_offsets,
-        bridges=web.bridges, bridges_cells=web.bridges_cells[:, ::-1].copy(), bridges_values=web.bridges_values,
-        bridges_offsets=web.bridges_offsets, self_pair=web.self_pair,
-        grid=None if web.grid is None else np.ascontiguousarray(web.grid.T),
-    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -416,10 +413,10 @@ class MatchSearch:
     """Searches over a :data:`WebSource`, one :class:`WalkGraph` packed and cached per clip
     (KG04 §3.3). Not thread-safe (graphs share work buffers)."""
 
-    def __init__(self, webs: WebSource, cfg: SearchConfig | None = None, web_cfg: MatchWebConfig | None = None):
+    def __init__(self, webs: WebSource, cfg: SearchParams | None = None, web_cfg: MatchWebParams | None = None):
         self.webs = webs
-        self.cfg = cfg or SearchConfig()
-        self.web_cfg = web_cfg or MatchWebConfig()
+        self.cfg = cfg or SearchParams()
+        self.web_cfg = web_cfg or MatchWebParams()
         self._graphs: dict[str, WalkGraph] = {}
 
     def graph(self, clip: str) -> WalkGraph:
@@ -528,8 +525,8 @@ def _finish(rate: float, nodes: list[MatchNode], edges: list[MatchEdge]) -> Matc
                       edges=[MatchEdge(new[e.u], new[e.v], e.cost, e.cells) for e in edges])
 
 
-def search(query: Segment, eps: float, webs: WebSource, cfg: SearchConfig | None = None,
-           web_cfg: MatchWebConfig | None = None) -> MatchGraph:
+def search(query: Segment, eps: float, webs: WebSource, cfg: SearchParams | None = None,
+           web_cfg: MatchWebParams | None = None) -> MatchGraph:
     """Tiered search of ``query`` (frames at the web rate) with threshold ``eps`` over ``webs``
     (KG04 §3.3; SPEC §5). Raises ValueError for an unknown clip, a range outside the clip or
     shorter than the minimum chain length, a bad ε."""
@@ -538,69 +535,3 @@ def search(query: Segment, eps: float, webs: WebSource, cfg: SearchConfig | None
 
 # ----------------------------------------------------------------------------------------------
 # the webs of a store generation
-# ----------------------------------------------------------------------------------------------
-
-
-class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
-    """A :data:`WebSource` over a committed store generation: the webs touching a clip, oriented
-    with it as rows, restricted to clips of ``category`` (None: all). Each stored web is read once
-    and cached (with its transpose when needed)."""
-
-    def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None):
-        gen = generation if generation is not None else store.generation()
-        if gen is None:
-            raise ValueError(f"store {store.url} was never indexed (no committed generation)")
-        self.store, self.generation, self.category = store, gen, category
-        self.categories = {c["path"]: c.get("category", "") for c in gen.clips}
-        self._by_clip: dict[str, list[dict[str, Any]]] = {}
-        for w in gen.webs:
-            if category is None or (self.categories.get(w["a"]) == category and self.categories.get(w["b"]) == category):
-                self._by_clip.setdefault(w["a"], []).append(w)
-                if w["b"] != w["a"]:
-                    self._by_clip.setdefault(w["b"], []).append(w)
-        self._webs: dict[str, MatchWeb] = {}
-        self._transposed: dict[str, MatchWeb] = {}
-
-    @classmethod
-    def for_query(cls, store: MotionStore, clip: str, all_categories: bool = False,
-                  generation: Generation | None = None) -> StoreWebs:
-        """The webs a query on ``clip`` searches: its category's, or all with ``all_categories``."""
-        gen = generation if generation is not None else store.generation()
-        if gen is None:
-            raise ValueError(f"store {store.url} was never indexed (no committed generation)")
-        cats = {c["path"]: c.get("category", "") for c in gen.clips}
-        if clip not in cats:
-            raise ValueError(f"unknown clip {clip!r}: not in generation {gen.id} of {store.url}")
-        return cls(store, gen, None if all_categories else cats[clip])
-
-    def _read(self, rec: dict[str, Any]) -> MatchWeb:
-        web = self._webs.get(rec["key"])
-        if web is None:
-            web = self._webs[rec["key"]] = self.store.read_web(rec["key"])
-        return web
-
-    def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
-        if clip not in self._by_clip:
-            raise KeyError(clip)
-        out = []
-        for rec in self._by_clip[clip]:
-            web = self._read(rec)
-            if rec["a"] == clip:
-                out.append((rec["b"], web))
-            else:
-                t = self._transposed.get(rec["key"])
-                if t is None:
-                    t = self._transposed[rec["key"]] = transpose(web)
-                out.append((rec["a"], t))
-        return out
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._by_clip)
-
-    def __len__(self) -> int:
-        return len(self._by_clip)
-
-    def all_webs(self) -> list[MatchWeb]:
-        """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`)."""
-        recs = {r["key"]: r for rs in self._by_clip.values() for r in rs}
-        return [self._read(r) for r in recs.values()]

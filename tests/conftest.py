@@ -5,8 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
-from store.datasets import ENV_VAR, mocap_root
+from motionweb.store.datasets import ENV_VAR, mocap_root
 
 
 @pytest.fixture(scope="session")

@@ -17,15 +17,13 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-
-from flows.config import FeatureConfig, MatchWebConfig
-from store.demo_corpus import generate_clip, pose_noise, random_warp, time_warp_clip
-from store.motion import Motion
-from tasks.features import clip_features, point_weights
-from tasks.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul, quat_rotate
-from tasks.matchgraph import Segment
-from tasks.matchweb import MatchWeb, build_web
-from tasks.search import transpose
+from motionweb.store.demo.corpus import generate_clip, pose_noise, random_warp, time_warp_clip
+from motionweb.store.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul, quat_rotate
+from motionweb.store.motion import Motion
+from motionweb.store.web import MatchWeb, transpose
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.matchweb import MatchWebParams, build_web
 
 RATE = 30.0
 DISTRACTORS = ("walk", "run", "jump", "punch", "reach", "hop", "sit", "idle")
@@ -148,10 +146,10 @@ class CorpusWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     rows)] against every clip (itself included). Webs are built on first use (features + coarse-to-
     fine webs, no store, no Prefect), each unordered pair once."""
 
-    def __init__(self, clips: dict[str, Motion], cfg: MatchWebConfig | None = None,
-                 features: FeatureConfig | None = None):
-        self.clips, self.cfg = clips, cfg or MatchWebConfig()
-        fc = features or FeatureConfig()
+    def __init__(self, clips: dict[str, Motion], cfg: MatchWebParams | None = None,
+                 features: FeatureParams | None = None):
+        self.clips, self.cfg = clips, cfg or MatchWebParams()
+        fc = features or FeatureParams()
         self.weights = point_weights(next(iter(clips.values())).skeleton, fc)
         self.feats = {k: {float(r): clip_features(m, float(r), fc) for r in fc.rates} for k, m in clips.items()}
         self._pairs: dict[tuple[str, str], MatchWeb] = {}

@@ -7,17 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from store.asfamc import CMU_FPS, read_amc, read_asf, read_asfamc
-from store.bvh import read_bvh, write_bvh
-from store.errors import (
+from motionweb.store.asfamc import CMU_FPS, read_amc, read_asf, read_asfamc
+from motionweb.store.bvh import read_bvh, write_bvh
+from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
     TruncatedFileError,
     UnknownJointError,
 )
-from tasks.kinematics import end_site_positions, forward_kinematics
+from motionweb.store.kinematics import end_site_positions, forward_kinematics
 
 CHAIN_ASF = """\
 # a two-bone arm, hand written for the tests

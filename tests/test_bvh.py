@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from store.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
-from store.errors import (
+from motionweb.store.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
+from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
@@ -16,7 +15,7 @@ from store.errors import (
     TruncatedFileError,
     UnknownChannelError,
 )
-from tasks.kinematics import forward_kinematics, quat_from_euler
+from motionweb.store.kinematics import forward_kinematics, quat_from_euler
 
 # Mixed rotation orders per joint (as CMU files have), 6 channels on a non-root joint, a joint
 # with no channels, "end site" in lower case, tabs, blank lines and a 1/60 s frame time.
@@ -173,7 +172,7 @@ def test_more_frames_than_declared(tmp_path: Path) -> None:
 
 def test_compiled_frame_parser_matches_python_float() -> None:
     """The numba MOTION parser against Python's float() (the slow, obviously correct reference)."""
-    from store.bvh import _POW10, _parse_frames
+    from motionweb.store.bvh import _POW10, _parse_frames
 
     rng = np.random.default_rng(3)
     values = np.concatenate([

@@ -5,28 +5,10 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-import numpy as np
 import pytest
-
-from flows.config import CategoryRule, CorpusConfig
-from store.bvh import write_bvh
-from store.catalog import load_clip, scan_corpus
-from store.motion import Motion, Skeleton
-
-
-def tiny_motion(frames: int, fps: float, names: tuple[str, ...] = ("hips", "knee")) -> Motion:
-    sk = Skeleton(
-        names=names,
-        parents=np.arange(len(names)) - 1,
-        offsets=np.tile([0.0, -0.4, 0.0], (len(names), 1)),
-        channels=(("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"),)
-        + (("Zrotation", "Xrotation", "Yrotation"),) * (len(names) - 1),
-    )
-    rot = np.zeros((frames, len(names), 4))
-    rot[..., 0] = 1.0
-    root = np.zeros((frames, 3))
-    root[:, 2] = np.linspace(0, 1, frames)
-    return Motion(skeleton=sk, fps=fps, root_positions=root, rotations=rot)
+from fixtures import tiny_motion
+from motionweb.store.bvh import write_bvh
+from motionweb.store.catalog import CategoryRule, CorpusParams, load_clip, scan_corpus
 
 
 @pytest.fixture
@@ -64,25 +46,25 @@ def test_broken_file_is_reported_and_skipped(corpus: Path) -> None:
 
 
 def test_rules_and_manifest(corpus: Path, tmp_path: Path) -> None:
-    rules = CorpusConfig(category_rules=[CategoryRule(pattern=r"^loose", category="idle")])
+    rules = CorpusParams(category_rules=[CategoryRule(pattern=r"^loose", category="idle")])
     assert {e.path: e.category for e in scan_corpus(corpus, rules).entries}["loose.bvh"] == "idle"
     manifest = tmp_path / "m.csv"
     manifest.write_text("path,category\nwalk/w1.bvh,locomotion\n")
-    cfg = CorpusConfig(manifest=str(manifest), category_rules=[CategoryRule(pattern="w1", category="x")])
+    cfg = CorpusParams(manifest=str(manifest), category_rules=[CategoryRule(pattern="w1", category="x")])
     assert {e.path: e.category for e in scan_corpus(corpus, cfg).entries}["walk/w1.bvh"] == "locomotion"
     bad = tmp_path / "bad.csv"
     bad.write_text("file,label\n")
     with pytest.raises(ValueError, match="bad.csv"):
-        scan_corpus(corpus, CorpusConfig(manifest=str(bad)))
+        scan_corpus(corpus, CorpusParams(manifest=str(bad)))
 
 
 def test_load_clip_and_change_detection(corpus: Path) -> None:
-    cat = scan_corpus(corpus, CorpusConfig(length_unit="cm"))
+    cat = scan_corpus(corpus, CorpusParams(length_unit="cm"))
     entry = cat.find("w1")
-    m = load_clip(entry, CorpusConfig(length_unit="cm"))
+    m = load_clip(entry, CorpusParams(length_unit="cm"))
     assert m.n_frames == 30 and m.scale_to_m == 0.01
     (corpus / "walk" / "w1.bvh").write_text((corpus / "walk" / "w1.bvh").read_text() + "\n\n")
     with pytest.raises(ValueError, match="changed since"):
-        load_clip(entry, CorpusConfig())
+        load_clip(entry, CorpusParams())
     with pytest.raises(KeyError, match="nope"):
         cat.find("nope")

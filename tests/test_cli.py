@@ -5,11 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from fixtures import tiny_motion
+from motionweb.flows.cli import app
+from motionweb.store.bvh import write_bvh
 from typer.testing import CliRunner
-
-from flows.cli import app
-from store.bvh import write_bvh
-from tests.test_catalog import tiny_motion
 
 runner = CliRunner()
 

@@ -5,13 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
-from flows.config import CONFIG_DIR, ConfigError, load_config
+from motionweb.flows.config import ConfigError, load_config, packaged_config
 
 
 @pytest.mark.parametrize("name", ["default.yaml", "demo.yaml"])
 def test_shipped_configs_validate(name: str) -> None:
-    cfg = load_config(CONFIG_DIR / name)
+    cfg = load_config(packaged_config(name))
     assert Path(cfg.store.path).is_absolute() and Path(cfg.corpus.path).is_absolute()
     assert cfg.matchweb.valid_a == 0.15 and cfg.features.rates[-1] == 30.0
 
@@ -40,7 +39,7 @@ def test_wrong_type_names_key_and_file(tmp_path: Path) -> None:
 
 
 def test_digest_changes_with_parameters(tmp_path: Path) -> None:
-    a = load_config(CONFIG_DIR / "default.yaml")
+    a = load_config(packaged_config("default.yaml"))
     (tmp_path / "c.yaml").write_text("matchweb: {valid_a: 0.2}\n")
     b = load_config(tmp_path / "c.yaml")
     assert a.digest("features") == b.digest("features")

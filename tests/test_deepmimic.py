@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from store.bvh import read_bvh, write_bvh
-from store.deepmimic import (
+from motionweb.store.bvh import read_bvh, write_bvh
+from motionweb.store.deepmimic import (
     DEEPMIMIC_JOINTS,
     FRAME_WIDTH,
     URDF_SCALE,
@@ -22,14 +21,14 @@ from store.deepmimic import (
     read_deepmimic,
     read_humanoid_urdf,
 )
-from store.errors import (
+from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
     SyntaxFormatError,
     TruncatedFileError,
 )
-from tasks.kinematics import end_site_positions, forward_kinematics, quat_from_axis_angle
+from motionweb.store.kinematics import end_site_positions, forward_kinematics, quat_from_axis_angle
 
 G = 9.81
 

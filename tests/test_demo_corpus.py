@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from store.bvh import read_bvh
-from store.demo_corpus import (
+from motionweb.store.bvh import read_bvh
+from motionweb.store.demo.corpus import (
     CATEGORIES,
     G,
     generate_clip,
@@ -19,7 +18,7 @@ from store.demo_corpus import (
     walk_then_jump,
     write_demo_corpus,
 )
-from tasks.kinematics import (
+from motionweb.store.kinematics import (
     end_site_positions,
     forward_kinematics,
     heading_angle,

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
-
-from store.motion import Motion, Skeleton
-from tasks.contacts import contacts_for, find_feet, pyramid
-from tasks.dynamics import body_model_for, build_body_model, dynamics_terms, mass_factors
-from tasks.kinematics import quat_from_axis_angle
+from motionweb.store.kinematics import quat_from_axis_angle
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.tasks.contacts import contacts_for, find_feet, pyramid
+from motionweb.tasks.dynamics import body_model_for, build_body_model, dynamics_terms, mass_factors
 
 G = 9.81
 THIGH = SHANK = 0.45

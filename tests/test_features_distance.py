@@ -6,11 +6,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.optimize import minimize
-
-from flows.config import FeatureConfig
-from store.motion import Motion, Skeleton
-from tasks.distance import (
+from motionweb.store.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.tasks.distance import (
     distance_block,
     distance_cells,
     distance_grid,
@@ -18,8 +16,8 @@ from tasks.distance import (
     prepare_pair,
     rigid_align_2d,
 )
-from tasks.features import clip_features, point_weights
-from tasks.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from scipy.optimize import minimize
 
 ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
 
@@ -59,13 +57,13 @@ def slow_grid(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def clouds() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    cfg = FeatureConfig()
+    cfg = FeatureParams()
     a, b = wiggle(90, 30.0, 1), wiggle(70, 30.0, 2)
     return clip_features(a, 30.0, cfg), clip_features(b, 30.0, cfg), point_weights(a.skeleton, cfg)
 
 
 def test_features_shape_window_and_units() -> None:
-    cfg = FeatureConfig(window=5)
+    cfg = FeatureParams(window=5)
     m = wiggle(61, 60.0, 3)
     f = clip_features(m, 30.0, cfg)
     j = m.skeleton.n_joints
@@ -87,11 +85,11 @@ def test_features_shape_window_and_units() -> None:
 
 def test_point_weights() -> None:
     sk = small_skeleton()
-    w = point_weights(sk, FeatureConfig(window=3, joint_weights={"head": 3.0, "lknee": 0.0}))
+    w = point_weights(sk, FeatureParams(window=3, joint_weights={"head": 3.0, "lknee": 0.0}))
     assert w.shape == (3 * sk.n_joints,) and np.isclose(w.sum(), 1.0)
     assert np.isclose(w[2], 3 * w[0]) and w[4] == 0 and np.isclose(w[2 + sk.n_joints], w[2])
     with pytest.raises(ValueError, match="no joint"):
-        point_weights(sk, FeatureConfig(joint_weights={"tail": 1.0}))
+        point_weights(sk, FeatureParams(joint_weights={"tail": 1.0}))
 
 
 def test_closed_form_is_the_optimal_alignment(clouds) -> None:

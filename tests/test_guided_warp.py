@@ -14,10 +14,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from store.motion import Motion, Skeleton
-from tasks.guided_warp import (
+from motionweb.store.kinematics import quat_from_euler, sample_motion
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.tasks.guided_warp import (
     Track,
+    WarpParams,
     _blocks,
     dag_path,
     feasible_windows,
@@ -35,7 +36,6 @@ from tasks.guided_warp import (
     triple_features,
     triple_index,
 )
-from tasks.kinematics import quat_from_euler, sample_motion
 
 ROT = ("Zrotation", "Xrotation", "Yrotation")
 POS = ("Xposition", "Yposition", "Zposition")
@@ -251,7 +251,7 @@ def test_results_are_complete_monotone_and_hit_keytimes(walkjump, frac, keys, fa
     motion, _ = walkjump
     n = motion.n_frames
     m = round(frac * (n - 1)) + 1
-    r = guided_warp(motion, n_out=m, keytimes=keys, skip=8, fast=fast)
+    r = guided_warp(motion, n_out=m, keytimes=keys, fast=fast)
     check_path(r.frames, n, m, 8, [(int(i), int(o)) for i, o in keys])
     assert r.motion.n_frames == m and r.motion.fps == motion.fps
     assert np.all(np.diff(r.times) > 0) and r.times[0] == 0 and r.times[-1] == n - 1
@@ -327,7 +327,7 @@ def test_backward_warp_reverses(walkjump):
 
 def test_unconstrained_warp(walkjump):
     motion, _ = walkjump
-    r = guided_warp(motion, n_out=None, skip=4)
+    r = guided_warp(motion, n_out=None, params=WarpParams(skip=4))
     check_path(r.frames, motion.n_frames, None, 4)
     assert r.motion.n_frames == len(r.frames)
 
@@ -366,10 +366,9 @@ def test_cli_warp_end_to_end(walkjump, tmp_path):
                        "PREFECT_LOGGING_TO_API_WHEN_MISSING_FLOW": "ignore",
                        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90"}.items():
         os.environ.setdefault(key, value)
+    from motionweb.flows.cli import app
+    from motionweb.store.bvh import read_bvh, write_bvh
     from typer.testing import CliRunner
-
-    from flows.cli import app
-    from store.bvh import read_bvh, write_bvh
 
     motion, (f0, _) = walkjump
     src = tmp_path / "walkjump.bvh"

@@ -23,9 +23,8 @@ for _k, _v in {
 
 import numpy as np
 import pytest
-
-from flows.config import Config, resolve_paths
-from flows.index import (
+from motionweb.flows.config import Config, resolve_paths
+from motionweb.flows.index import (
     Chunk,
     PairJob,
     balance_batches,
@@ -37,11 +36,12 @@ from flows.index import (
     plan_pairs,
     skeleton_groups,
 )
-from store.bvh import write_bvh
-from store.cache import MotionStore, web_counts, web_digest
-from store.catalog import Catalog, ClipEntry, ScanError
-from store.motion import Motion, Skeleton
-from tasks.kinematics import quat_from_euler
+from motionweb.flows.workers import web_counts
+from motionweb.store.bvh import write_bvh
+from motionweb.store.cache import MotionStore, web_digest
+from motionweb.store.catalog import Catalog, ClipEntry, ScanError
+from motionweb.store.kinematics import quat_from_euler
+from motionweb.store.motion import Motion, Skeleton
 
 
 # ------------------------------------------------------------------------------ plain functions
@@ -257,7 +257,7 @@ def test_flow_with_fsspec_store(prefect_harness, tmp_path):
 
 def test_plot_web_figure(tmp_path):
     """plot-web: the grid at the working rate with chains and bridges, written to a PNG."""
-    from flows.plots import plot_web
+    from motionweb.flows.plots import plot_web
 
     corpus = write_corpus(tmp_path / "corpus")
     cfg = make_config(tmp_path, corpus, str(tmp_path / "store"))

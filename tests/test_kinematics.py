@@ -6,11 +6,8 @@ import itertools
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
-from store.demo_corpus import generate_clip
-from store.motion import Motion, Skeleton
-from tasks.kinematics import (
+from motionweb.store.demo.corpus import generate_clip
+from motionweb.store.kinematics import (
     forward_kinematics,
     heading,
     heading_angle,
@@ -30,6 +27,8 @@ from tasks.kinematics import (
     sample_motion,
     to_heading_frame,
 )
+from motionweb.store.motion import Motion, Skeleton
+from scipy.spatial.transform import Rotation
 
 RNG = np.random.default_rng(0)
 

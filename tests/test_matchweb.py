@@ -8,15 +8,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
-
-from flows.config import FeatureConfig, MatchWebConfig
-from store.motion import Motion, Skeleton
-from tasks.distance import distance_cells, distance_grid, prepare_pair
-from tasks.features import clip_features, point_weights
-from tasks.kinematics import quat_from_euler, sample_motion
-from tasks.matchweb import (
+from motionweb.store.kinematics import quat_from_euler, sample_motion
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.tasks.distance import distance_cells, distance_grid, prepare_pair
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from motionweb.tasks.matchweb import (
     MatchWeb,
+    MatchWebParams,
     build_web,
     build_web_full,
     find_bridges,
@@ -25,8 +23,9 @@ from tasks.matchweb import (
     optimal_path,
     valid_region,
 )
+from scipy.spatial import cKDTree
 
-CFG = MatchWebConfig()
+CFG = MatchWebParams()
 ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
 
 
@@ -368,7 +367,7 @@ def smooth_warp(n_out: int, n_in: int, seed: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def warped_pair():
-    fc = FeatureConfig()
+    fc = FeatureParams()
     a = wiggle(1200, 60.0, 1)  # 20 s
     warp = smooth_warp(1000, 1200, 2)
     b = replace(sample_motion(a, warp), name="warped")
@@ -420,7 +419,7 @@ def test_coarse_to_fine_covers_the_full_build(warped_pair) -> None:
 
 
 def test_single_rate_build_is_the_full_build() -> None:
-    fc = FeatureConfig()
+    fc = FeatureParams()
     a, b = wiggle(300, 30.0, 4), wiggle(240, 30.0, 5)
     w = point_weights(a.skeleton, fc)
     fa, fb = clip_features(a, 10.0, fc), clip_features(b, 10.0, fc)
@@ -432,7 +431,7 @@ def test_single_rate_build_is_the_full_build() -> None:
 def test_refined_values_are_the_cell_distances() -> None:
     """Refined paths and bridges carry D at their cells (each band cell evaluated once into the
     level's tiles, shared by overlapping bands): the same values as the per-cell reference."""
-    fc = FeatureConfig()
+    fc = FeatureParams()
     a, b = wiggle(900, 60.0, 6), wiggle(700, 60.0, 7)
     w = point_weights(a.skeleton, fc)
     fa = {r: clip_features(a, r, fc) for r in fc.rates}

@@ -10,14 +10,13 @@ import threading
 from pathlib import Path
 
 import pytest
+from motionweb.flows.cli import app
+from motionweb.flows.config import load_config
+from motionweb.flows.index import index_library
+from motionweb.flows.query import QueryRequest, query
+from motionweb.store.bvh import read_bvh
+from motionweb.store.cache import MotionStore
 from typer.testing import CliRunner
-
-from flows.cli import app
-from flows.config import load_config
-from flows.index import index_library
-from flows.query import QueryRequest, query
-from store.bvh import read_bvh
-from store.cache import MotionStore
 
 runner = CliRunner()
 
@@ -168,7 +167,7 @@ def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: 
     clip.write_text(clip.read_text() + "\n")  # new content: its pairs must be recomputed
     objects = Path(cfg.store.path) / "webs"
     seen = {p for p in objects.rglob("*") if p.is_file()}
-    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "index", str(work / "config.yaml"), "--no-progress"],
+    proc = subprocess.Popen([sys.executable, "-m", "motionweb.flows.cli", "index", str(work / "config.yaml"), "--no-progress"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         deadline = time.monotonic() + 240

@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from flows.config import FeatureConfig, MatchWebConfig
-from store.demo_corpus import generate_clip, pose_noise, random_warp, time_warp_clip
-from tasks.distance import distance_grid, distance_prepared, prepare_pair
-from tasks.features import clip_features, point_weights
-from tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from tasks.matchweb import local_minima, optimal_path, valid_region
-from tasks.register import (
+from motionweb.store.demo.corpus import generate_clip, pose_noise, random_warp, time_warp_clip
+from motionweb.tasks.distance import distance_grid, distance_prepared, prepare_pair
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
+from motionweb.tasks.matchweb import MatchWebParams, local_minima, optimal_path, valid_region
+from motionweb.tasks.register import (
     Band,
     align_segments,
     band_alignment,
@@ -22,7 +20,7 @@ from tasks.register import (
     register,
 )
 
-CFG = MatchWebConfig()
+CFG = MatchWebParams()
 RATE = 30.0
 
 
@@ -188,7 +186,7 @@ def planted():
     for 0-3 shifted by 3 columns (a merged node's web path need not meet its corners)."""
     rng = np.random.default_rng(11)
     base, _ = generate_clip("walk", 0, 7, 60.0)
-    fc = FeatureConfig()
+    fc = FeatureParams()
     feats = {"walk": clip_features(base, RATE, fc)}
     truth = {}
     for c, n_out in enumerate(COPY_FRAMES, start=1):

@@ -8,31 +8,30 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.optimize import linprog
-
-from tasks.kinematics import hold_ends
-from tasks.retime import (
+from motionweb.store.kinematics import hold_ends
+from motionweb.tasks.retime import (
     N_ROOT,
     FrameLP,
-    PolygonOptions,
     RetimeError,
-    RetimeOptions,
+    RetimeParams,
     check_keytimes,
     evaluate,
     evaluate_numpy,
     flight_intervals,
     objective_function,
+    polygon_options,
     prepare,
     retime_plan,
     shortest_duration,
 )
+from scipy.optimize import linprog
 
 _spec = importlib.util.spec_from_file_location("_retime_jumper", Path(__file__).with_name("test_dynamics.py"))
 _helpers = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_helpers)
 synthetic_jump = _helpers.synthetic_jump
 
-OPTS = RetimeOptions(knots_per_second=8.0)
+OPTS = RetimeParams()
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +49,7 @@ def _flight_speed(res, t0: float, t1: float) -> tuple[np.ndarray, float]:
 
 def test_lp_vertices_match_a_slow_reference(jump) -> None:
     _motion, _, plan = jump
-    opts = PolygonOptions(speed_max=OPTS.speed_max, pdd_max=OPTS.pdd_max)
+    opts = polygon_options(OPTS)
     for i in (10, 45, 60, 80):  # standing, crouch, flight, landing
         cols = plan.contacts.columns(i)
         N = plan.contacts.basis[i][:, cols]
@@ -147,7 +146,7 @@ def test_objective_gradient_and_compiled_kernel(jump) -> None:
     x = rng.uniform([-20, 0], [20, 10], (300, 2))
     for a, b in zip(evaluate(plan.baked, u, x), evaluate_numpy(plan.baked, u, x), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
-    from tasks.retime import TimingSpline
+    from motionweb.tasks.retime import TimingSpline
     sp = TimingSpline.make(np.array([0.0, 3.0]), np.array([0.0, motion.duration]), 8.0)
     fun = objective_function(plan.baked, sp, motion.fps, 3.0, 800)
     z = rng.normal(0, 0.3, sp.n_params)
@@ -162,7 +161,7 @@ def test_objective_gradient_and_compiled_kernel(jump) -> None:
 
 @pytest.fixture(scope="module")
 def real_jump(deepmimic_dir):
-    from store.deepmimic import read_deepmimic, read_humanoid_urdf
+    from motionweb.store.deepmimic import read_deepmimic, read_humanoid_urdf
 
     motion = read_deepmimic(deepmimic_dir / "motions" / "humanoid3d_jump.txt")
     humanoid = read_humanoid_urdf(deepmimic_dir / "humanoid.urdf")

@@ -5,84 +5,30 @@ variants found only through tiers, errors, quantile ε, self webs and the store 
 from __future__ import annotations
 
 import itertools
-from collections import defaultdict
 
 import numpy as np
 import pytest
-
-from flows.config import MatchWebConfig, SearchConfig
-from store.cache import Generation, MotionStore, new_generation_id, now_iso, web_key
-from tasks.matchgraph import Segment
-from tasks.matchweb import MatchWeb, build_web_full, self_band
-from tasks.search import (
+from motionweb.store.cache import Generation, MotionStore, new_generation_id, now_iso, web_key
+from motionweb.store.web import MatchWeb, transpose
+from motionweb.store.webs import StoreWebs
+from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.matchweb import MatchWebParams, build_web_full, self_band
+from motionweb.tasks.search import (
     MatchSearch,
-    StoreWebs,
+    SearchParams,
     epsilon_from_quantile,
     remove_redundant,
     search,
-    transpose,
     walk_web,
 )
-from tests.planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
+from naive import ref_matches
+from planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
 
 TOL = 3  # frames at 30 Hz
 EPS = 0.005  # planted copies cost ~3e-4, the nearest other motion 0.02 (see test output)
 
 
 # ---------------------------------------------------------------------------- slow reference
-
-
-class TooManySequences(RuntimeError):
-    """The enumeration met more match sequences than its budget."""
-
-
-def ref_matches(web: MatchWeb, a: int, b: int, max_sequences: int | None = None
-                ) -> dict[tuple[int, int], tuple[float, float]]:
-    """KG04 §3.3 literally: enumerate every match sequence from the earliest row-a cell of each
-    path, walking down paths and recursing into every bridge met before row b; a sequence ends at
-    the last cell of its row-b run. Returns (c, d) -> (least average, average of least total).
-    Exponential in the bridges crossed: raises TooManySequences past ``max_sequences``."""
-    count = [0]
-    leaving = defaultdict(list)
-    for bi, (p, fi, _, _) in enumerate(web.bridges.tolist()):
-        leaving[(p, fi)].append(bi)
-    best: dict[tuple[int, int], tuple[float, float, float]] = {}
-
-    def record(seq: list[float], c: int, d: int) -> None:
-        count[0] += 1
-        if max_sequences is not None and count[0] > max_sequences:
-            raise TooManySequences(f"more than {max_sequences} match sequences")
-        avg, tot = float(np.mean(seq)), float(np.sum(seq))
-        old = best.get((c, d), (np.inf, np.inf, np.inf))
-        best[(c, d)] = (min(old[0], avg), *(min((old[1], old[2]), (tot, avg))))
-
-    def run_path(p: int, k: int, seq: list[float], c: int) -> None:
-        cells, vals = web.path(p)
-        for q in range(k, len(cells)):
-            seq = [*seq, float(vals[q])]
-            if cells[q][0] == b:
-                if q + 1 == len(cells) or cells[q + 1][0] != b:
-                    record(seq, c, int(cells[q][1]))
-                    return
-                continue
-            for bi in leaving[(p, q)]:
-                run_bridge(bi, seq, c)
-
-    def run_bridge(bi: int, seq: list[float], c: int) -> None:
-        cells, vals = web.bridge(bi)
-        for u in range(1, len(cells) - 1):
-            seq = [*seq, float(vals[u])]
-            if cells[u][0] == b and cells[u + 1][0] != b:
-                record(seq, c, int(cells[u][1]))
-                return
-        run_path(int(web.bridges[bi][2]), int(web.bridges[bi][3]), seq, c)
-
-    for p in range(web.n_paths):
-        cells, _ = web.path(p)
-        hit = np.nonzero(cells[:, 0] == a)[0]
-        if len(hit):
-            run_path(p, int(hit[0]), [], int(cells[hit[0], 1]))
-    return {k: (v[0], v[2]) for k, v in best.items()}
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +39,7 @@ def tangled_web() -> MatchWeb:
     g = np.full((50, 50), np.inf)
     for o in (-12, -6, 0, 5, 11):
         g = np.minimum(g, 0.1 + rng.uniform(0.01, 0.05) * np.abs(j - i - o) + 0.02 * rng.random((50, 50)))
-    web = build_web_full(g.astype(np.float32), 30.0, MatchWebConfig(min_chain_s=0.2, bridge_max_s=0.5, valid_a=0.5),
+    web = build_web_full(g.astype(np.float32), 30.0, MatchWebParams(min_chain_s=0.2, bridge_max_s=0.5, valid_a=0.5),
                          self_pair=False)
     assert web.n_bridges >= 15 and web.n_paths >= 5
     return web
@@ -135,7 +81,7 @@ def test_transpose_swaps_rows_and_columns(tangled_web) -> None:
 
 
 def test_redundancy_removal_keeps_the_best_of_overlapping() -> None:
-    from tasks.search import WebMatch
+    from motionweb.tasks.search import WebMatch
 
     cells = np.zeros((0, 2), np.int32)
     ms = [WebMatch("x", 0, 30, 0.2, cells), WebMatch("x", 5, 33, 0.1, cells), WebMatch("x", 20, 50, 0.3, cells),
@@ -156,7 +102,7 @@ def planted() -> tuple[PlantedCorpus, CorpusWebs]:
 
 def test_planted_copies_found_with_their_endpoints(planted) -> None:
     pc, webs = planted
-    graph = search(pc.query, EPS, webs, SearchConfig(max_tiers=1))
+    graph = search(pc.query, EPS, webs, SearchParams(max_tiers=1))
     found = [n.segment for n in graph.nodes[1:]]
     hits = [s for s in found if s.clip in pc.expected
             and abs(s.start - pc.expected[s.clip].start) <= TOL and abs(s.end - pc.expected[s.clip].end) <= TOL]
@@ -185,7 +131,7 @@ def test_quantile_threshold(planted) -> None:
     assert epsilon_from_quantile(query_webs, 0.0) == pytest.approx(values.min())
     eps = epsilon_from_quantile(query_webs, 0.35)
     assert 0.001 < eps < 0.02  # between the copies (~3e-4) and the other motions (≥ 0.02)
-    graph = search(pc.query, eps, webs, SearchConfig(max_tiers=1))
+    graph = search(pc.query, eps, webs, SearchParams(max_tiers=1))
     assert {n.segment.clip for n in graph.nodes[1:]} == set(pc.expected)
     for q in (-0.1, 1.5):
         with pytest.raises(ValueError, match="quantile"):
@@ -197,14 +143,14 @@ def test_quantile_threshold(planted) -> None:
 def test_bad_queries_are_clear_errors(planted) -> None:
     pc, webs = planted
     n = pc.clips[pc.query.clip].n_frames
-    ms = MatchSearch(webs, SearchConfig(max_tiers=1))
+    ms = MatchSearch(webs, SearchParams(max_tiers=1))
     with pytest.raises(ValueError, match="unknown clip 'kick/nope'"):
         ms.search(Segment("kick/nope", 0, 20), EPS)
     with pytest.raises(ValueError, match="outside clip 'kick/query'"):
         ms.search(Segment(pc.query.clip, n - 20, n), EPS)
     with pytest.raises(ValueError, match="outside clip"):
         ms.search(Segment(pc.query.clip, -1, 20), EPS)
-    need = int(np.ceil(MatchWebConfig().min_chain_s * 30))
+    need = int(np.ceil(MatchWebParams().min_chain_s * 30))
     with pytest.raises(ValueError, match="shorter than the minimum chain length"):
         ms.search(Segment(pc.query.clip, 10, 10 + need - 1), EPS)
     ms.search(Segment(pc.query.clip, 10, 10 + need), EPS)
@@ -214,15 +160,15 @@ def test_bad_queries_are_clear_errors(planted) -> None:
 
 
 def test_self_web_never_returns_the_query_itself() -> None:
-    from store.demo_corpus import generate_clip
+    from motionweb.store.demo.corpus import generate_clip
 
     walk, _ = generate_clip("walk", 0, 3, fps=30.0)
     webs = CorpusWebs({"walk/w": walk})
     (_, web), = webs["walk/w"]
-    band = self_band(MatchWebConfig(), 30.0)
+    band = self_band(MatchWebParams(), 30.0)
     assert web.self_pair and np.all(np.abs(web.paths_cells[:, 0] - web.paths_cells[:, 1]) > band)
     q = Segment("walk/w", 30, 60)
-    graph = search(q, 0.05, webs, SearchConfig(max_tiers=1, new_node_below=0.2))
+    graph = search(q, 0.05, webs, SearchParams(max_tiers=1, new_node_below=0.2))
     assert len(graph.nodes) > 1  # other steps of the walk
     for node in graph.nodes[1:]:
         assert node.segment.overlap(q) < 0.2
@@ -242,9 +188,9 @@ def chain() -> tuple[PlantedCorpus, CorpusWebs]:
 def test_far_variants_found_only_through_tiers(chain) -> None:
     pc, webs = chain
     eps = 0.003  # between one chain step (~0.0015) and two (~0.0055)
-    one = search(pc.query, eps, webs, SearchConfig(max_tiers=1))
+    one = search(pc.query, eps, webs, SearchParams(max_tiers=1))
     assert [n.segment.clip for n in one.nodes[1:]] == ["kick/variant_1"]
-    tiered = search(pc.query, eps, webs, SearchConfig())
+    tiered = search(pc.query, eps, webs, SearchParams())
     order = [n.segment.clip for n in tiered.nodes[1:]]
     assert order == list(pc.expected)  # all five, ranked by graph distance in chain order
     assert [n.tier for n in tiered.nodes] == [0, 1, 2, 3, 4, 5]
@@ -258,7 +204,7 @@ def test_far_variants_found_only_through_tiers(chain) -> None:
         exp = pc.expected[node.segment.clip]
         assert abs(node.segment.start - exp.start) <= 2 * TOL and abs(node.segment.end - exp.end) <= 2 * TOL
     # max_tiers bounds the tiers
-    two = search(pc.query, eps, webs, SearchConfig(max_tiers=2))
+    two = search(pc.query, eps, webs, SearchParams(max_tiers=2))
     assert [n.segment.clip for n in two.nodes[1:]] == ["kick/variant_1", "kick/variant_2"]
 
 
@@ -313,7 +259,7 @@ def test_dedup_new_node_merge_and_discard() -> None:
     bc, ad = diagonal_web((n, n), {4: 0.1}), diagonal_web((n, n), {0: 0.1, 15: 0.2, 30: 0.3}, last_row=45)
     webs = {"A": [("B", ab), ("C", ac), ("D", ad)], "B": [("A", transpose(ab)), ("C", bc)],
             "C": [("A", transpose(ac)), ("B", transpose(bc))], "D": [("A", transpose(ad))]}
-    cfg = SearchConfig(overlap_redundant=0.9)
+    cfg = SearchParams(overlap_redundant=0.9)
     graph = search(Segment("A", 10, 40), 1.0, webs, cfg)
     assert sorted((s.clip, s.start, s.end) for s in (n.segment for n in graph.nodes)) == [
         ("A", 10, 40),  # the query is never moved

@@ -7,9 +7,8 @@ import json
 import numpy as np
 import pytest
 import zarr
-
-from flows.config import Config
-from store.cache import (
+from motionweb.flows.config import Config
+from motionweb.store.cache import (
     Generation,
     MotionStore,
     feature_digest,

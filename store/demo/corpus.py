@@ -21,10 +21,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from store.bvh import write_bvh
-from store.motion import Motion, Skeleton
-from tasks.kinematics import (
+from motionweb.store.bvh import write_bvh
+from motionweb.store.kinematics import (
     forward_kinematics,
     heading_angle,
     quat_from_axis_angle,
@@ -35,6 +33,7 @@ from tasks.kinematics import (
     quat_to_matrix,
     sample_motion,
 )
+from motionweb.store.motion import Motion, Skeleton
 
 #: gravity (m/s²) used by every ballistic flight.
 G = 9.81

@@ -10,9 +10,8 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
+from motionweb.store.motion import Motion
 from scipy.spatial.transform import Rotation
-
-from store.motion import Motion
 
 AXES = {"x": 0, "y": 1, "z": 2}
 

@@ -1,0 +1,100 @@
+"""Producers run on Dask workers: features and match webs of a batch, written to the store.
+
+They live apart from :mod:`motionweb.flows.index` so that worker processes import neither Prefect
+(~5 s per worker) nor the flow; they take plain values (clip entries, keys, the config) and return
+small records. Each clip's distance operands are cached per worker process.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import lru_cache
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from motionweb.store.cache import MotionStore, feature_digest
+from motionweb.store.catalog import ClipEntry, load_clip
+from motionweb.tasks.distance import ClipOperands
+from motionweb.tasks.features import clip_features, point_weights
+from motionweb.tasks.matchweb import build_web_operands
+
+if TYPE_CHECKING:
+    from motionweb.flows.config import Config
+
+@lru_cache(maxsize=8)
+def worker_store(url: str) -> MotionStore:
+    return MotionStore(url)
+
+
+@lru_cache(maxsize=128)
+def clip_operands(url: str, sha: str, fdigest: str) -> dict[float, ClipOperands]:
+    """A clip's distance operands by rate (:class:`~motionweb.tasks.distance.ClipOperands`), cached per worker:
+    a clip appears in many pairs, and is read and prepared once, not once per pair."""
+    by_rate, weights = worker_store(url).read_features(sha, fdigest)
+    return {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
+
+
+def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
+    """Chains and bridges of a web from its flat arrays (ragged: ``*_offsets`` hold N+1 bounds)."""
+
+    def count(prefix: str) -> int:
+        off = arrays.get(f"{prefix}_offsets")
+        return max(0, len(off) - 1) if off is not None else 0
+
+    return {"n_chains": count("paths"), "n_bridges": count("bridges")}
+
+
+def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
+    """Features of clips at every rate plus point weights, written to the store (SPEC §3).
+
+    Returns one small record per clip (``error`` when the clip cannot be read or featurized).
+    """
+    store = worker_store(store_url)
+    fdig = feature_digest(cfg)
+    out = []
+    for c in clips:
+        t = time.perf_counter()
+        try:
+            motion = load_clip(c, cfg.corpus)
+            by_rate = {float(r): clip_features(motion, float(r), cfg.features, up=cfg.corpus.up_axis)
+                       for r in cfg.features.rates}
+            weights = point_weights(motion.skeleton, cfg.features)
+            store.write_features(c.sha256, fdig, by_rate, weights,
+                                 {"path": c.path, "skeleton": c.skeleton, "fps": c.fps})
+            out.append({"sha256": c.sha256, "seconds": time.perf_counter() - t})
+        except Exception as exc:  # noqa: BLE001 - a broken clip is recorded, the run goes on
+            out.append({"sha256": c.sha256, "path": c.path, "error": f"{type(exc).__name__}: {exc}"})
+    return out
+
+
+def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, store_url: str) -> list[dict[str, Any]]:
+    """Match webs (KG04 §3.1-3.2) of ``(key, rows sha, columns sha, self pair)`` tuples.
+
+    Takes both clips' operands from the worker's cache (read and prepared once per clip), builds
+    each web coarse to fine and writes the batch's webs as one shard at the end (the full grid on
+    the side with ``keep_grids``): a failed batch leaves nothing behind and is recomputed whole.
+    Returns small records only.
+    """
+    store = worker_store(store_url)
+    fdig = feature_digest(cfg)
+    rate = float(max(cfg.features.rates))
+    out: list[dict[str, Any]] = []
+    done: list[tuple[str, dict[str, np.ndarray], dict[str, Any]]] = []
+    for key, a_sha, b_sha, self_pair in pairs:
+        t = time.perf_counter()
+        try:
+            oa = clip_operands(store_url, a_sha, fdig)
+            ob = oa if self_pair else clip_operands(store_url, b_sha, fdig)
+            web = build_web_operands(oa, ob, cfg.matchweb, self_pair)
+            arrays = web.to_arrays()
+            grid = arrays.pop("grid", None)  # kept on the side (keep_grids), not part of the web
+            meta = {"a_sha": a_sha, "b_sha": b_sha, "rate": rate,
+                    "shape": [oa[rate].n_frames, ob[rate].n_frames], **web_counts(arrays)}
+            done.append((key, arrays, meta))
+            if grid is not None:
+                store.write_grid(key, grid)
+            out.append({"key": key, "seconds": time.perf_counter() - t, **meta})
+        except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
+            out.append({"key": key, "error": f"{type(exc).__name__}: {exc}"})
+    store.write_webs(done)
+    return out

@@ -1,0 +1,81 @@
+"""The webs of a committed store generation as a web source for the search (KG04 §3.3).
+
+:class:`StoreWebs` maps a clip to the webs touching it, each oriented with that clip as rows,
+restricted to one category or not; each stored web is read once and cached.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
+
+from motionweb.store.cache import Generation, MotionStore
+from motionweb.store.web import MatchWeb, transpose
+
+#: clip key -> [(other clip key, web oriented with the clip as rows)]
+WebSource = Mapping[str, Sequence[tuple[str, MatchWeb]]]
+
+
+class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
+    """A :data:`WebSource` over a committed store generation: the webs touching a clip, oriented
+    with it as rows, restricted to clips of ``category`` (None: all). Each stored web is read once
+    and cached (with its transpose when needed)."""
+
+    def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None):
+        gen = generation if generation is not None else store.generation()
+        if gen is None:
+            raise ValueError(f"store {store.url} was never indexed (no committed generation)")
+        self.store, self.generation, self.category = store, gen, category
+        self.categories = {c["path"]: c.get("category", "") for c in gen.clips}
+        self._by_clip: dict[str, list[dict[str, Any]]] = {}
+        for w in gen.webs:
+            if category is None or (self.categories.get(w["a"]) == category and self.categories.get(w["b"]) == category):
+                self._by_clip.setdefault(w["a"], []).append(w)
+                if w["b"] != w["a"]:
+                    self._by_clip.setdefault(w["b"], []).append(w)
+        self._webs: dict[str, MatchWeb] = {}
+        self._transposed: dict[str, MatchWeb] = {}
+
+    @classmethod
+    def for_query(cls, store: MotionStore, clip: str, all_categories: bool = False,
+                  generation: Generation | None = None) -> StoreWebs:
+        """The webs a query on ``clip`` searches: its category's, or all with ``all_categories``."""
+        gen = generation if generation is not None else store.generation()
+        if gen is None:
+            raise ValueError(f"store {store.url} was never indexed (no committed generation)")
+        cats = {c["path"]: c.get("category", "") for c in gen.clips}
+        if clip not in cats:
+            raise ValueError(f"unknown clip {clip!r}: not in generation {gen.id} of {store.url}")
+        return cls(store, gen, None if all_categories else cats[clip])
+
+    def _read(self, rec: dict[str, Any]) -> MatchWeb:
+        web = self._webs.get(rec["key"])
+        if web is None:
+            web = self._webs[rec["key"]] = self.store.read_web(rec["key"])
+        return web
+
+    def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
+        if clip not in self._by_clip:
+            raise KeyError(clip)
+        out = []
+        for rec in self._by_clip[clip]:
+            web = self._read(rec)
+            if rec["a"] == clip:
+                out.append((rec["b"], web))
+            else:
+                t = self._transposed.get(rec["key"])
+                if t is None:
+                    t = self._transposed[rec["key"]] = transpose(web)
+                out.append((rec["a"], t))
+        return out
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._by_clip)
+
+    def __len__(self) -> int:
+        return len(self._by_clip)
+
+    def all_webs(self) -> list[MatchWeb]:
+        """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`)."""
+        recs = {r["key"]: r for rs in self._by_clip.values() for r in rs}
+        return [self._read(r) for r in recs.values()]
