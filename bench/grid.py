@@ -1,4 +1,4 @@
-"""Benchmark: distance grids (SPEC §3) and match webs (SPEC §4). Prints figures; not a test.
+"""Benchmark: distance grids (design §3) and match webs (design §4). Prints figures; not a test.
 
     .venv/bin/python bench/grid.py [--frames 2000 4000 8000] [--full-max 4000] [--points 155]
 

@@ -1,4 +1,4 @@
-"""Benchmark: registration of 20 matches (KG04 §4.1, SPEC §6). Prints figures; not a test.
+"""Benchmark: registration of 20 matches (KG04 §4.1, design §6). Prints figures; not a test.
 
     .venv/bin/python bench/register.py [--matches 20] [--repeat 3]
 

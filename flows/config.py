@@ -94,8 +94,10 @@ def load_config(path: str | Path | None = None) -> Config:
     """Load and validate a YAML config (``configs/default.yaml`` when ``path`` is None).
 
     Relative paths inside the file (corpus, store, output, manifest) are taken relative to the
-    config file's folder, so a config means the same thing from any working directory.
+    config file's folder, so a config means the same thing from any working directory; those of
+    the packaged default (no ``path``) relative to the working directory.
     """
+    base = None if path is not None else Path.cwd()
     path = Path(path) if path is not None else packaged_config("default.yaml")
     try:
         data = yaml.safe_load(path.read_text()) or {}
@@ -112,7 +114,7 @@ def load_config(path: str | Path | None = None) -> Config:
             f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()
         )
         raise ConfigError(f"{path}: {problems}") from None
-    return resolve_paths(cfg, path.parent)
+    return resolve_paths(cfg, base or path.parent)
 
 
 def resolve_paths(cfg: Config, base: Path) -> Config:

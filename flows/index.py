@@ -1,16 +1,16 @@
-"""The index flow: catalog → category chunks → features → pair plan → match webs → commit (SPEC §1, §10).
+"""The index flow: catalog → category chunks → features → pair plan → match webs → commit (design §1, §10).
 
 Prefect tasks are chunk-level and thin; inside a chunk Dask computes batches of clip pairs
 balanced by grid cells (KG04 §3: one distance grid and web per pair of motions). Tasks pass
 store URLs and keys, never arrays: Dask workers read features from the Zarr store and write
-webs to it (SPEC §9). The pure pieces — chunking, skeleton compatibility, pair plan, batch
+webs to it (design §9). The pure pieces — chunking, skeleton compatibility, pair plan, batch
 balancing, generation manifest, summary — are plain functions tested without Prefect.
 
 Incremental rules follow from content addressing: a pair whose web key (both clip hashes +
 parameter digest) is complete in the store is *cached*; only the others are computed. A new
 generation lists exactly the pairs of the current catalog, so removed clips drop out.
 
-Skeleton compatibility: point-cloud distances (SPEC §3) need the same joints in both clips. In
+Skeleton compatibility: point-cloud distances (design §3) need the same joints in both clips. In
 each chunk the majority skeleton signature is reported; every clip is paired only with clips of
 the same signature, so a clip with a minority skeleton is indexed against the (possibly empty)
 set of compatible clips and listed under ``skeleton`` in the generation record.
@@ -111,7 +111,7 @@ def frames_at(entry: ClipEntry, rate: float) -> int:
 
 
 def plan_chunks(entries: list[ClipEntry], chunk_by: str) -> list[Chunk]:
-    """Category chunks (SPEC §1), or one chunk ``all`` when ``chunk_by == "none"``."""
+    """Category chunks (design §1), or one chunk ``all`` when ``chunk_by == "none"``."""
     ordered = sorted(entries, key=lambda e: e.path)
     if chunk_by == "none":
         return [Chunk("all", tuple(ordered))] if ordered else []
@@ -473,14 +473,14 @@ def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> 
 
 @task(name="commit", cache_policy=NO_CACHE)
 def commit_task(gen: Generation, store_url: str) -> str:
-    """Write the manifest and switch the ``current`` pointer (SPEC §9)."""
+    """Write the manifest and switch the ``current`` pointer (design §9)."""
     return MotionStore(store_url).commit(gen)
 
 
 # ------------------------------------------------------------------------------------ flow
 @flow(name="index-library")
 def index_library(config: str | Config) -> dict[str, Any]:
-    """Index a motion library into match webs (SPEC §1, §10); returns the run summary.
+    """Index a motion library into match webs (design §1, §10); returns the run summary.
 
     ``config`` is a config file path or a :class:`Config`. Nothing is visible to readers until
     the final commit switches the store's ``current`` generation.

@@ -1,7 +1,7 @@
 """Figure of one match web over its distance grid, in the style of KG04 Fig. 4 / Fig. 7.
 
 The grid is computed on the fly at the working rate (the finest of ``features.rates``; full
-grids are not stored by default, SPEC §4). Drawn over it: the valid region (KG04 §3.1, shaded),
+grids are not stored by default, design §4). Drawn over it: the valid region (KG04 §3.1, shaded),
 the 1-D local minima (dots), the chains of the web (solid lines) and the bridges (dashed), clip A
 on the vertical axis (rows) and clip B on the horizontal axis (columns), in seconds.
 """

@@ -1,4 +1,4 @@
-"""The on-demand query flow: search the committed index, optionally register and export (SPEC §5-6).
+"""The on-demand query flow: search the committed index, optionally register and export (design §5-6).
 
 ``query(config, request)`` reads only the store's committed generation, so a query never sees a
 half-written index (an index run may be writing its next generation meanwhile). The corpus,

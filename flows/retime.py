@@ -1,4 +1,4 @@
-"""Physics-based retiming flow (SPEC §8): a thin Prefect wrapper over ``tasks.retime``."""
+"""Physics-based retiming flow (design §8): a thin Prefect wrapper over ``tasks.retime``."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The guided time warp flow (SPEC §7, HDP07 §3): load, warp, write BVH and a warp-curve plot.
+"""The guided time warp flow (design §7, HDP07 §3): load, warp, write BVH and a warp-curve plot.
 
 Everything here is a thin shell over :mod:`tasks.guided_warp`; :func:`plan_warp` does all the
 checks (so the CLI can report bad input before a flow run starts) and :func:`run_warp` is the

@@ -45,7 +45,7 @@ def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
 
 
 def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) -> list[dict[str, Any]]:
-    """Features of clips at every rate plus point weights, written to the store (SPEC §3).
+    """Features of clips at every rate plus point weights, written to the store (design §3).
 
     Returns one small record per clip (``error`` when the clip cannot be read or featurized).
     """

@@ -1,4 +1,4 @@
-"""Reader for the Acclaim ASF (skeleton) / AMC (motion) pair used by the CMU library (SPEC §2).
+"""Reader for the Acclaim ASF (skeleton) / AMC (motion) pair used by the CMU library (design §2).
 
 Format (Acclaim Skeleton File Definition V1.10, as written by Vicon BodyBuilder for CMU):
 

@@ -1,4 +1,4 @@
-"""BVH reader and writer (SPEC §2).
+"""BVH reader and writer (design §2).
 
 The reader accepts what real files contain: any rotation order per joint, 0, 3 or 6 channels on
 any joint (position channels on a non-root joint replace its offset), ``End Site`` in any case,

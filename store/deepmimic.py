@@ -1,4 +1,4 @@
-"""Reader for DeepMimic motion clips and their URDF humanoid (SPEC §2, §8).
+"""Reader for DeepMimic motion clips and their URDF humanoid (design §2, §8).
 
 Formats (see ``deepmimic/README.md`` of the data folder):
 

@@ -1,4 +1,4 @@
-"""Quaternion algebra, forward kinematics, resampling and the heading frame (SPEC §2).
+"""Quaternion algebra, forward kinematics, resampling and the heading frame (design §2).
 
 Quaternions are ``(..., 4)`` arrays ``(w, x, y, z)``; every function broadcasts over leading axes
 and is vectorized over frames (the only Python loops run over joints, J ~ 20-60).

@@ -1,4 +1,4 @@
-"""The motion data model shared by every stage (SPEC §2).
+"""The motion data model shared by every stage (design §2).
 
 Conventions: quaternions are unit ``(w, x, y, z)`` (Hamilton product), joints are ordered so that
 parents come before children, joint 0 is the root, lengths are in the file's unit with

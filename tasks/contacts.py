@@ -1,4 +1,4 @@
-"""Foot contacts and their friction-pyramid force bases (SPEC §8, MPS06 §3.2).
+"""Foot contacts and their friction-pyramid force bases (design §8, MPS06 §3.2).
 
 Each foot in contact is a rectangle whose 4 corners each carry a 4-edge friction pyramid
 inscribed in the Coulomb cone of coefficient μ (MPS06 Fig. 3): 16 basis forces per foot with

@@ -1,4 +1,4 @@
-"""Frame distance grids as matrix products (SPEC §3, KG04 §3.1, metric of Kovar et al. 2002).
+"""Frame distance grids as matrix products (design §3, KG04 §3.1, metric of Kovar et al. 2002).
 
 For frame clouds ``p`` (of clip A) and ``p'`` (of clip B) with weights ``w`` summing to 1, the
 weighted squared distance after the best rotation about the vertical axis plus horizontal
@@ -202,7 +202,7 @@ def distance_prepared(pa: PreparedFeatures, pb: PreparedFeatures, rows: slice | 
 
 def distance_grid(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
                   dtype: DTypeLike = np.float32, tile: int = 2048) -> np.ndarray:
-    """The full (Fa, Fb) grid of frame distances (SPEC §3), tile by tile.
+    """The full (Fa, Fb) grid of frame distances (design §3), tile by tile.
 
     ``fa``, ``fb``: (F, P, 3) clouds from ``tasks.features.clip_features``; ``weights``: (P,).
     O(Fa·Fb·P) flops (≈10·Fa·Fb·P) at GEMM speed; O(Fa·Fb) output memory. Values are squared
@@ -261,7 +261,7 @@ def rigid_align_2d(p: np.ndarray, q: np.ndarray, weights: np.ndarray) -> tuple[f
 
 
 @njit(cache=True, fastmath=True)
-def _cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
+def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
     """D at one cell: the same closed form as the GEMM path, as three dot products."""
     p = left_y.shape[1]
     a = 0.0
@@ -282,7 +282,7 @@ def _cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
 @njit(cache=True)
 def _cells_kernel(left, left_y, na, right, right_y, nb, rows, cols, out) -> None:
     for k in range(rows.shape[0]):
-        out[k] = _cell_distance(left, left_y, na, right, right_y, nb, rows[k], cols[k])
+        out[k] = cell_distance(left, left_y, na, right, right_y, nb, rows[k], cols[k])
 
 
 def distance_cells(pa: PreparedFeatures, pb: PreparedFeatures, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Body model and path dynamics for physics-based retiming (SPEC §8, MPS06 §3.1).
+"""Body model and path dynamics for physics-based retiming (design §8, MPS06 §3.1).
 
 A motion q(s) played back with a timing p(t) has velocity q̇ = q' ṗ and acceleration
 q̈ = q'' ṗ² + q' p̈ (MPS06 Eqn. 3-4), so the generalized forces it needs are (Eqn. 5-6)

@@ -1,4 +1,4 @@
-"""Point-cloud frame features for the frame distance (SPEC §3, KG04 §3.1).
+"""Point-cloud frame features for the frame distance (design §3, KG04 §3.1).
 
 KG04 §3.1 uses "the metric of Kovar et al. 2002": each frame becomes the cloud of global joint
 positions over a short window of frames centred on it, each point with a weight, and two frames
@@ -25,7 +25,7 @@ from pydantic import Field
 
 
 class FeatureParams(Params):
-    """Point-cloud features (SPEC §3)."""
+    """Point-cloud features (design §3)."""
 
     rates: list[float] = Field(default_factory=lambda: [10.0, 20.0, 30.0])
     window: int = 5

@@ -1,4 +1,4 @@
-"""Guided time warping (HDP07 = Hsu, da Silva & Popović 2007, §3; SPEC §7).
+"""Guided time warping (HDP07 = Hsu, da Silva & Popović 2007, §3; design §7).
 
 A time warp of an input motion x_1..x_n is a subsequence y_1..y_m of its frame indices that starts
 on the first frame, ends on the last one and never skips more than ``s`` frames (HDP07 §3.1). Its
@@ -45,7 +45,7 @@ Keytime = tuple[float, float]
 
 
 class WarpParams(Params):
-    """Guided time warping (SPEC §7, HDP07 §3)."""
+    """Guided time warping (design §7, HDP07 §3)."""
 
     skip: int = 8
     neighbours: int = 3

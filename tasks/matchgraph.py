@@ -1,4 +1,4 @@
-"""The match graph that a search builds and registration consumes (KG04 §3.3, §4.1; SPEC §5-6).
+"""The match graph that a search builds and registration consumes (KG04 §3.3, §4.1; design §5-6).
 
 Frames are counted at the web rate ``MatchGraph.rate`` (the index's working rate), inclusive at
 both ends. Clip keys are the corpus-relative paths the index uses (``Generation.clips[i]["path"]``).

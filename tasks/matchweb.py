@@ -1,4 +1,4 @@
-"""Match webs: chains of 1-D minima plus bridges, built coarse to fine (SPEC §4, KG04 §3.1-3.2).
+"""Match webs: chains of 1-D minima plus bridges, built coarse to fine (design §4, KG04 §3.1-3.2).
 
 Grid convention: cell ``(i, j)`` compares frame ``i`` of clip A (rows, KG04's M1, vertical axis)
 with frame ``j`` of clip B (columns, M2). "Top" is ``i + 1``, "right" is ``j + 1``; paths are
@@ -26,7 +26,7 @@ rate (KG04 §3.2, Fig. 8): each chain is padded by one coarse cell and upsampled
 its endpoints move to the smallest cells near the old ones, and an optimal (least total cost,
 slope-ruled) path joins them inside the band; each bridge likewise, with endpoints on the refined
 chains it joins. Only the cells of the bands are evaluated at the finer rates (cell by cell,
-``tasks.distance._cell_distance``, once per cell however many bands overlap it), so a fine level
+``tasks.distance.cell_distance``, once per cell however many bands overlap it), so a fine level
 costs linearly in the cells of its search regions rather than Fa·Fb.
 """
 
@@ -41,7 +41,7 @@ from motionweb.tasks.distance import (
     ClipOperands,
     DTypeLike,
     PreparedFeatures,
-    _cell_distance,
+    cell_distance,
     distance_grid_prepared,
     prepare_operands_pair,
 )
@@ -49,7 +49,7 @@ from numba import njit
 
 
 class MatchWebParams(Params):
-    """Match webs (SPEC §4, KG04 §3.1-3.2)."""
+    """Match webs (design §4, KG04 §3.1-3.2)."""
 
     valid_a: float = 0.15
     slope_k: int = 3
@@ -254,14 +254,14 @@ def find_chains(grid: np.ndarray, minima: np.ndarray, slope_k: int, min_extent: 
 
 
 @njit(cache=True)
-def _band_index(lo: np.ndarray, hi: np.ndarray, off: np.ndarray, t: int, j: int) -> int:
+def band_index(lo: np.ndarray, hi: np.ndarray, off: np.ndarray, t: int, j: int) -> int:
     if t < 0 or t >= lo.shape[0] or j < lo[t] or j > hi[t]:
         return -1
     return off[t] + j - lo[t]
 
 
 @njit(cache=True)
-def _band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
+def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     """Least-total-cost monotone paths under the slope rule, on a band.
 
     Band row ``t`` covers columns ``lo[t]..hi[t]``; cell (t, j) is flat index
@@ -330,7 +330,7 @@ def _band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
 
 
 @njit(cache=True)
-def _backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
+def band_backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
     """Cells (n, 2) (absolute rows) of the path ending at band cell (t, j) in state s."""
     c0 = mrun
     n = 0
@@ -361,7 +361,7 @@ def _backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
 
 
 @njit(cache=True)
-def _best_state_total(cost, k) -> int:
+def best_state_total(cost, k) -> int:
     best = 0
     for s in range(cost.shape[1]):
         if cost[k, s] < cost[k, best]:
@@ -382,7 +382,7 @@ def _best_state_avg(cost, length, k) -> tuple[int, float]:
     return best, bv
 
 
-def _band_buffers(ncells: int, mrun: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def band_buffers(ncells: int, mrun: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ns = 2 * mrun + 1
     return (np.empty((ncells, ns), np.float64), np.empty((ncells, ns), np.int32),
             np.empty((ncells, ns), np.int8))
@@ -409,13 +409,13 @@ def optimal_path(grid: np.ndarray, start: tuple[int, int], end: tuple[int, int],
     init = np.full(len(vals), np.inf)
     init[0] = vals[0]
     mrun = max_run(slope_k)
-    cost, length, ptr = _band_buffers(len(vals), mrun)
-    _band_dp(lo, hi, off, vals, init, np.zeros(len(vals), np.uint8), mrun, cost, length, ptr)
+    cost, length, ptr = band_buffers(len(vals), mrun)
+    band_dp(lo, hi, off, vals, init, np.zeros(len(vals), np.uint8), mrun, cost, length, ptr)
     k = len(vals) - 1
-    s = _best_state_total(cost, k)
+    s = best_state_total(cost, k)
     if not cost[k, s] < np.inf:
         return None
-    return _backtrack(i0, lo, hi, off, ptr, nr - 1, j1, s, mrun)
+    return band_backtrack(i0, lo, hi, off, ptr, nr - 1, j1, s, mrun)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -542,7 +542,7 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
                                   src_a, src_b, row_v, row_f)
             if nterm == 0 or not vals[0] < INF:
                 continue
-            _band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
+            band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
             for t in range(nt):
                 for j in range(lo[t], hi[t] + 1):
                     k = off[t] + j - lo[t]
@@ -568,11 +568,11 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
             j0 = cells[p, 1]
             nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags,
                                   src_a, src_b, row_v, row_f)
-            _band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
+            band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
             t = cells[q, 0] - i0
             k = off[t] + cells[q, 1] - lo[t]
             s, a = _best_state_avg(cost, length, k)
-            path = _backtrack(i0, lo[:nt], hi[:nt], off[: nt + 1], ptr, t, cells[q, 1], s, mrun)
+            path = band_backtrack(i0, lo[:nt], hi[:nt], off[: nt + 1], ptr, t, cells[q, 1], s, mrun)
             junctions.append((c, p - offsets[c], d, q - offsets[d]))
             for r in range(path.shape[0]):
                 out_i.append(path[r, 0])
@@ -644,7 +644,7 @@ def _values_at(grid: np.ndarray, cells: np.ndarray) -> np.ndarray:
 
 
 def build_web_full(grid: np.ndarray, rate: float, cfg: MatchWebParams, self_pair: bool) -> MatchWeb:
-    """Match web from a full grid at one rate (KG04 §3.1-3.2; SPEC §4 steps 1-4).
+    """Match web from a full grid at one rate (KG04 §3.1-3.2; design §4 steps 1-4).
 
     Self pairs ignore the band |i − j| ≤ ``self_band_s·rate``. Cost: O(Fa·Fb) for minima and the
     valid region, plus the bridge search (see :func:`find_bridges`); memory O(Fa·Fb).
@@ -669,7 +669,7 @@ def build_web_full(grid: np.ndarray, rate: float, cfg: MatchWebParams, self_pair
 
 
 @njit(cache=True)
-def _upsample_band(cells, s, h, fa, fb):
+def upsample_band(cells, s, h, fa, fb):
     """Band of fine cells covering each coarse cell dilated by ``h − 0.5`` coarse cells.
 
     Coarse cell c covers fine indices [(c − h)·s, (c + h)·s]; returns (row0, lo, hi, off).
@@ -708,7 +708,7 @@ TILE = 32
 def _mark_tiles(cells, offsets, s, h, fa, fb, index) -> None:
     """Mark (``index[ti, tj] = 0``) the TILE×TILE tiles that the bands of ragged paths touch."""
     for p in range(offsets.shape[0] - 1):
-        row0, lo, hi, _ = _upsample_band(cells[offsets[p]:offsets[p + 1]], s, h, fa, fb)
+        row0, lo, hi, _ = upsample_band(cells[offsets[p]:offsets[p + 1]], s, h, fa, fb)
         for t in range(lo.shape[0]):
             ti = (row0 + t) // TILE
             for tj in range(lo[t] // TILE, hi[t] // TILE + 1):
@@ -745,7 +745,7 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
                 if band >= 0 and abs(i - j) <= band:
                     v = INF
                 else:
-                    v = _cell_distance(left, left_y, na, right, right_y, nb, i, j)
+                    v = cell_distance(left, left_y, na, right, right_y, nb, i, j)
                 tile[ri, j % TILE] = v
             out[off[t] + j - lo[t]] = v
 
@@ -784,7 +784,7 @@ def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
     cost = np.empty((n, ns), np.float64)
     length = np.empty((n, ns), np.int32)
     ptr = np.empty((n, ns), np.int8)
-    _band_dp(lo, hi, off, vals, init, np.zeros(n, np.uint8), mrun, cost, length, ptr)
+    band_dp(lo, hi, off, vals, init, np.zeros(n, np.uint8), mrun, cost, length, ptr)
     best = INF
     bk = -1
     bs = 0
@@ -802,7 +802,7 @@ def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
     t = 0
     while off[t + 1] <= bk:
         t += 1
-    return _backtrack(row0, lo, hi, off, ptr, t, lo[t] + bk - off[t], bs, mrun)
+    return band_backtrack(row0, lo, hi, off, ptr, t, lo[t] + bk - off[t], bs, mrun)
 
 
 @njit(cache=True)
@@ -818,7 +818,7 @@ def _argmin_of(vals, idx):
 
 @njit(cache=True)
 def _flat_index(row0, lo, hi, off, i, j) -> int:
-    return _band_index(lo, hi, off, i - row0, j)
+    return band_index(lo, hi, off, i - row0, j)
 
 
 @njit(cache=True)
@@ -832,7 +832,7 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
     n_out = 0
     for p in range(nch):
         cc = cells[offsets[p]:offsets[p + 1]]
-        row0, lo, hi, off = _upsample_band(cc, s, h, fa, fb)
+        row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
         vals = np.empty(off[-1], np.float64)
         _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         i0 = cc[0, 0] * s
@@ -930,7 +930,7 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
         if np_ < 0 or nq < 0:
             continue
         cc = b_cells[b_offsets[b]:b_offsets[b + 1]]
-        row0, lo, hi, off = _upsample_band(cc, s, h, fa, fb)
+        row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
         vals = np.empty(off[-1], np.float64)
         _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         sp = new_cells[new_offsets[np_]:new_offsets[np_ + 1]]

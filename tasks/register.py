@@ -1,4 +1,4 @@
-"""Registration of the motions of a match graph in time (KG04 §4.1; SPEC §6).
+"""Registration of the motions of a match graph in time (KG04 §4.1; design §6).
 
 KG04 §4.1, step by step:
 
@@ -54,12 +54,12 @@ from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.matchweb import (
     INF,
     MatchWebParams,
-    _backtrack,
-    _band_buffers,
-    _band_dp,
-    _band_index,
-    _best_state_total,
-    _upsample_band,
+    band_backtrack,
+    band_buffers,
+    band_dp,
+    band_index,
+    best_state_total,
+    upsample_band,
     max_run,
 )
 from numba import njit
@@ -98,7 +98,7 @@ class Band:
     def around(cls, path: np.ndarray, n: int, m: int, radius: int) -> Band:
         """Cells within Chebyshev distance ``radius`` of ``path``, a unit-step monotone path from
         (0, 0) to (n − 1, m − 1) (KG04 Fig. 8's padded search region at one rate)."""
-        row0, lo, hi, off = _upsample_band(np.ascontiguousarray(path, dtype=np.int64), 1.0, float(radius), n, m)
+        row0, lo, hi, off = upsample_band(np.ascontiguousarray(path, dtype=np.int64), 1.0, float(radius), n, m)
         if row0 != 0 or len(lo) != n or lo[0] != 0 or hi[-1] != m - 1:
             raise ValueError("the guide path must run from (0, 0) to (n - 1, m - 1)")
         return cls(lo, hi, off, m)
@@ -146,10 +146,10 @@ def _band_valid(lo, hi, off, vals, a):
             v = vals[k]
             if not v < INF:
                 continue
-            kl = _band_index(lo, hi, off, t, j - 1)
-            kr = _band_index(lo, hi, off, t, j + 1)
-            kb = _band_index(lo, hi, off, t - 1, j)
-            ka = _band_index(lo, hi, off, t + 1, j)
+            kl = band_index(lo, hi, off, t, j - 1)
+            kr = band_index(lo, hi, off, t, j + 1)
+            kb = band_index(lo, hi, off, t - 1, j)
+            ka = band_index(lo, hi, off, t + 1, j)
             horiz = (kl < 0 or v < vals[kl]) and (kr < 0 or v <= vals[kr])
             vert = (kb < 0 or v < vals[kb]) and (ka < 0 or v <= vals[ka])
             if not (horiz or vert):
@@ -169,7 +169,7 @@ def _band_valid(lo, hi, off, vals, a):
                 for step in (-1, 1):
                     tt = t + step
                     while True:
-                        kk = _band_index(lo, hi, off, tt, j)
+                        kk = band_index(lo, hi, off, tt, j)
                         if kk < 0 or not vals[kk] < lim:
                             break
                         out[kk] = True
@@ -190,7 +190,7 @@ def band_alignment(band: Band, vals: np.ndarray, slope_k: int) -> np.ndarray | N
     """Least-total-cost slope-ruled monotone path from (0, 0) to (n − 1, m − 1) through the finite
     cells of ``vals`` (flat band values, inf = blocked): cells (K, 2) relative, or None.
 
-    The time alignment of KG04 §3.1 by dynamic programming (``tasks.matchweb._band_dp``): at most
+    The time alignment of KG04 §3.1 by dynamic programming (``tasks.matchweb.band_dp``): at most
     ``slope_k`` cells in one row or column in a row. O(cells · k) time and memory.
     """
     v = np.ascontiguousarray(vals, dtype=np.float64)
@@ -198,12 +198,12 @@ def band_alignment(band: Band, vals: np.ndarray, slope_k: int) -> np.ndarray | N
     nc = band.n_cells
     init = np.full(nc, INF)
     init[0] = v[0]
-    cost, length, ptr = _band_buffers(nc, mrun)
-    _band_dp(band.lo, band.hi, band.off, v, init, np.zeros(nc, np.uint8), mrun, cost, length, ptr)
-    s = _best_state_total(cost, nc - 1)
+    cost, length, ptr = band_buffers(nc, mrun)
+    band_dp(band.lo, band.hi, band.off, v, init, np.zeros(nc, np.uint8), mrun, cost, length, ptr)
+    s = best_state_total(cost, nc - 1)
     if not cost[nc - 1, s] < INF:
         return None
-    return _backtrack(0, band.lo, band.hi, band.off, ptr, band.n_rows - 1, band.n_cols - 1, s, mrun)
+    return band_backtrack(0, band.lo, band.hi, band.off, ptr, band.n_rows - 1, band.n_cols - 1, s, mrun)
 
 
 @dataclass(frozen=True)
@@ -419,7 +419,7 @@ def _check(graph: MatchGraph, features: Mapping[str, np.ndarray]) -> None:
 
 def register(graph: MatchGraph, features: Mapping[str, np.ndarray], weights: np.ndarray, cfg: MatchWebParams,
              band_s: float | None = 0.25) -> Registration:
-    """Register every node of ``graph`` to the query, node 0 (KG04 §4.1; SPEC §6).
+    """Register every node of ``graph`` to the query, node 0 (KG04 §4.1; design §6).
 
     ``features[clip]``: (F, P, 3) clouds of each node's clip at ``graph.rate``
     (``tasks.features.clip_features``) with point ``weights`` (P,); ``cfg``: ``valid_a`` and

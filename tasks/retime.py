@@ -1,4 +1,4 @@
-"""Physics-based motion retiming (SPEC §8, MPS06 §3.3-3.6).
+"""Physics-based motion retiming (design §8, MPS06 §3.3-3.6).
 
 Pipeline (each stage a pure function, data passed in dataclasses):
 
@@ -47,7 +47,7 @@ from scipy.optimize import minimize
 
 
 class RetimeParams(Params):
-    """Physics-based retiming (SPEC §8, MPS06 §3)."""
+    """Physics-based retiming (design §8, MPS06 §3)."""
 
     body_model: Literal["cylinders", "table"] = "cylinders"
     total_mass: float | None = None

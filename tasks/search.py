@@ -1,5 +1,5 @@
 """Search over match webs: match sequences, redundancy removal, tiers, the match graph (KG04 §3.3;
-SPEC §5).
+design §5).
 
 A query is a segment ``M1[a, b]`` (frames at the web rate, inclusive) and a threshold ε. For each
 web (M1, M2) the search intersects the web with rows a..b (KG04 Fig. 9): from every path with a
@@ -60,7 +60,7 @@ from scipy.sparse.csgraph import dijkstra
 
 
 class SearchParams(Params):
-    """Search and match graph (SPEC §5)."""
+    """Search and match graph (design §5)."""
 
     overlap_redundant: float = 0.5
     new_node_below: float = 0.2
@@ -392,7 +392,7 @@ def remove_redundant(matches: Iterable[WebMatch], overlap: float) -> list[WebMat
 
 
 def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
-    """ε as the ``q`` quantile (0..1) of the path values of ``webs`` (SPEC §5: absolute distances
+    """ε as the ``q`` quantile (0..1) of the path values of ``webs`` (design §5: absolute distances
     mean little to a user, a quantile of the chunk's web values does)."""
     if not 0.0 <= q <= 1.0:
         raise ValueError(f"quantile must be within [0, 1], got {q}")
@@ -528,7 +528,7 @@ def _finish(rate: float, nodes: list[MatchNode], edges: list[MatchEdge]) -> Matc
 def search(query: Segment, eps: float, webs: WebSource, cfg: SearchParams | None = None,
            web_cfg: MatchWebParams | None = None) -> MatchGraph:
     """Tiered search of ``query`` (frames at the web rate) with threshold ``eps`` over ``webs``
-    (KG04 §3.3; SPEC §5). Raises ValueError for an unknown clip, a range outside the clip or
+    (KG04 §3.3; design §5). Raises ValueError for an unknown clip, a range outside the clip or
     shorter than the minimum chain length, a bad ε."""
     return MatchSearch(webs, cfg, web_cfg).search(query, eps)
 

@@ -1,4 +1,4 @@
-"""Guided time warping (HDP07 §3, SPEC §7).
+"""Guided time warping (HDP07 §3, design §7).
 
 Every fast kernel is checked against a slow, obviously correct reference written here: the local
 scores against a per-triple loop with a full sort, the constrained and unconstrained shortest

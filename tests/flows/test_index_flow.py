@@ -1,6 +1,6 @@
-"""The index flow (SPEC §1, §9, §10): planning as plain functions, then a few real flow runs.
+"""The index flow (design §1, §9, §10): planning as plain functions, then a few real flow runs.
 
-Flow runs use Prefect's test harness once per session with heartbeats off (STACK-NOTES) and a
+Flow runs use Prefect's test harness once per session with heartbeats off (they only slow short runs) and a
 small synthetic corpus (two categories, a broken file, one clip with another skeleton).
 """
 

@@ -1,4 +1,4 @@
-"""Features and frame distances (SPEC §3): GEMM grid vs an explicit per-pair alignment."""
+"""Features and frame distances (design §3): GEMM grid vs an explicit per-pair alignment."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from motionweb.store.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul
-from motionweb.store.motion import Motion, Skeleton
+from fixtures import small_skeleton, wiggle
+from motionweb.store.kinematics import quat_from_axis_angle, quat_mul
 from motionweb.tasks.distance import (
     distance_block,
     distance_cells,
@@ -20,30 +20,6 @@ from motionweb.tasks.features import FeatureParams, clip_features, point_weights
 from scipy.optimize import minimize
 
 ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
-
-
-def small_skeleton() -> Skeleton:
-    names = ("hips", "spine", "head", "lleg", "lknee", "rleg", "rknee", "larm", "rarm")
-    parents = np.array([-1, 0, 1, 0, 3, 0, 5, 1, 1])
-    offs = np.array([[0, 0, 0], [0, 30, 0], [0, 30, 0], [10, 0, 0], [0, -45, 0], [-10, 0, 0], [0, -45, 0],
-                     [20, 25, 0], [-20, 25, 0]], dtype=float)
-    ch = (("Xposition", "Yposition", "Zposition", *ROT_CH),) + (ROT_CH,) * 8
-    return Skeleton(names, parents, offs, ch)
-
-
-def wiggle(n: int, fps: float, seed: int, unit: str = "cm") -> Motion:
-    """A clip of random smooth joint rotations with a wandering root (file unit cm)."""
-    rng = np.random.default_rng(seed)
-    sk = small_skeleton()
-    t = np.arange(n) / fps
-    ang = np.zeros((n, sk.n_joints, 3))
-    for j in range(sk.n_joints):
-        for a in range(3):
-            for _ in range(2):
-                ang[:, j, a] += rng.uniform(5, 25) * np.sin(2 * np.pi * rng.uniform(0.2, 1.0) * t + rng.uniform(0, 6))
-    ang[:, 0, 2] += np.cumsum(rng.normal(0, 1, n)) * 0.5
-    root = np.stack([np.cumsum(rng.normal(0, 1, n)), 95 + 3 * np.sin(t), np.cumsum(rng.normal(0, 1, n))], axis=1)
-    return Motion(sk, fps, root, quat_from_euler(ang, "ZXY"), name=f"wiggle{seed}", unit=unit)
 
 
 def slow_grid(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The Zarr store (SPEC §9): round trips, content addressing, generation pointer semantics."""
+"""The Zarr store (design §9): round trips, content addressing, generation pointer semantics."""
 
 from __future__ import annotations
 

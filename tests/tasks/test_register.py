@@ -1,4 +1,4 @@
-"""Registration (KG04 §4.1, SPEC §6): band kernels vs slow references, known warps recovered
+"""Registration (KG04 §4.1, design §6): band kernels vs slow references, known warps recovered
 through star and chain edges of a hand-built match graph, curves, common length, errors."""
 
 from __future__ import annotations

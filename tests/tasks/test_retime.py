@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import synthetic_jump
 from motionweb.store.kinematics import hold_ends
 from motionweb.tasks.retime import (
     N_ROOT,
@@ -25,11 +24,6 @@ from motionweb.tasks.retime import (
     shortest_duration,
 )
 from scipy.optimize import linprog
-
-_spec = importlib.util.spec_from_file_location("_retime_jumper", Path(__file__).with_name("test_dynamics.py"))
-_helpers = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_helpers)
-synthetic_jump = _helpers.synthetic_jump
 
 OPTS = RetimeParams()
 

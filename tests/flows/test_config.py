@@ -52,3 +52,29 @@ def test_not_yaml_and_missing_file(tmp_path: Path) -> None:
         load_config(tmp_path / "x.yaml")
     with pytest.raises(ConfigError, match="nope.yaml"):
         load_config(tmp_path / "nope.yaml")
+
+
+def test_default_yaml_lists_every_key_with_the_models_defaults() -> None:
+    """configs/default.yaml is the composed models' defaults written out: same keys, same values."""
+    import yaml
+
+    from motionweb.flows.config import Config
+
+    written = yaml.safe_load(packaged_config("default.yaml").read_text())
+    assert written == Config().model_dump(mode="json")
+
+
+def test_stage_parameters_have_one_definition() -> None:
+    """The config's sections are the stages' own models (not copies that could drift)."""
+    from motionweb.flows.config import Config
+    from motionweb.store.catalog import CorpusParams
+    from motionweb.tasks.features import FeatureParams
+    from motionweb.tasks.guided_warp import WarpParams
+    from motionweb.tasks.matchweb import MatchWebParams
+    from motionweb.tasks.retime import RetimeParams
+    from motionweb.tasks.search import SearchParams
+
+    fields = Config.model_fields
+    for name, model in [("corpus", CorpusParams), ("features", FeatureParams), ("matchweb", MatchWebParams),
+                        ("search", SearchParams), ("warp", WarpParams), ("retime", RetimeParams)]:
+        assert fields[name].annotation is model, name

@@ -1,4 +1,4 @@
-"""Match webs (SPEC §4, KG04 §3.1-3.2): numba kernels vs slow references, constructed grids,
+"""Match webs (design §4, KG04 §3.1-3.2): numba kernels vs slow references, constructed grids,
 a clip against a time-warped copy of itself, and coarse-to-fine vs the full build."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from motionweb.store.kinematics import quat_from_euler, sample_motion
-from motionweb.store.motion import Motion, Skeleton
+from fixtures import wiggle
+from motionweb.store.kinematics import sample_motion
 from motionweb.tasks.distance import distance_cells, distance_grid, prepare_pair
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
 from motionweb.tasks.matchweb import (
@@ -327,31 +327,6 @@ def test_round_trip_arrays() -> None:
 
 
 # ---------------------------------------------------------------------------- motions
-
-
-def small_skeleton() -> Skeleton:
-    names = ("hips", "spine", "head", "lleg", "lknee", "rleg", "rknee", "larm", "rarm")
-    parents = np.array([-1, 0, 1, 0, 3, 0, 5, 1, 1])
-    offs = np.array([[0, 0, 0], [0, .3, 0], [0, .3, 0], [.1, 0, 0], [0, -.45, 0], [-.1, 0, 0], [0, -.45, 0],
-                     [.2, .25, 0], [-.2, .25, 0]])
-    ch = (("Xposition", "Yposition", "Zposition", *ROT_CH),) + (ROT_CH,) * 8
-    return Skeleton(names, parents, offs, ch)
-
-
-def wiggle(n: int, fps: float, seed: int) -> Motion:
-    rng = np.random.default_rng(seed)
-    sk = small_skeleton()
-    t = np.arange(n) / fps
-    ang = np.zeros((n, sk.n_joints, 3))
-    for j in range(sk.n_joints):
-        for a in range(3):
-            for _ in range(3):
-                ang[:, j, a] += rng.uniform(2, 13) * np.sin(2 * np.pi * rng.uniform(0.1, 1.2) * t + rng.uniform(0, 6))
-    yaw = np.cumsum(rng.normal(0, 0.3, n)) / fps * 20
-    ang[:, 0, 2] += yaw
-    root = np.stack([np.cumsum(np.sin(np.deg2rad(yaw))) / fps, np.full(n, 0.95),
-                     np.cumsum(np.cos(np.deg2rad(yaw))) / fps], axis=1)
-    return Motion(sk, fps, root, quat_from_euler(ang, "ZXY"), name=f"wiggle{seed}", unit="m")
 
 
 def smooth_warp(n_out: int, n_in: int, seed: int) -> np.ndarray:

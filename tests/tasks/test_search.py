@@ -1,4 +1,4 @@
-"""Search over match webs (KG04 §3.3, SPEC §5): the compiled walk against brute-force enumeration
+"""Search over match webs (KG04 §3.3, design §5): the compiled walk against brute-force enumeration
 of match sequences, planted copies under known warps (recall, precision, endpoints), a chain of
 variants found only through tiers, errors, quantile ε, self webs and the store adapter."""
 
@@ -251,7 +251,7 @@ def diagonal_web(shape: tuple[int, int], shifts: dict[int, float], last_row: int
 
 
 def test_dedup_new_node_merge_and_discard() -> None:
-    """SPEC §5 on constructed webs: A→B, A→C diagonals, B→C shifted by 4 (a near-duplicate of C:
+    """design §5 on constructed webs: A→B, A→C diagonals, B→C shifted by 4 (a near-duplicate of C:
     merged, intervals averaged), A→D at shifts 0, 15 (overlap 0.52: discarded) and 30 (overlap
     1/31: a new node), A→D paths ending at row 45 (so D[40, 70] finds only A's query back)."""
     n = 80
