@@ -57,7 +57,6 @@ def test_not_yaml_and_missing_file(tmp_path: Path) -> None:
 def test_default_yaml_lists_every_key_with_the_models_defaults() -> None:
     """configs/default.yaml is the composed models' defaults written out: same keys, same values."""
     import yaml
-
     from motionweb.flows.config import Config
 
     written = yaml.safe_load(packaged_config("default.yaml").read_text())
