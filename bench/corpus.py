@@ -6,7 +6,7 @@ so the benchmark corpus is built in a temp folder from
   * the real clips themselves (DeepMimic .txt, loaded by store.catalog),
   * variations of them written as BVH at 60 Hz: mirrored (left/right swapped and reflected
     across the sagittal plane) and time-warped (smooth non-linear warps, 0.55-1.0x mean speed),
-  * the synthetic demo corpus (store.demo_corpus) at 60 Hz,
+  * the synthetic demo corpus (store.demo) at 60 Hz,
 until it holds the target number of frames (counted at 60 Hz). Each run indexes into a fresh
 store with the index flow (Prefect + a local Dask cluster, 2 single-threaded worker processes).
 Then the growth of wall time and memory with the frames of a single chunk is fitted
@@ -47,7 +47,8 @@ from motionweb.store.bvh import write_bvh
 from motionweb.store.cache import MotionStore
 from motionweb.store.catalog import load_clip, scan_corpus
 from motionweb.store.datasets import mocap_root
-from motionweb.store.demo.corpus import random_warp, time_warp_clip, write_demo_corpus
+from motionweb.store.demo.corpus import write_demo_corpus
+from motionweb.store.demo.perturb import random_warp, time_warp_clip
 from motionweb.store.kinematics import resample
 from motionweb.store.motion import Motion
 

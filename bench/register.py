@@ -30,7 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from motionweb.store.datasets import ENV_VAR, mocap_root
 from motionweb.store.deepmimic import read_deepmimic
-from motionweb.store.demo.corpus import generate_clip, pose_noise, random_warp, time_warp_clip
+from motionweb.store.demo.corpus import generate_clip
+from motionweb.store.demo.perturb import pose_noise, random_warp, time_warp_clip
 from motionweb.store.motion import Motion
 from motionweb.tasks.distance import distance_grid
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights

@@ -3,7 +3,7 @@
 :func:`planted_corpus`: the kick action of a synthetic kick clip is the query; copies of its clip
 are planted inside clips of other categories, each copy time-warped by a known random non-linear
 warp (local speed 0.7x-1.5x), turned to a random heading, with small pose noise
-(``store.demo_corpus.pose_noise``).
+(``store.demo.perturb.pose_noise``).
 :func:`variant_chain`: progressively more different variants of the query clip (each close to the
 previous one, the last far from the query), for tiered search. :class:`CorpusWebs` builds every
 web of a corpus on demand (features + coarse-to-fine webs, no store, no Prefect).
@@ -17,7 +17,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from motionweb.store.demo.corpus import generate_clip, pose_noise, random_warp, time_warp_clip
+from motionweb.store.demo.corpus import generate_clip
+from motionweb.store.demo.perturb import pose_noise, random_warp, time_warp_clip
 from motionweb.store.kinematics import quat_from_axis_angle, quat_from_euler, quat_mul, quat_rotate
 from motionweb.store.motion import Motion
 from motionweb.store.web import MatchWeb, transpose

@@ -9,15 +9,13 @@ import pytest
 from motionweb.store.bvh import read_bvh
 from motionweb.store.demo.corpus import (
     CATEGORIES,
-    G,
     generate_clip,
-    humanoid_skeleton,
-    random_warp,
-    time_warp_clip,
     truth_json,
     walk_then_jump,
     write_demo_corpus,
 )
+from motionweb.store.demo.perturb import random_warp, time_warp_clip
+from motionweb.store.demo.rig import G, humanoid_skeleton
 from motionweb.store.kinematics import (
     end_site_positions,
     forward_kinematics,

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motionweb.store.demo.corpus import generate_clip, pose_noise, random_warp, time_warp_clip
+from motionweb.store.demo.corpus import generate_clip
+from motionweb.store.demo.perturb import pose_noise, random_warp, time_warp_clip
 from motionweb.tasks.distance import distance_grid, distance_prepared, prepare_pair
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
