@@ -59,8 +59,8 @@ from motionweb.tasks.matchweb import (
     band_dp,
     band_index,
     best_state_total,
-    upsample_band,
     max_run,
+    upsample_band,
 )
 from numba import njit
 from scipy.interpolate import PchipInterpolator

@@ -19,7 +19,6 @@ from motionweb.store.motion import Motion, Skeleton
 from motionweb.tasks.guided_warp import (
     Track,
     WarpParams,
-    _blocks,
     dag_path,
     feasible_windows,
     feature_spec,
@@ -33,6 +32,7 @@ from motionweb.tasks.guided_warp import (
     reduce_to_compression,
     reference_features,
     smooth_warp,
+    triple_blocks,
     triple_features,
     triple_index,
 )
@@ -188,7 +188,7 @@ def test_triple_kernel_matches_numpy_blocks(walkjump, root_motion):
     track = motion_track(motion.slice(100, 160), 3)
     spec = feature_spec(track, (1.0, 2.0, 0.5), root_motion=root_motion)
     j, a, b = triple_index(len(track), 4)
-    slow = spec.combine(_blocks(track.take(j - a), track.take(j), track.take(j + b), root_motion))
+    slow = spec.combine(triple_blocks(track.take(j - a), track.take(j), track.take(j + b), root_motion))
     np.testing.assert_allclose(triple_features(track, j, a, b, spec), slow, rtol=1e-12, atol=1e-12)
 
 
