@@ -1,33 +1,33 @@
-"""Benchmark: guided time warping at the problem sizes of HDP07 Table 1, on real DeepMimic clips.
+"""Benchmark: guided time warping at the problem sizes of HDP07 Table 1, on CMU trials.
 
-    .venv/bin/python bench/guided_warp.py [--python-dp subset|all|none] [--repeat 3]
+    .venv/bin/python -m bench.guided_warp [--python-dp subset|all|none] [--repeat 3]
 
 For each row (n input, m output, r reference frames after the reduction to compression, skip s)
-an input and a reference of exactly those lengths are built from DeepMimic clips resampled to
-30 Hz (the paper's rate) and looped/concatenated (root travel carried over), then timed:
+an input and a reference of exactly those lengths are built from CMU trials (subject 16's jumps
+and walk, subject 14's boxing, subject 01's playground jumps) resampled to 30 Hz (the paper's
+rate) and looped/concatenated (root travel carried over), then timed:
 objective (features + all n s² local scores), full optimization (the numba DP over the reachable
 windows), heuristic (§3.3: coarse 1/8 solve + banded full-rate DP) and a straightforward
 pure-Python DP of the same recurrence (on a subset by default: it is slow). The paper's times
 (2.4 GHz Pentium 4; objective in C++ with ANN, optimization in MATLAB) are printed beside ours.
-Then the DeepMimic jump is compressed to 60% with itself as reference (there is no CMU
-walk-and-jump trial in the shared data) and its flight speed is compared with the linear warp's.
+Then HDP07 §4.1's preservation experiment on every jump of subject 16 (the manifest's labels):
+each trial compressed to 50% and 60% and expanded to 150% with itself as reference; the speed of
+its flight phase (kinematic: both feet off the clip's floor) and of the ground phases before and
+after it, beside the linear warp's.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import os
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 from motionweb.store.datasets import mocap_root
-from motionweb.store.deepmimic import read_deepmimic
-from motionweb.store.kinematics import forward_kinematics, resample, sample_motion
+from motionweb.store.formats import read_motion
+from motionweb.store.kinematics import airborne_intervals, resample, sample_motion
 from motionweb.store.motion import Motion
 from motionweb.tasks.guided_warp import (
     Reduction,
@@ -59,24 +59,27 @@ TABLE1 = [
     ("V7", 573, 143, 45, 8, 0.9, 1.8, 0.14),
     ("V8", 1524, 590, 91, 8, 2.5, 0.1, None),
 ]
-# clips per row: the input's source clips (concatenated, looped) and the reference's
+# clips per row (CMU trials): the input's source clips (concatenated, looped) and the reference's.
+# V1-V3 silence removal around jumps, V4 walking then jumping, V5 an expanded jump, V6 boxing,
+# V7 a walk with a short reference, V8 playground jumps (unconstrained)
 CLIPS = {
-    "V1": (["jump"], ["jump"]),
-    "V2": (["run"], ["run"]),
-    "V3": (["dance_a"], ["dance_a"]),
-    "V4": (["walk", "walk", "walk", "jump"], ["walk", "walk", "walk", "jump"]),
-    "V5": (["punch"], ["punch"]),
-    "V6": (["cartwheel"], ["cartwheel"]),
-    "V7": (["walk"], ["walk"]),
-    "V8": (["backflip", "spinkick"], ["spinkick"]),
+    "V1": (["16_01"], ["16_01"]),
+    "V2": (["16_03"], ["16_03"]),
+    "V3": (["16_06"], ["16_06"]),
+    "V4": (["16_16", "16_06"], ["16_16", "16_06"]),
+    "V5": (["16_05"], ["16_05"]),
+    "V6": (["14_02"], ["14_02"]),
+    "V7": (["16_16"], ["16_16"]),
+    "V8": (["01_01"], ["01_01"]),
 }
 RATE = 30.0
 BAND = WarpParams().band
+CMU = "cmu"
 
 
 def clip(name: str) -> Motion:
-    path = mocap_root() / "deepmimic" / "motions" / f"humanoid3d_{name}.txt"
-    return resample(read_deepmimic(path), RATE)
+    """A CMU trial (``"16_06"``) at 30 Hz."""
+    return resample(read_motion(mocap_root() / CMU / "asf_amc" / name.split("_")[0] / f"{name}.amc"), RATE)
 
 
 def concat(parts: list[Motion]) -> Motion:
@@ -187,36 +190,40 @@ def bench_row(row, repeat: int, run_python: bool) -> dict:
     return rec
 
 
-def flight_frames(motion: Motion, margin: float = 0.04) -> tuple[int, int]:
-    """First and last frames with both ankles above their lowest height + ``margin`` metres."""
-    g, _ = forward_kinematics(motion)
-    names = motion.skeleton.names
-    feet = [names.index("left_ankle"), names.index("right_ankle")]
-    h = g[:, feet, 1].min(axis=1)
-    air = np.flatnonzero(h > h.min() + margin)
-    return int(air[0]), int(air[-1])
-
-
 def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
+    """Mean playback speed of source frames f0..f1 under a warp (source time per output time)."""
     out = np.arange(len(times))
     return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))
 
 
-def jump_report() -> list[str]:
-    path = mocap_root() / "deepmimic" / "motions" / "humanoid3d_jump.txt"
-    jump = read_deepmimic(path)
-    n = jump.n_frames
-    m = round(0.6 * (n - 1)) + 1
-    f0, f1 = flight_frames(jump)
-    lin = linear_warp(jump, m, resample_motion=False)
-    lines = [(f"DeepMimic jump ({path.name}, {n} frames at {jump.fps:g} Hz, flight frames {f0}-{f1}) "
-             f"compressed to 60% = {m} frames, itself as reference")]
-    for label, fast in (("guided", False), ("guided --fast", True)):
-        r = guided_warp(jump, n_out=m, fast=fast, resample_motion=False)
-        lines.append(f"  {label:14s} flight speed {speed_over(r.times, f0, f1):.3f}x   "
-                     f"before flight {speed_over(r.times, 0, f0):.2f}x   after {speed_over(r.times, f1, n - 1):.2f}x")
-    lines.append(f"  {'linear':14s} flight speed {speed_over(lin.times, f0, f1):.3f}x   (everything at "
-                 f"{(n - 1) / (m - 1):.3f}x)")
+def subject16_jumps() -> list[str]:
+    """Trial names of subject 16's jumps, from the manifest's labels."""
+    with open(mocap_root() / CMU / "manifest.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return sorted(r["path"].rsplit("/", 1)[-1][:-4] for r in rows
+                  if r["category"] == "jump" and r["path"].startswith("asf_amc/16/"))
+
+
+def preservation_report() -> list[str]:
+    """HDP07 §4.1 on subject 16's jumps: flight and ground-phase speeds, guided vs linear."""
+    lines = ["HDP07 §4.1 preservation, subject 16's jumps at 30 Hz, each its own reference "
+             "(speeds: source time per output time; flight = both feet off the clip's floor)",
+             f"{'trial':6s} {'frames':>6s} {'flight':>9s} {'length':>6s} | {'flight':>6s} {'before':>6s} "
+             f"{'after':>6s} | {'linear':>6s}"]
+    worst = 0.0
+    for name in subject16_jumps():
+        m = clip(name)
+        f0, f1 = max(airborne_intervals(m), key=lambda r: r[1] - r[0])
+        n = m.n_frames
+        for frac in (0.5, 0.6, 1.5):
+            n_out = round(frac * (n - 1)) + 1
+            r = guided_warp(m, n_out=n_out, resample_motion=False)
+            lin = linear_warp(m, n_out, resample_motion=False)
+            fl = speed_over(r.times, f0, f1)
+            worst = max(worst, abs(fl - 1.0))
+            lines.append(f"{name:6s} {n:6d} {f0:4d}-{f1:<4d} {frac:5.0%} | {fl:6.3f} {speed_over(r.times, 0, f0):6.2f} "
+                         f"{speed_over(r.times, f1, n - 1):6.2f} | {speed_over(lin.times, f0, f1):6.3f}")
+    lines.append(f"largest flight-speed deviation from 1x: {100 * worst:.1f}% (target <= 10%)")
     return lines
 
 
@@ -226,18 +233,19 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     root = mocap_root()
-    if not (root / "deepmimic" / "motions").is_dir():
-        sys.exit(f"DeepMimic clips not found under {root} (set MOTIONWEB_MOCAP)")
+    if not (root / CMU / "manifest.csv").is_file():
+        sys.exit(f"CMU motion capture not found under {root / CMU} (set MOTIONWEB_MOCAP)")
     # compile the numba kernels outside the timings
     warm = np.random.default_rng(0).random((20, 3, 3))
     fixed_length_path(warm, 10)
     dag_path(warm)
     subset = {"V2", "V5", "V7"}
-    print(f"HDP07 Table 1 sizes on DeepMimic clips at {RATE:g} Hz; best of {args.repeat}; "
+    print(f"HDP07 Table 1 sizes on CMU trials at {RATE:g} Hz; best of {args.repeat}; "
           f"{os.cpu_count()} cores; times in ms (paper's in s on a 2.4 GHz Pentium 4)")
     head = (f"{'trial':5s} {'n':>5s} {'m':>4s} {'r':>4s} {'s':>3s} | {'objective':>9s} {'paper':>6s} | "
             f"{'optim':>7s} {'paper':>6s} {'ratio':>6s} | {'heur':>6s} {'paper':>6s} {'cost+':>6s} | "
             f"{'pyDP':>8s} {'speedup':>8s}")
+    print("inputs / references: " + "; ".join(f"{k} {'+'.join(a)} / {'+'.join(b)}" for k, (a, b) in CLIPS.items()))
     print(head)
     print("-" * len(head))
     rows = []
@@ -264,7 +272,7 @@ def main() -> None:
     print("V8 is unconstrained (DAG shortest path, output length free: "
           f"{rows[-1]['out_frames']} frames)")
     print()
-    print("\n".join(jump_report()))
+    print("\n".join(preservation_report()))
 
 
 if __name__ == "__main__":

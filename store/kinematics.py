@@ -280,3 +280,32 @@ def to_heading_frame(positions: np.ndarray, root_position: np.ndarray, root_rota
     origin[..., k] = 0.0
     inv = quat_inv(heading(root_rotation, up))
     return quat_rotate(inv[:, None, :], positions - origin[:, None, :])
+
+
+def foot_joints(motion: Motion, up: str = "y", fraction: float = 0.12) -> np.ndarray:
+    """Indices of the joints (and, past J, the end sites in ``sorted(end_sites)`` order) that make
+    up the feet: those whose height in the rest pose lies within ``fraction`` of the body's height
+    above its lowest point. Needs no joint names, so any skeleton works."""
+    rest = replace(motion, root_positions=np.zeros((1, 3)), rotations=quat_identity((1, motion.skeleton.n_joints)),
+                   translations={})
+    gp, gr = forward_kinematics(rest)
+    pts = np.concatenate([gp, end_site_positions(rest, gp, gr)], axis=1)[0]
+    h = pts[:, axis_index(up)]
+    return np.flatnonzero(h <= h.min() + fraction * np.ptp(h))
+
+
+def airborne_intervals(motion: Motion, margin_m: float = 0.05, min_s: float = 0.1, up: str = "y"
+                       ) -> list[tuple[int, int]]:
+    """Flight phases (first, last frame) of a clip: runs of at least ``min_s`` seconds in which
+    every foot point (:func:`foot_joints`) is more than ``margin_m`` metres above the clip's own
+    floor (its lowest foot height). Kinematic only: a quick test for jumps, not a contact model.
+    O(F·J)."""
+    if motion.scale_to_m is None:
+        raise ValueError(f"{motion.name or 'motion'}: unknown length unit (set scale_to_m)")
+    gp, gr = forward_kinematics(motion)
+    pts = np.concatenate([gp, end_site_positions(motion, gp, gr)], axis=1)[:, foot_joints(motion, up)]
+    low = pts[..., axis_index(up)].min(axis=1) * motion.scale_to_m  # (F,)
+    air = low > low.min() + margin_m
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], air.astype(np.int8), [0]])))
+    runs = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    return [(a, b) for a, b in runs if (b - a + 1) >= max(1, round(min_s * motion.fps))]
