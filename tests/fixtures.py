@@ -116,3 +116,10 @@ def synthetic_jump(fps: float = 40.0, g: float = G, v0: float = 2.0, stand: floa
     root[:, 1] = y
     motion = Motion(jumper_skeleton(), fps, root, rot, name="synthetic_jump", unit="m")
     return motion, (float(takeoff), float(landing))
+
+
+def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
+    """Mean playback speed of source frames f0..f1 under a warp ``times`` (source frame of each
+    output frame): source time per output time."""
+    out = np.arange(len(times))
+    return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))

@@ -7,10 +7,13 @@ kernel of the package computes; the tests compare the two on small inputs. Impor
 
 from __future__ import annotations
 
+import itertools
 from collections import defaultdict
 
 import numpy as np
 from motionweb.store.web import MatchWeb
+from motionweb.tasks.distance import rigid_align_2d
+from motionweb.tasks.guided_warp import Track
 
 
 class TooManySequences(RuntimeError):
@@ -64,3 +67,205 @@ def ref_matches(web: MatchWeb, a: int, b: int, max_sequences: int | None = None
         if len(hit):
             run_path(p, int(hit[0]), [], int(cells[hit[0], 1]))
     return {k: (v[0], v[2]) for k, v in best.items()}
+
+
+def slow_grid(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Reference: explicit best 2-D alignment of every pair of clouds, one pair at a time."""
+    out = np.empty((len(fa), len(fb)))
+    for i in range(len(fa)):
+        for j in range(len(fb)):
+            out[i, j] = rigid_align_2d(fa[i], fb[j], w)[2]
+    return out
+
+
+def slow_scores(track: Track, ref: Track, skip: int, k: int, spec) -> np.ndarray:
+    """f(i, j, k) one triple at a time: explicit rotation matrices and a full sort (eq. 2)."""
+
+    def rot_y(a: float) -> np.ndarray:  # right-handed rotation about +y by angle a
+        return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+    def feat(tr: Track, i: int, j: int, kk: int) -> np.ndarray:
+        inv = rot_y(tr.angle[j]).T
+        pose = (tr.positions[j] - tr.origin[j]) @ inv.T
+        vel = 0.5 * (tr.positions[kk] - tr.positions[i]) @ inv.T
+        acc = (tr.positions[kk] - 2 * tr.positions[j] + tr.positions[i]) @ inv.T
+        parts = [w / s * p.ravel() for w, s, p in zip(spec.weights, spec.scales, (pose, vel, acc), strict=True)]
+        return np.concatenate(parts)
+
+    refs = [feat(ref, t - 1, t, t + 1) for t in range(1, len(ref) - 1)]
+    n = len(track)
+    out = np.full((n, skip, skip), np.inf)
+    for j in range(n):
+        for a in range(1, skip + 1):
+            for b in range(1, skip + 1):
+                if j - a >= 0 and j + b < n:
+                    q = feat(track, j - a, j, j + b)
+                    d = sorted(float(np.linalg.norm(q - z)) for z in refs)
+                    out[j, a - 1, b - 1] = sum(d[:k]) / k
+    return out
+
+def brute_force(table: np.ndarray, m: int | None, keys=()) -> tuple[float, tuple[int, ...] | None]:
+    """Cheapest subsequence by enumeration (m None: any length)."""
+    n, s, _ = table.shape
+    best, arg = np.inf, None
+    sizes = range(n - 1) if m is None else [m - 2]
+    for size in sizes:
+        for mid in itertools.combinations(range(1, n - 1), size):
+            y = (0, *mid, n - 1)
+            if any(b - a > s for a, b in itertools.pairwise(y)):
+                continue
+            if any(o >= len(y) or y[o] != f for f, o in keys):
+                continue
+            c = sum(table[y[p], y[p] - y[p - 1] - 1, y[p + 1] - y[p] - 1] for p in range(1, len(y) - 1))
+            if c < best:
+                best, arg = c, y
+    return best, arg
+
+
+def ref_minima(g: np.ndarray) -> np.ndarray:
+    fa, fb = g.shape
+    out = np.zeros(g.shape, np.uint8)
+    for i in range(fa):
+        for j in range(fb):
+            v = g[i, j]
+            if not np.isfinite(v):
+                continue
+            left = g[i, j - 1] if j > 0 else np.inf
+            right = g[i, j + 1] if j < fb - 1 else np.inf
+            below = g[i - 1, j] if i > 0 else np.inf
+            above = g[i + 1, j] if i < fa - 1 else np.inf
+            out[i, j] = (1 if v < left and v <= right else 0) | (2 if v < below and v <= above else 0)
+    return out
+
+def ref_valid(g: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
+    out = np.zeros(g.shape, bool)
+    for i, j in zip(*np.nonzero(minima), strict=True):
+        out[i, j] = True
+        lim = (1 + a) * g[i, j]
+        dirs = ([(0, 1), (0, -1)] if minima[i, j] & 1 else []) + ([(1, 0), (-1, 0)] if minima[i, j] & 2 else [])
+        for di, dj in dirs:
+            ii, jj = i + di, j + dj
+            while 0 <= ii < g.shape[0] and 0 <= jj < g.shape[1] and g[ii, jj] < lim:
+                out[ii, jj] = True
+                ii, jj = ii + di, jj + dj
+    return out
+
+def ref_chains(g: np.ndarray, minima: np.ndarray, k: int, min_extent: int) -> list[list[tuple[int, int]]]:
+    used = np.zeros(g.shape, bool)
+    chains = []
+    for i, j in itertools.product(range(g.shape[0]), range(g.shape[1])):
+        if not minima[i, j] or used[i, j]:
+            continue
+        chain, r = [(i, j)], 0
+        used[i, j] = True
+        while True:
+            ii, jj = chain[-1]
+            cands = [(ii + 1, jj + 1, 0), (ii + 1, jj, r + 1 if r > 0 else 1), (ii, jj + 1, r - 1 if r < 0 else -1)]
+            best = None
+            for ci, cj, nr in cands:
+                if abs(nr) > k - 1 or ci >= g.shape[0] or cj >= g.shape[1] or not minima[ci, cj] or used[ci, cj]:
+                    continue
+                if best is None or g[ci, cj] < g[best[0], best[1]]:
+                    best = (ci, cj, nr)
+            if best is None:
+                break
+            chain.append(best[:2])
+            used[best[0], best[1]] = True
+            r = best[2]
+        if max(chain[-1][0] - i, chain[-1][1] - j) >= min_extent:
+            chains.append(chain)
+        else:
+            for c in chain:
+                used[c] = False
+    return chains
+
+def slope_ok(cells: np.ndarray, k: int) -> bool:
+    """Monotone unit steps with at most k − 1 consecutive steps along one axis."""
+    d = np.diff(np.asarray(cells), axis=0)
+    if not np.all((d >= 0) & (d <= 1)) or np.any(d.sum(axis=1) == 0):
+        return False
+    run, prev = 0, None
+    for step in map(tuple, d):
+        if step == (1, 1):
+            run, prev = 0, None
+            continue
+        run = run + 1 if step == prev else 1
+        prev = step
+        if run > k - 1:
+            return False
+    return True
+
+def all_paths(start: tuple[int, int], n_steps_max: int, ok) -> list[list[tuple[int, int]]]:
+    """Every monotone path from ``start`` of at most ``n_steps_max`` Manhattan length through ok cells."""
+    out = []
+
+    def rec(path: list[tuple[int, int]], manhattan: int) -> None:
+        out.append(list(path))
+        i, j = path[-1]
+        for di, dj in ((1, 1), (1, 0), (0, 1)):
+            c = (i + di, j + dj)
+            if manhattan + di + dj <= n_steps_max and ok(c, path):
+                path.append(c)
+                rec(path, manhattan + di + dj)
+                path.pop()
+
+    rec([start], 0)
+    return out
+
+def ref_bridges(g: np.ndarray, valid: np.ndarray, cells: np.ndarray, offs: np.ndarray,
+                L: int) -> dict[tuple[int, int], float]:
+    """Slow reference of find_bridges: over every chain cell start, the least-total path to each
+    C' cell (inside the valid region, slope rule k = 3, Manhattan < L, not through chain cells),
+    the least average kept per (C, C'). Returns {(C, C'): average}."""
+    owner = -np.ones(g.shape, int)
+    for c, (a, b) in enumerate(itertools.pairwise(offs)):
+        owner[cells[a:b, 0], cells[a:b, 1]] = c
+    want: dict[tuple[int, int], float] = {}
+    for c, (a, b) in enumerate(itertools.pairwise(offs)):
+        for start in map(tuple, cells[a:b].tolist()):
+            def ok(cell, path, c=c):
+                if cell[0] >= g.shape[0] or cell[1] >= g.shape[1] or not valid[cell] or owner[cell] == c:
+                    return False
+                return all(owner[x] < 0 for x in path[1:])  # chain cells end a path
+
+            best_total: dict[tuple[int, int], tuple[float, float]] = {}
+            for p in all_paths(start, L - 1, ok):
+                end = p[-1]
+                if owner[end] < 0 or owner[end] == c or not slope_ok(np.array(p), 3):
+                    continue
+                tot = float(sum(g[x] for x in p))
+                if end not in best_total or tot < best_total[end][0]:
+                    best_total[end] = (tot, tot / len(p))
+            for end, (_, avg) in best_total.items():
+                key = (c, int(owner[end]))
+                want[key] = min(want.get(key, np.inf), avg)
+    return want
+
+
+def ref_alignment_cost(g: np.ndarray, slope_k: int) -> float:
+    """Least total cost of a monotone path (0, 0) → (n − 1, m − 1) over finite cells with at most
+    ``slope_k − 1`` consecutive steps along one axis (inf when there is none). Pure Python DP over
+    (row, column, run): run r > 0 counts the up steps just taken, r < 0 the right steps, 0 after a
+    diagonal step or at the start."""
+    n, m = g.shape
+    mrun = slope_k - 1
+    best: dict[tuple[int, int, int], float] = {(0, 0, 0): float(g[0, 0])}
+    for i in range(n):
+        for j in range(m):
+            if not np.isfinite(g[i, j]) or (i, j) == (0, 0):
+                continue
+            for r in range(-mrun, mrun + 1):
+                if r == 0:
+                    prev = [best.get((i - 1, j - 1, s), np.inf) for s in range(-mrun, mrun + 1)]
+                elif r == 1:
+                    prev = [best.get((i - 1, j, s), np.inf) for s in range(-mrun, 1)]
+                elif r > 1:
+                    prev = [best.get((i - 1, j, r - 1), np.inf)]
+                elif r == -1:
+                    prev = [best.get((i, j - 1, s), np.inf) for s in range(mrun + 1)]
+                else:
+                    prev = [best.get((i, j - 1, r + 1), np.inf)]
+                c = min(prev) + g[i, j]
+                if c < np.inf:
+                    best[(i, j, r)] = c
+    return min(best.get((n - 1, m - 1, r), np.inf) for r in range(-mrun, mrun + 1))

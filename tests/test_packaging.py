@@ -68,3 +68,21 @@ def test_no_private_name_crosses_a_module() -> None:
                 if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("motionweb"):
                     problems += [f"{path.name}: {node.module}.{a.name}" for a in node.names if a.name.startswith("_")]
     assert not problems, problems
+
+
+def test_lint_bans_the_bare_folder_imports(tmp_path: Path) -> None:
+    """The ruff rule (TID251, configured in pyproject.toml) flags `import store` and friends."""
+    import shutil
+
+    ruff = shutil.which("ruff") or str(Path(sys.executable).with_name("ruff"))
+    root = Path(__file__).resolve().parent.parent
+    bad = tmp_path / "bad.py"
+    bad.write_text("import store\nfrom tasks.search import search\nfrom motionweb.store import motion\n")
+    r = subprocess.run([ruff, "check", "--no-cache", "--select", "TID251", "--config", str(root / "pyproject.toml"),
+                        str(bad)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert r.stdout.count("TID251") == 2, r.stdout  # the two bare imports, not motionweb.store
+    clean = subprocess.run([ruff, "check", "--no-cache", "--select", "TID251", "--config", str(root / "pyproject.toml"),
+                            *(str(root / d) for d in ("store", "tasks", "flows", "tests", "bench"))],
+                           capture_output=True, text=True, timeout=120)
+    assert clean.returncode == 0, clean.stdout

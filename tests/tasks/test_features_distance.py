@@ -17,18 +17,10 @@ from motionweb.tasks.distance import (
     rigid_align_2d,
 )
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from naive import slow_grid
 from scipy.optimize import minimize
 
 ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
-
-
-def slow_grid(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Reference: explicit best 2-D alignment of every pair of clouds, one pair at a time."""
-    out = np.empty((len(fa), len(fb)))
-    for i in range(len(fa)):
-        for j in range(len(fb)):
-            out[i, j] = rigid_align_2d(fa[i], fb[j], w)[2]
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -7,17 +7,16 @@ paths against enumeration of all subsequences on tiny inputs.
 
 from __future__ import annotations
 
-import itertools
 import os
 import tempfile
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from fixtures import speed_over
 from motionweb.store.kinematics import quat_from_euler, sample_motion
 from motionweb.store.motion import Motion, Skeleton
 from motionweb.tasks.guided_warp import (
-    Track,
     WarpParams,
     dag_path,
     feasible_windows,
@@ -36,6 +35,7 @@ from motionweb.tasks.guided_warp import (
     triple_features,
     triple_index,
 )
+from naive import brute_force, slow_scores
 
 ROT = ("Zrotation", "Xrotation", "Yrotation")
 POS = ("Xposition", "Yposition", "Zposition")
@@ -108,12 +108,6 @@ def walkjump() -> tuple[Motion, tuple[int, int]]:
     return walk_then_jump()
 
 
-def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
-    """Mean playback speed (source frames per output frame) while the source goes f0 -> f1."""
-    out = np.arange(len(times))
-    return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))
-
-
 def check_path(path: np.ndarray, n: int, m: int | None, skip: int, keys=()) -> None:
     assert path[0] == 0 and path[-1] == n - 1
     if m is not None:
@@ -125,51 +119,6 @@ def check_path(path: np.ndarray, n: int, m: int | None, skip: int, keys=()) -> N
 
 
 # ------------------------------------------------------------------------------- slow references
-def slow_scores(track: Track, ref: Track, skip: int, k: int, spec) -> np.ndarray:
-    """f(i, j, k) one triple at a time: explicit rotation matrices and a full sort (eq. 2)."""
-
-    def rot_y(a: float) -> np.ndarray:  # right-handed rotation about +y by angle a
-        return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-
-    def feat(tr: Track, i: int, j: int, kk: int) -> np.ndarray:
-        inv = rot_y(tr.angle[j]).T
-        pose = (tr.positions[j] - tr.origin[j]) @ inv.T
-        vel = 0.5 * (tr.positions[kk] - tr.positions[i]) @ inv.T
-        acc = (tr.positions[kk] - 2 * tr.positions[j] + tr.positions[i]) @ inv.T
-        parts = [w / s * p.ravel() for w, s, p in zip(spec.weights, spec.scales, (pose, vel, acc), strict=True)]
-        return np.concatenate(parts)
-
-    refs = [feat(ref, t - 1, t, t + 1) for t in range(1, len(ref) - 1)]
-    n = len(track)
-    out = np.full((n, skip, skip), np.inf)
-    for j in range(n):
-        for a in range(1, skip + 1):
-            for b in range(1, skip + 1):
-                if j - a >= 0 and j + b < n:
-                    q = feat(track, j - a, j, j + b)
-                    d = sorted(float(np.linalg.norm(q - z)) for z in refs)
-                    out[j, a - 1, b - 1] = sum(d[:k]) / k
-    return out
-
-
-def brute_force(table: np.ndarray, m: int | None, keys=()) -> tuple[float, tuple[int, ...] | None]:
-    """Cheapest subsequence by enumeration (m None: any length)."""
-    n, s, _ = table.shape
-    best, arg = np.inf, None
-    sizes = range(n - 1) if m is None else [m - 2]
-    for size in sizes:
-        for mid in itertools.combinations(range(1, n - 1), size):
-            y = (0, *mid, n - 1)
-            if any(b - a > s for a, b in itertools.pairwise(y)):
-                continue
-            if any(o >= len(y) or y[o] != f for f, o in keys):
-                continue
-            c = sum(table[y[p], y[p] - y[p - 1] - 1, y[p + 1] - y[p] - 1] for p in range(1, len(y) - 1))
-            if c < best:
-                best, arg = c, y
-    return best, arg
-
-
 # ---------------------------------------------------------------------------------------- kernels
 def test_local_scores_match_slow_loop(walkjump):
     motion, _ = walkjump

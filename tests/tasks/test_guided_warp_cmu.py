@@ -12,14 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import speed_over
 from motionweb.store.formats import read_motion
 from motionweb.store.kinematics import airborne_intervals, resample
 from motionweb.tasks.guided_warp import guided_warp, linear_warp
-
-
-def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
-    out = np.arange(len(times))
-    return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))
 
 
 @pytest.fixture(scope="module")

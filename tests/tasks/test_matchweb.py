@@ -23,6 +23,7 @@ from motionweb.tasks.matchweb import (
     optimal_path,
     valid_region,
 )
+from naive import all_paths, ref_bridges, ref_chains, ref_minima, ref_valid, slope_ok
 from scipy.spatial import cKDTree
 
 CFG = MatchWebParams()
@@ -30,101 +31,6 @@ ROT_CH = ("Zrotation", "Xrotation", "Yrotation")
 
 
 # ---------------------------------------------------------------------------- slow references
-
-
-def ref_minima(g: np.ndarray) -> np.ndarray:
-    fa, fb = g.shape
-    out = np.zeros(g.shape, np.uint8)
-    for i in range(fa):
-        for j in range(fb):
-            v = g[i, j]
-            if not np.isfinite(v):
-                continue
-            left = g[i, j - 1] if j > 0 else np.inf
-            right = g[i, j + 1] if j < fb - 1 else np.inf
-            below = g[i - 1, j] if i > 0 else np.inf
-            above = g[i + 1, j] if i < fa - 1 else np.inf
-            out[i, j] = (1 if v < left and v <= right else 0) | (2 if v < below and v <= above else 0)
-    return out
-
-
-def ref_valid(g: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
-    out = np.zeros(g.shape, bool)
-    for i, j in zip(*np.nonzero(minima), strict=True):
-        out[i, j] = True
-        lim = (1 + a) * g[i, j]
-        dirs = ([(0, 1), (0, -1)] if minima[i, j] & 1 else []) + ([(1, 0), (-1, 0)] if minima[i, j] & 2 else [])
-        for di, dj in dirs:
-            ii, jj = i + di, j + dj
-            while 0 <= ii < g.shape[0] and 0 <= jj < g.shape[1] and g[ii, jj] < lim:
-                out[ii, jj] = True
-                ii, jj = ii + di, jj + dj
-    return out
-
-
-def ref_chains(g: np.ndarray, minima: np.ndarray, k: int, min_extent: int) -> list[list[tuple[int, int]]]:
-    used = np.zeros(g.shape, bool)
-    chains = []
-    for i, j in itertools.product(range(g.shape[0]), range(g.shape[1])):
-        if not minima[i, j] or used[i, j]:
-            continue
-        chain, r = [(i, j)], 0
-        used[i, j] = True
-        while True:
-            ii, jj = chain[-1]
-            cands = [(ii + 1, jj + 1, 0), (ii + 1, jj, r + 1 if r > 0 else 1), (ii, jj + 1, r - 1 if r < 0 else -1)]
-            best = None
-            for ci, cj, nr in cands:
-                if abs(nr) > k - 1 or ci >= g.shape[0] or cj >= g.shape[1] or not minima[ci, cj] or used[ci, cj]:
-                    continue
-                if best is None or g[ci, cj] < g[best[0], best[1]]:
-                    best = (ci, cj, nr)
-            if best is None:
-                break
-            chain.append(best[:2])
-            used[best[0], best[1]] = True
-            r = best[2]
-        if max(chain[-1][0] - i, chain[-1][1] - j) >= min_extent:
-            chains.append(chain)
-        else:
-            for c in chain:
-                used[c] = False
-    return chains
-
-
-def slope_ok(cells: np.ndarray, k: int) -> bool:
-    """Monotone unit steps with at most k − 1 consecutive steps along one axis."""
-    d = np.diff(np.asarray(cells), axis=0)
-    if not np.all((d >= 0) & (d <= 1)) or np.any(d.sum(axis=1) == 0):
-        return False
-    run, prev = 0, None
-    for step in map(tuple, d):
-        if step == (1, 1):
-            run, prev = 0, None
-            continue
-        run = run + 1 if step == prev else 1
-        prev = step
-        if run > k - 1:
-            return False
-    return True
-
-
-def all_paths(start: tuple[int, int], n_steps_max: int, ok) -> list[list[tuple[int, int]]]:
-    """Every monotone path from ``start`` of at most ``n_steps_max`` Manhattan length through ok cells."""
-    out = []
-
-    def rec(path: list[tuple[int, int]], manhattan: int) -> None:
-        out.append(list(path))
-        i, j = path[-1]
-        for di, dj in ((1, 1), (1, 0), (0, 1)):
-            c = (i + di, j + dj)
-            if manhattan + di + dj <= n_steps_max and ok(c, path):
-                path.append(c)
-                rec(path, manhattan + di + dj)
-                path.pop()
-
-    rec([start], 0)
-    return out
 
 
 # ---------------------------------------------------------------------------- constructed grids
@@ -181,36 +87,6 @@ def test_optimal_path_is_the_brute_force_optimum() -> None:
             assert np.isclose(g[path[:, 0], path[:, 1]].sum(), best)
         else:
             assert path is None
-
-
-def ref_bridges(g: np.ndarray, valid: np.ndarray, cells: np.ndarray, offs: np.ndarray,
-                L: int) -> dict[tuple[int, int], float]:
-    """Slow reference of find_bridges: over every chain cell start, the least-total path to each
-    C' cell (inside the valid region, slope rule k = 3, Manhattan < L, not through chain cells),
-    the least average kept per (C, C'). Returns {(C, C'): average}."""
-    owner = -np.ones(g.shape, int)
-    for c, (a, b) in enumerate(itertools.pairwise(offs)):
-        owner[cells[a:b, 0], cells[a:b, 1]] = c
-    want: dict[tuple[int, int], float] = {}
-    for c, (a, b) in enumerate(itertools.pairwise(offs)):
-        for start in map(tuple, cells[a:b].tolist()):
-            def ok(cell, path, c=c):
-                if cell[0] >= g.shape[0] or cell[1] >= g.shape[1] or not valid[cell] or owner[cell] == c:
-                    return False
-                return all(owner[x] < 0 for x in path[1:])  # chain cells end a path
-
-            best_total: dict[tuple[int, int], tuple[float, float]] = {}
-            for p in all_paths(start, L - 1, ok):
-                end = p[-1]
-                if owner[end] < 0 or owner[end] == c or not slope_ok(np.array(p), 3):
-                    continue
-                tot = float(sum(g[x] for x in p))
-                if end not in best_total or tot < best_total[end][0]:
-                    best_total[end] = (tot, tot / len(p))
-            for end, (_, avg) in best_total.items():
-                key = (c, int(owner[end]))
-                want[key] = min(want.get(key, np.inf), avg)
-    return want
 
 
 def check_bridges(g: np.ndarray, valid: np.ndarray, cells: np.ndarray, offs: np.ndarray, L: int) -> int:

@@ -20,41 +20,13 @@ from motionweb.tasks.register import (
     monotone_knots,
     register,
 )
+from naive import ref_alignment_cost
 
 CFG = MatchWebParams()
 RATE = 30.0
 
 
 # ---------------------------------------------------------------------------- slow references
-
-
-def ref_alignment_cost(g: np.ndarray, slope_k: int) -> float:
-    """Least total cost of a monotone path (0, 0) → (n − 1, m − 1) over finite cells with at most
-    ``slope_k − 1`` consecutive steps along one axis (inf when there is none). Pure Python DP over
-    (row, column, run): run r > 0 counts the up steps just taken, r < 0 the right steps, 0 after a
-    diagonal step or at the start."""
-    n, m = g.shape
-    mrun = slope_k - 1
-    best: dict[tuple[int, int, int], float] = {(0, 0, 0): float(g[0, 0])}
-    for i in range(n):
-        for j in range(m):
-            if not np.isfinite(g[i, j]) or (i, j) == (0, 0):
-                continue
-            for r in range(-mrun, mrun + 1):
-                if r == 0:
-                    prev = [best.get((i - 1, j - 1, s), np.inf) for s in range(-mrun, mrun + 1)]
-                elif r == 1:
-                    prev = [best.get((i - 1, j, s), np.inf) for s in range(-mrun, 1)]
-                elif r > 1:
-                    prev = [best.get((i - 1, j, r - 1), np.inf)]
-                elif r == -1:
-                    prev = [best.get((i, j - 1, s), np.inf) for s in range(mrun + 1)]
-                else:
-                    prev = [best.get((i, j - 1, r + 1), np.inf)]
-                c = min(prev) + g[i, j]
-                if c < np.inf:
-                    best[(i, j, r)] = c
-    return min(best.get((n - 1, m - 1, r), np.inf) for r in range(-mrun, mrun + 1))
 
 
 def path_ok(path: np.ndarray, n: int, m: int, slope_k: int) -> bool:
