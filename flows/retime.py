@@ -10,7 +10,15 @@ from motionweb.flows.config import Config
 from motionweb.store.bvh import write_bvh
 from motionweb.store.formats import read_motion
 from motionweb.store.motion import Motion
-from motionweb.tasks.retime import RetimeParams, RetimePlan, RetimeResult, prepare, report, retime_plan
+from motionweb.tasks.retime import (
+    RetimeParams,
+    RetimePlan,
+    RetimeResult,
+    flight_intervals,
+    prepare,
+    report,
+    retime_plan,
+)
 from prefect import flow, task
 
 
@@ -79,8 +87,6 @@ def plot_retiming(plan: RetimePlan, res: RetimeResult, out_dir: str | Path, n_po
 
 
 def report_flights(plan: RetimePlan, res: RetimeResult) -> list[dict]:
-    from motionweb.tasks.retime import flight_intervals
-
     return [{"source": [a, b]} for a, b in flight_intervals(plan.contacts.active, plan.motion.fps)]
 
 

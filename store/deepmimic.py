@@ -188,7 +188,7 @@ class HumanoidModel:
     def total_mass(self) -> float:
         return float(self.masses.sum())
 
-    # singular aliases, the interface tasks.dynamics.humanoid_inertias reads
+    # singular aliases, the interface tasks.retime.dynamics.humanoid_inertias reads
     @property
     def mass(self) -> np.ndarray:
         return self.masses

@@ -14,6 +14,7 @@ import numpy as np
 from motionweb.store.web import MatchWeb
 from motionweb.tasks.distance import rigid_align_2d
 from motionweb.tasks.guided_warp import Track
+from motionweb.tasks.retime.objective import BakedObjective, sector
 
 
 class TooManySequences(RuntimeError):
@@ -269,3 +270,44 @@ def ref_alignment_cost(g: np.ndarray, slope_k: int) -> float:
                 if c < np.inf:
                     best[(i, j, r)] = c
     return min(best.get((n - 1, m - 1, r), np.inf) for r in range(-mrun, mrun + 1))
+
+
+def _frame_terms(obj: BakedObjective, fr: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-sample value (S,), gradient (S, 2) and closest feasible point (S, 2) of one frame's terms."""
+    s = sector(obj, fr, x)
+    k = obj.coef[fr, s]  # (S, 6)
+    x0, x1 = x[:, 0], x[:, 1]
+    val = k[:, 0] * x0 * x0 + k[:, 1] * x0 * x1 + k[:, 2] * x1 * x1 + k[:, 3] * x0 + k[:, 4] * x1 + k[:, 5]
+    grad = np.stack([2 * k[:, 0] * x0 + k[:, 1] * x1 + k[:, 3], k[:, 1] * x0 + 2 * k[:, 2] * x1 + k[:, 4]], axis=1)
+    # distance to the polygon
+    v = obj.verts[fr]  # (S, K, 2)
+    e = np.roll(v, -1, axis=1) - v
+    rel = x[:, None, :] - v
+    cross = e[..., 0] * rel[..., 1] - e[..., 1] * rel[..., 0]
+    inside = obj.solid[fr] & np.all(cross >= 0, axis=1)
+    ee = np.maximum((e * e).sum(axis=2), 1e-300)
+    t = np.clip((rel * e).sum(axis=2) / ee, 0.0, 1.0)
+    proj = v + t[..., None] * e
+    d2 = ((x[:, None, :] - proj) ** 2).sum(axis=2)
+    j = np.argmin(d2, axis=1)
+    cp = proj[np.arange(len(fr)), j]
+    cp[inside] = x[inside]
+    diff = x - cp
+    val = val + obj.alpha[fr] * (diff * diff).sum(axis=1)
+    grad = grad + 2 * obj.alpha[fr][:, None] * diff
+    return val, grad, cp
+
+
+def evaluate_numpy(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """MPS06 Eqn. 14's density in plain numpy: the reference of ``motionweb.tasks.retime.objective.evaluate``
+    (value (S,), d/dx (S, 2), d/du (S,) at source frames ``u`` (S,) and x = (p̈, ṗ²) (S, 2))."""
+    f = obj.n_frames
+    u = np.clip(u, 0.0, f - 1.0)
+    i0 = np.minimum(np.floor(u).astype(np.int64), max(f - 2, 0))
+    i1 = np.minimum(i0 + 1, f - 1)
+    w = u - i0
+    v0, g0, _ = _frame_terms(obj, i0, x)
+    v1, g1, _ = _frame_terms(obj, i1, x)
+    val = (1 - w) * v0 + w * v1
+    gx = (1 - w)[:, None] * g0 + w[:, None] * g1
+    return val, gx, v1 - v0

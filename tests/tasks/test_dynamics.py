@@ -6,8 +6,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from fixtures import G, jumper_skeleton, synthetic_jump
-from motionweb.tasks.contacts import contacts_for, find_feet, pyramid
-from motionweb.tasks.dynamics import body_model_for, build_body_model, dynamics_terms, mass_factors
+from motionweb.tasks.retime.contacts import contacts_for, find_feet, pyramid
+from motionweb.tasks.retime.dynamics import body_model_for, build_body_model, dynamics_terms, mass_factors
 
 
 def test_coefficients_reproduce_rnea_with_contacts() -> None:

@@ -9,20 +9,18 @@ import pytest
 from fixtures import synthetic_jump
 from motionweb.store.kinematics import hold_ends
 from motionweb.tasks.retime import (
-    N_ROOT,
-    FrameLP,
     RetimeError,
     RetimeParams,
-    check_keytimes,
-    evaluate,
-    evaluate_numpy,
     flight_intervals,
-    objective_function,
     polygon_options,
     prepare,
     retime_plan,
     shortest_duration,
 )
+from motionweb.tasks.retime.objective import evaluate
+from motionweb.tasks.retime.polygons import N_ROOT, FrameLP
+from motionweb.tasks.retime.spline import TimingSpline, check_keytimes, objective_function
+from naive import evaluate_numpy
 from scipy.optimize import linprog
 
 OPTS = RetimeParams()
@@ -140,7 +138,6 @@ def test_objective_gradient_and_compiled_kernel(jump) -> None:
     x = rng.uniform([-20, 0], [20, 10], (300, 2))
     for a, b in zip(evaluate(plan.baked, u, x), evaluate_numpy(plan.baked, u, x), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
-    from motionweb.tasks.retime import TimingSpline
     sp = TimingSpline.make(np.array([0.0, 3.0]), np.array([0.0, motion.duration]), 8.0)
     fun = objective_function(plan.baked, sp, motion.fps, 3.0, 800)
     z = rng.normal(0, 0.3, sp.n_params)

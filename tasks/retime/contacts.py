@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Skeleton
-from motionweb.tasks.dynamics import BodyModel
+from motionweb.tasks.retime.dynamics import BodyModel
 
 EDGES_PER_CORNER = 4
 CORNERS = 4

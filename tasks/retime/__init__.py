@@ -1,0 +1,20 @@
+"""Physics-based motion retiming (design §8, MPS06 §3.1-3.6), one module per job.
+
+* :mod:`.dynamics` — body model and path dynamics τ = a p̈ + b ṗ² + c (MPS06 §3.1);
+* :mod:`.contacts` — foot contacts and friction-pyramid force bases (MPS06 §3.2);
+* :mod:`.polygons` — original forces, torque limits and feasible (p̈, ṗ²) polygons by LPs (MPS06 §3.3);
+* :mod:`.objective` — the fan-baked objective of MPS06 Eqn. 14 and its compiled kernels (§3.4, §3.6);
+* :mod:`.spline` — the monotone timing spline p(t) and its L-BFGS-B optimizer (MPS06 §3.5-3.6);
+* :mod:`.pipeline` — :class:`RetimeParams`, :func:`prepare` and :func:`retime_plan` end to end;
+* :mod:`.report` — flights, contact phases, feasibility and the shortest reachable duration.
+
+The names below are the public API used by the flows and the benchmarks.
+"""
+
+from motionweb.tasks.retime.errors import RetimeError
+from motionweb.tasks.retime.pipeline import RetimeParams, RetimePlan, polygon_options, prepare, retime_plan
+from motionweb.tasks.retime.report import flight_intervals, phase_times, report, shortest_duration
+from motionweb.tasks.retime.spline import RetimeResult
+
+__all__ = ["RetimeError", "RetimeParams", "RetimePlan", "RetimeResult", "flight_intervals", "phase_times",
+           "polygon_options", "prepare", "report", "retime_plan", "shortest_duration"]

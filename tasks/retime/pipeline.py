@@ -1,0 +1,177 @@
+"""Physics-based retiming end to end: parameters, prepared plan, retimed motion (design §8, MPS06 §3).
+
+:func:`prepare` runs the stages that depend on the clip and the physics only — body model and path
+dynamics (:mod:`.dynamics`), contacts (:mod:`.contacts`), original forces and feasible polygons
+(:mod:`.polygons`), the baked objective (:mod:`.objective`) — and :func:`retime_plan` optimizes a
+timing for one duration and keytimes (:mod:`.spline`), so one plan serves many timings.
+
+Costs: polygons O(F · n_LP · LP), baking O(F · K · nv · nλ), one objective evaluation O(S · K).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Any, Literal
+
+import numpy as np
+from motionweb.store.kinematics import sample_motion
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.params import Params
+from motionweb.tasks.retime.contacts import Contacts, contacts_for
+from motionweb.tasks.retime.dynamics import (
+    BodyModel,
+    DynamicsTerms,
+    body_model_for,
+    dynamics_terms,
+    mass_factors,
+)
+from motionweb.tasks.retime.errors import RetimeError
+from motionweb.tasks.retime.objective import BakedObjective, bake
+from motionweb.tasks.retime.polygons import (
+    N_ROOT,
+    FeasiblePolygons,
+    OriginalForces,
+    PolygonOptions,
+    feasible_polygons,
+    original_forces,
+)
+from motionweb.tasks.retime.spline import RetimeResult, optimize_timing
+from pydantic import Field
+
+
+class RetimeParams(Params):
+    """Physics-based retiming (design §8, MPS06 §3)."""
+
+    body_model: Literal["cylinders", "table"] = "cylinders"
+    total_mass: float | None = None
+    friction: float = 0.5
+    contact_height: float = 0.05
+    contact_speed: float = 0.3
+    torque_margin: float = 1.5
+    samples_per_frame: int = 4
+    #: MPS06 Eqn. 14 weights, both unit-free: α on the squared distance to the feasible polygon
+    #: priced as unexplained root force in body weights, β on the mean squared torque deviation
+    #: in units of the torque limits
+    alpha: float = 1.0
+    beta: float = 0.1
+    objective: Literal["match", "minimize"] = "match"
+    ground_height: float = 0.0
+    #: per clip name: {foot joint: [[start_s, end_s], ...]} replacing detected contacts
+    contact_intervals: dict[str, dict[str, list[tuple[float, float]]]] = Field(default_factory=dict)
+    #: retime clips with no ground contact as pure flight instead of failing
+    allow_flight_only: bool = False
+    #: box of the (p̈, ṗ²) plane the feasible polygons are clipped to (MPS06 §3.4)
+    speed_max: float = 6.0
+    pdd_max: float = 40.0
+    #: initial sweep directions and the LP budget per frame of the polygon sweep
+    directions: int = 8
+    max_lps: int = 16
+    #: knots of the monotone timing spline p(t) per second of output
+    knots_per_second: float = 8.0
+
+
+def polygon_options(params: RetimeParams) -> PolygonOptions:
+    """The polygon sweep's settings of a retiming's parameters."""
+    return PolygonOptions(pdd_max=params.pdd_max, speed_max=params.speed_max, directions=params.directions,
+                          max_lps=params.max_lps)
+
+
+@dataclass(frozen=True, eq=False)
+class RetimePlan:
+    """Everything precomputed for one clip and one physics setting (reused across timings).
+
+    ``A, B, C`` are the recombined path-dynamics terms under the new gravity / masses; ``original``
+    the forces of the unmodified clip (targets of the 'match' objective and torque limits).
+    """
+
+    motion: Motion
+    body: BodyModel
+    terms: DynamicsTerms
+    contacts: Contacts
+    gravity: np.ndarray
+    factors: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    original: OriginalForces
+    polygons: FeasiblePolygons
+    baked: BakedObjective
+    timings: dict[str, float]
+
+
+def humanoid_foot_corners(humanoid: Any, skeleton: Skeleton) -> dict[int, np.ndarray]:
+    """Sole rectangles ``{joint: (4, 3)}`` (joint frame, m) of a humanoid's foot boxes."""
+    out = {}
+    for name, box in getattr(humanoid, "foot_boxes", {}).items():
+        hx, hy, hz = np.asarray(box.size, float) / 2
+        local = np.array([[hx, -hy, hz], [hx, -hy, -hz], [-hx, -hy, -hz], [-hx, -hy, hz]])
+        w, v = float(box.rotation[0]), np.asarray(box.rotation[1:], float)
+        rot = local + 2 * w * np.cross(v, local) + 2 * np.cross(v, np.cross(v, local))
+        out[skeleton.index(name)] = np.asarray(box.origin, float) + rot
+    return out
+
+
+def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = "y", gravity: np.ndarray | None = None,
+            mass: dict[str, float] | None = None, humanoid: Any | None = None,
+            contact_intervals: dict[str, list[tuple[float, float]]] | None = None) -> RetimePlan:
+    """Dynamics, contacts, original forces, feasible polygons and the baked objective (MPS06 §3.1-3.6).
+
+    Raises ``RetimeError`` when no foot touches the ground (unless ``allow_flight_only``), and
+    ``ValueError`` for an unknown unit or an unknown joint in ``mass``.
+    """
+    opts = opts or RetimeParams()
+    tm: dict[str, float] = {}
+    up = "xyz".index(up_axis)
+    t = time.perf_counter()
+    body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up,
+                          humanoid=humanoid)
+    factors = mass_factors(body, mass or {})
+    terms = dynamics_terms(body, motion)
+    tm["dynamics"] = time.perf_counter() - t
+    t = time.perf_counter()
+    corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
+    contacts = contacts_for(body, terms.q, motion.fps, mu=opts.friction, height=opts.contact_height,
+                            speed=opts.contact_speed, ground=opts.ground_height, intervals=contact_intervals,
+                            foot_corners=corners)
+    tm["contacts"] = time.perf_counter() - t
+    if not contacts.active.any() and not opts.allow_flight_only:
+        feet = ", ".join(f.name for f in contacts.feet)
+        low = contacts.corner_positions[..., up].min() - opts.ground_height
+        raise RetimeError(
+            f"no ground contact detected in {motion.name or 'the clip'}: feet ({feet}) never come within "
+            f"{opts.contact_height} m of the ground at y={opts.ground_height} (lowest {low:.3f} m above) while "
+            f"slower than {opts.contact_speed} m/s. Give contact intervals (retime.contact_intervals in the "
+            "config), adjust contact_height/ground_height, or set retime.allow_flight_only: true to retime it "
+            "as pure flight (ballistic).")
+    g0 = body.default_gravity()
+    g = g0 if gravity is None else np.asarray(gravity, dtype=float)
+    weight = body.total_mass * float(np.linalg.norm(g0))
+    popts = polygon_options(opts)
+    t = time.perf_counter()
+    A0, B0, C0 = terms.combine(g0)
+    original = original_forces(A0, B0, C0, contacts, opts.torque_margin, weight, popts)
+    tm["original_forces"] = time.perf_counter() - t
+    A, B, C = terms.combine(g, factors)
+    polys = feasible_polygons(A, B, C, contacts, original.limits, weight, popts, original_residual=original.tau[:, :N_ROOT])
+    tm["polygons"] = polys.seconds
+    t = time.perf_counter()
+    target = original.tau if opts.objective == "match" else np.zeros_like(original.tau)
+    if opts.objective not in ("match", "minimize"):
+        raise ValueError(f"unknown objective {opts.objective!r} (match, minimize)")
+    tau_scale = np.where(np.arange(len(original.limits)) < N_ROOT, weight, original.limits)
+    baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta, tau_scale)
+    tm["bake"] = time.perf_counter() - t
+    return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors, A=A, B=B,
+                      C=C, original=original, polygons=polys, baked=baked, timings=tm)
+
+
+def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
+                opts: RetimeParams | None = None) -> tuple[Motion, RetimeResult]:
+    """Optimize the timing of a prepared clip and sample the retimed motion at the source fps."""
+    opts = opts or RetimeParams()
+    m = plan.motion
+    res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes, samples_per_frame=opts.samples_per_frame,
+                          knots_per_second=opts.knots_per_second, speed_max=opts.speed_max)
+    out = replace(sample_motion(m, res.p * m.fps), name=f"{m.name}_retimed", source=None, content_hash="")
+    return out, res

@@ -1,0 +1,366 @@
+"""Feasible (p̈, ṗ²) polygons of every frame by HiGHS LPs (design §8, MPS06 §3.2-3.4).
+
+* :func:`original_forces` — contact forces λ₀ and torques τ₀ of the original timing (p̈, ṗ²) = (0, 1)
+  from an LP minimizing Σλ (root rows relaxed by the smallest residual that works); joint
+  torque limits are τ₀'s peaks times a margin (MPS06 §4: limits observed from the motion).
+* :func:`feasible_polygons` — per frame, the projection onto (p̈, ṗ²) of the polytope of MPS06
+  Eqn. 13 by LPs maximizing a sweep of directions, refined where edges are long (MPS06 §3.3,
+  Fig. 4), root rows bounded per row by the original timing's own residual. One HiGHS
+  instance for all frames; only the objective changes between directions (primal simplex).
+
+Cost: O(F · n_LP) LPs of (3 + nλ) columns and nv rows.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import highspy
+import numpy as np
+from motionweb.tasks.retime.contacts import Contacts
+
+N_ROOT = 6
+INF = highspy.kHighsInf
+
+
+@dataclass(frozen=True)
+class PolygonOptions:
+    """Sweep settings: box of (p̈, ṗ²), initial directions, LP budget (from ``RetimeParams``,
+    see ``polygon_options``), refinement threshold."""
+
+    pdd_max: float
+    speed_max: float
+    directions: int
+    max_lps: int
+    edge_tol: float = 0.5
+    abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
+    infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
+
+
+@dataclass(frozen=True, eq=False)
+class OriginalForces:
+    """Forces of the original timing (p̈, ṗ²) = (0, 1).
+
+    Attributes:
+        tau: (F, nv) generalized forces left for the actuators (root rows ≈ 0).
+        lam: (F, nλ) contact magnitudes (zeros for feet not in contact).
+        residual: (F,) root residual of the best contact forces (0: explained by contacts).
+        limits: (nv,) symmetric joint torque limits (0 on root rows, unused there).
+    """
+
+    tau: np.ndarray
+    lam: np.ndarray
+    residual: np.ndarray
+    limits: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class FeasiblePolygons:
+    """Per-frame feasible regions in (p̈, ṗ²) with contact forces at vertices and centre.
+
+    Attributes:
+        vertices: per frame (K, 2), counter-clockwise.
+        lambdas: per frame (K, nλ) contact magnitudes at each vertex.
+        center: (F, 2) the fan centre (original timing (0, 1) when inside).
+        center_lambda: (F, nλ) min-Σλ contact magnitudes at the centre.
+        residual: (F,) smallest root residual (N or N·m) over the whole box; tolerance: (F, 6)
+            the residual allowed on each root row in the polygon; infeasible: (F,) no timing has a residual
+            below ``infeasible_tol`` of body weight (the contact model cannot explain the frame);
+            original_inside: (F,) whether (0, 1) is in the polygon.
+        n_lps: LPs solved; seconds, cpu_seconds: wall and CPU time of this process.
+    """
+
+    vertices: list[np.ndarray]
+    lambdas: list[np.ndarray]
+    center: np.ndarray
+    center_lambda: np.ndarray
+    residual: np.ndarray
+    tolerance: np.ndarray
+    infeasible: np.ndarray
+    original_inside: np.ndarray
+    n_lps: int
+    seconds: float
+    cpu_seconds: float
+
+
+# --------------------------------------------------------------------------- LPs
+
+
+class FrameLP:
+    """One HiGHS model of MPS06 Eqn. 13 for a frame: columns [p̈, ṗ², s, λ], maximize.
+
+    Rows: root rows −s ≤ A p̈ + B ṗ² − N λ + C ≤ s; joint rows |A p̈ + B ṗ² − N λ + C| ≤ limits
+    (left out when ``limits`` is None: they would be free rows).
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, N: np.ndarray, limits: np.ndarray | None,
+                 opts: PolygonOptions, highs: highspy.Highs | None = None):
+        nv, nl = N.shape
+        self.nl = nl
+        h = highs or new_highs()  # passModel replaces the previous frame's model
+        lp = highspy.HighsLp()
+        ncol = 3 + nl
+        nj = 0 if limits is None else nv - N_ROOT
+        lim = np.zeros(0) if limits is None else limits[N_ROOT:]
+        # dense constraint matrix: root upper (6), root lower (6), joints
+        M = np.zeros((2 * N_ROOT + nj, ncol))
+        for blk, sgn in ((0, -1.0), (N_ROOT, 1.0)):
+            M[blk:blk + N_ROOT, 0] = A[:N_ROOT]
+            M[blk:blk + N_ROOT, 1] = B[:N_ROOT]
+            M[blk:blk + N_ROOT, 2] = sgn
+            M[blk:blk + N_ROOT, 3:] = -N[:N_ROOT]
+        if nj:
+            M[2 * N_ROOT:, 0] = A[N_ROOT:]
+            M[2 * N_ROOT:, 1] = B[N_ROOT:]
+            M[2 * N_ROOT:, 3:] = -N[N_ROOT:]
+        lo = np.concatenate([np.full(N_ROOT, -INF), -C[:N_ROOT], -lim - C[N_ROOT:N_ROOT + nj]])
+        hi = np.concatenate([-C[:N_ROOT], np.full(N_ROOT, INF), lim - C[N_ROOT:N_ROOT + nj]])
+        lo[~np.isfinite(lo)] = -INF
+        hi[~np.isfinite(hi)] = INF
+        lp.num_col_, lp.num_row_ = ncol, M.shape[0]
+        lp.col_cost_ = np.zeros(ncol)
+        lp.col_lower_ = np.concatenate([[-opts.pdd_max, 0.0, 0.0], np.zeros(nl)])
+        lp.col_upper_ = np.concatenate([[opts.pdd_max, opts.speed_max**2, INF], np.full(nl, INF)])
+        lp.row_lower_, lp.row_upper_ = lo, hi
+        nz = M != 0
+        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        lp.a_matrix_.start_ = np.concatenate([[0], np.cumsum(nz.sum(axis=0))]).astype(np.int32)
+        rows, cols = np.nonzero(nz.T)
+        lp.a_matrix_.index_ = cols.astype(np.int32)
+        lp.a_matrix_.value_ = M.T[rows, cols]
+        lp.sense_ = highspy.ObjSense.kMaximize
+        h.passModel(lp)
+        self.h = h
+        self.opts = opts
+        self._all = np.arange(ncol, dtype=np.int32)
+        self.n_solved = 0
+
+    def solve(self, cost: np.ndarray) -> np.ndarray | None:
+        """Maximize ``cost · x`` (costs of the columns past ``len(cost)`` unchanged); x or None if infeasible."""
+        self.h.changeColsCost(len(cost), self._all[:len(cost)], np.asarray(cost, dtype=float))
+        self.h.run()
+        self.n_solved += 1
+        if self.h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+            return None
+        return np.asarray(self.h.getSolution().col_value)
+
+    def set_residual_bound(self, upper: float | np.ndarray) -> None:
+        """Bound the root residual: |row i| ≤ upper (a scalar, or one bound per root row).
+
+        Per-row bounds scale the residual column's coefficients (row i: |r_i| ≤ w_i s, s ≤ max).
+        """
+        up = np.broadcast_to(np.asarray(upper, dtype=float), (N_ROOT,))
+        top = max(float(up.max()), 1e-300)
+        for r in range(N_ROOT):
+            self.h.changeCoeff(r, 2, -up[r] / top)
+            self.h.changeCoeff(N_ROOT + r, 2, up[r] / top)
+        self.h.changeColBounds(2, 0.0, top)
+
+    def fix_timing(self, x: tuple[float, float] | None) -> None:
+        o = self.opts
+        if x is None:
+            self.h.changeColBounds(0, -o.pdd_max, o.pdd_max)
+            self.h.changeColBounds(1, 0.0, o.speed_max**2)
+        else:
+            self.h.changeColBounds(0, x[0], x[0])
+            self.h.changeColBounds(1, x[1], x[1])
+
+
+def new_highs() -> highspy.Highs:
+    """A HiGHS instance set up for the tiny, often re-solved LPs of MPS06 §3.3 (reused across frames)."""
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("presolve", "off")  # tiny LPs re-solved from the previous basis
+    h.setOptionValue("threads", 1)  # HiGHS's worker pool only adds synchronization here (7x on 2 busy cores)
+    # a new direction changes costs only: the basis stays primal feasible, so primal simplex
+    # re-optimizes from it (1.7x fewer ms per direction than dual simplex)
+    h.setOptionValue("simplex_strategy", 4)
+    return h
+
+
+def _lp_cost(nl: int, pdd: float = 0.0, pd2: float = 0.0, s: float = 0.0, lam: float = 0.0) -> np.ndarray:
+    return np.concatenate([[pdd, pd2, s], np.full(nl, lam)])
+
+
+def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Contacts, margin: float,
+                    weight: float, opts: PolygonOptions) -> OriginalForces:
+    """Contact forces and torques of the original timing, and torque limits (MPS06 §3.2, §4).
+
+    Per frame one LP at (p̈, ṗ²) = (0, 1) without torque limits minimizing W·s + Σλ (W large:
+    the root residual s first). Limits: ``margin`` × the peak |τ₀| of each joint's dofs, at least
+    2 % of the largest. O(F) LPs.
+    """
+    f, nv = A.shape
+    nl_all = contacts.basis.shape[2]
+    tau = np.zeros((f, nv))
+    lam = np.zeros((f, nl_all))
+    res = np.zeros(f)
+    big = 1e3 / max(weight, 1e-9)  # W·s dominates Σλ
+    highs = new_highs()
+    for i in range(f):
+        cols = contacts.columns(i)
+        N = contacts.basis[i][:, cols]
+        lp = FrameLP(A[i], B[i], C[i], N, None, opts, highs)
+        lp.fix_timing((0.0, 1.0))
+        x = lp.solve(_lp_cost(len(cols), s=-big * weight, lam=-1.0))
+        if x is None:  # cannot happen with a free residual; keep zeros
+            continue
+        res[i] = x[2]
+        lam[i, cols] = x[3:]
+        tau[i] = B[i] + C[i] - N @ x[3:]
+    peak = np.abs(tau[:, N_ROOT:]).max(axis=0) if f else np.zeros(nv - N_ROOT)
+    # one limit per 3-dof joint (isotropic), from the peaks of its components
+    peak3 = peak.reshape(-1, 3).max(axis=1).repeat(3) if peak.size % 3 == 0 else peak
+    lim = margin * np.maximum(peak3, 0.02 * max(peak3.max(initial=0.0), 1e-6))
+    limits = np.concatenate([np.zeros(N_ROOT), lim])
+    return OriginalForces(tau=tau, lam=lam, residual=res, limits=limits)
+
+
+def _dedupe(points: list[tuple[float, np.ndarray, np.ndarray]], tol: float) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    out: list[tuple[float, np.ndarray, np.ndarray]] = []
+    for p in points:
+        if not out or math.dist(p[1], out[-1][1]) > tol:
+            out.append(p)
+    if len(out) > 1 and math.dist(out[0][1], out[-1][1]) <= tol:
+        out.pop()
+    return out
+
+
+def sweep_polygon(lp: FrameLP, opts: PolygonOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (K, 2) counter-clockwise and their λ (K, nλ) by direction sweep + refinement.
+
+    Directions start straight down (−ṗ²) and turn counter-clockwise (MPS06 Fig. 4); an edge
+    longer than ``edge_tol`` is probed along its outward normal, and the new vertex is kept when
+    it lies beyond the edge. The polygon found is inside the true projection. O(max_lps) LPs.
+    """
+    nl = lp.nl
+    pts: list[tuple[float, np.ndarray, np.ndarray]] = []
+    angles = -np.pi / 2 + 2 * np.pi * np.arange(opts.directions) / opts.directions
+    for a in angles:  # λ costs are 0 after the residual LP: change the (p̈, ṗ², s) costs only
+        x = lp.solve(np.array([np.cos(a), np.sin(a), 0.0]))
+        if x is None:
+            return np.zeros((0, 2)), np.zeros((0, nl))
+        pts.append((float(a), x[:2].copy(), x[3:].copy()))
+    tol = 1e-7 * (opts.pdd_max + opts.speed_max**2)
+    pts = _dedupe(pts, tol)
+    budget = opts.max_lps - opts.directions
+    changed = True
+    while changed and budget > 0 and len(pts) > 1:
+        changed = False
+        new = []
+        for k in range(len(pts)):
+            _a0, v0, _ = pts[k]
+            _a1, v1, _ = pts[(k + 1) % len(pts)]
+            ex, ey = float(v1[0] - v0[0]), float(v1[1] - v0[1])
+            length = math.hypot(ex, ey)
+            if length <= opts.edge_tol or budget <= 0:
+                continue
+            n = np.array([ey / length, -ex / length, 0.0])  # outward unit normal of a counter-clockwise edge
+            an = math.atan2(n[1], n[0])
+            x = lp.solve(n)
+            budget -= 1
+            if x is not None and n[:2] @ (x[:2] - v0) > 1e-6 * (1 + np.abs(v0).max()):
+                new.append((an, x[:2].copy(), x[3:].copy()))
+                changed = True
+        if new:
+            allp = pts + new
+            c = np.mean([p[1] for p in allp], axis=0)
+            allp.sort(key=lambda p: np.arctan2(p[1][1] - c[1], p[1][0] - c[0]))
+            pts = _dedupe(allp, tol)
+    verts = np.array([p[1] for p in pts])
+    lams = np.array([p[2] for p in pts]).reshape(len(pts), nl)
+    if len(verts) >= 3:
+        c = verts.mean(axis=0)
+        order = np.argsort(np.arctan2(verts[:, 1] - c[1], verts[:, 0] - c[0]))
+        verts, lams = verts[order], lams[order]
+    return verts, lams
+
+
+def polygon_area(v: np.ndarray) -> float:
+    if len(v) < 3:
+        return 0.0
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def closest_point(v: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The point of convex polygon ``v`` (K, 2, counter-clockwise) closest to ``x`` (2,)."""
+    if len(v) == 1:
+        return v[0].copy()
+    e = np.roll(v, -1, axis=0) - v
+    if len(v) >= 3 and polygon_area(v) > 1e-12:
+        cross = e[:, 0] * (x[1] - v[:, 1]) - e[:, 1] * (x[0] - v[:, 0])
+        if np.all(cross >= 0):
+            return x.copy()
+    ee = np.maximum((e * e).sum(axis=1), 1e-300)
+    t = np.clip(((x - v) * e).sum(axis=1) / ee, 0, 1)
+    proj = v + t[:, None] * e
+    return proj[np.argmin(((proj - x) ** 2).sum(axis=1))]
+
+
+def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Contacts, limits: np.ndarray,
+                      weight: float, opts: PolygonOptions,
+                      original_residual: np.ndarray | None = None) -> FeasiblePolygons:
+    """Feasible (p̈, ṗ²) polygons of every frame (MPS06 §3.3) with λ at vertices and centre (§3.4).
+
+    Mocap is never exactly consistent with the body model: the original timing leaves a root
+    residual ρ (``original_residual``, (F, 6), under the original physics) that its own timing
+    must be allowed. Each root row i gets its own bound |ρ_i| + ``abs_tol``·weight, so that a large
+    inconsistency in one row (e.g. angular momentum in flight) does not loosen the others (the
+    vertical force that makes a flight ballistic). Where no timing meets those bounds (changed
+    physics), every row gets max(1.05 s*, max|ρ|) + ``abs_tol``·weight with s* the smallest
+    uniform residual over the box (an LP; 0 when contacts explain the frame). Then the
+    direction sweep, then
+    the centre (0, 1) — or, when outside, its closest polygon point pulled 5 % toward the
+    vertex mean — and its min-Σλ forces. Flight frames (no contact) give a thin polygon around the
+    ballistic segment or point. Cost O(F · max_lps) LPs of (3 + nλ) columns.
+    """
+    t0, c0 = time.perf_counter(), time.process_time()
+    f = A.shape[0]
+    nl_all = contacts.basis.shape[2]
+    verts, lams = [], []
+    center = np.zeros((f, 2))
+    clam = np.zeros((f, nl_all))
+    res = np.zeros(f)
+    tol = np.zeros((f, N_ROOT))
+    rho = np.zeros((f, N_ROOT)) if original_residual is None else np.abs(original_residual)
+    inside = np.zeros(f, bool)
+    n_lps = 0
+    highs = new_highs()
+    for i in range(f):
+        cols = contacts.columns(i)
+        N = contacts.basis[i][:, cols]
+        lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs)
+        x = lp.solve(_lp_cost(len(cols), s=-1.0))
+        res[i] = x[2] if x is not None else np.inf
+        tol[i] = rho[i] + opts.abs_tol * weight
+        lp.set_residual_bound(tol[i])
+        v, lv = sweep_polygon(lp, opts)
+        if not len(v):
+            tol[i] = max(1.05 * res[i], rho[i].max()) + opts.abs_tol * weight
+            lp.set_residual_bound(tol[i])
+            v, lv = sweep_polygon(lp, opts)
+        full = np.zeros((len(v), nl_all))
+        full[:, cols] = lv
+        o = np.array([0.0, 1.0])
+        cp = closest_point(v, o) if len(v) else o
+        inside[i] = bool(len(v) and np.allclose(cp, o))
+        c = cp if inside[i] else cp + 0.05 * (v.mean(axis=0) - cp)
+        lp.fix_timing((float(c[0]), float(c[1])))
+        xc = lp.solve(_lp_cost(len(cols), lam=-1.0))
+        if xc is None:  # numerically on the boundary: use the nearest vertex
+            k = int(np.argmin(((v - c) ** 2).sum(axis=1)))
+            c, xl = v[k], lv[k]
+        else:
+            xl = xc[3:]
+        center[i] = c
+        clam[i, cols] = xl
+        verts.append(v)
+        lams.append(full)
+        n_lps += lp.n_solved
+    infeasible = res > opts.infeasible_tol * weight
+    return FeasiblePolygons(vertices=verts, lambdas=lams, center=center, center_lambda=clam, residual=res,
+                            tolerance=tol, infeasible=infeasible, original_inside=inside, n_lps=n_lps,
+                            seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)

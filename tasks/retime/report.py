@@ -1,0 +1,141 @@
+"""What a retiming did: flights, contact phases, feasibility, shortest duration (design §8, MPS06 §4).
+
+:func:`report` is the JSON-able record of one retiming (per output frame timing, torques, contact
+forces, distance to the polygon) with its summary; the other functions are its parts.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from motionweb.tasks.retime.contacts import Contacts, pyramid
+from motionweb.tasks.retime.objective import contact_lambda
+from motionweb.tasks.retime.pipeline import RetimePlan
+from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, closest_point
+from motionweb.tasks.retime.spline import RetimeResult
+
+
+def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
+    """A lower bound on the duration of any timing that stays inside every polygon (MPS06 §3.3).
+
+    Each frame's polygon bounds ṗ² from above; playing every source interval at the largest ṗ
+    its two end frames allow (trapezoid rule on 1/ṗ_max) ignores the coupling through p̈, so
+    no feasible timing is shorter (``inf`` when some frame allows no motion). A requested
+    duration below it must leave the polygons somewhere. O(Σ K).
+    """
+    top = np.array([v[:, 1].max() if len(v) else 0.0 for v in polys.vertices])
+    if np.any(top <= 0):
+        return float("inf")
+    inv = 1.0 / np.sqrt(top)
+    return float(0.5 * (inv[1:] + inv[:-1]).sum() / fps)
+
+
+def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:
+    """Seconds spent in each contact phase ('flight', '<foot> only', 'double'): (source, output).
+
+    The phase of a source frame is its set of feet in contact; output seconds integrate the
+    phase of p(t) over ``n`` output samples — the retiming's shift between stances (MPS06 Fig.
+    10-11: a leg favoured under sideways gravity or a heavy femur). O(n + F).
+    """
+    names = [f.name for f in contacts.feet]
+
+    def label(row: np.ndarray) -> str:
+        k = int(row.sum())
+        return "flight" if k == 0 else "double" if k > 1 else f"{names[int(np.argmax(row))]} only"
+
+    labels = [label(row) for row in contacts.active]
+    f = len(labels)
+    tt = (np.arange(n) + 0.5) * res.t[-1] / n
+    p, _, _ = res.spline.evaluate(res.z, tt)
+    frames = np.clip(np.rint(p * fps).astype(int), 0, f - 1)
+    out: dict[str, tuple[float, float]] = {}
+    for name in dict.fromkeys(labels):
+        src = sum(lab == name for lab in labels) / fps
+        dur = float(np.isin(frames, [i for i, lab in enumerate(labels) if lab == name]).sum() * res.t[-1] / n)
+        out[name] = (src, dur)
+    return out
+
+
+def flight_intervals(active: np.ndarray, fps: float) -> list[tuple[float, float]]:
+    """Source-time intervals (s) with no foot in contact, between the last and first contact frames."""
+    none = ~active.any(axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], none.astype(np.int8), [0]])))
+    return [((s - 1) / fps if s > 0 else 0.0, e / fps if e < len(none) else (len(none) - 1) / fps)
+            for s, e in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def output_time(res: RetimeResult, src_time: float) -> float:
+    """The output time at which p(t) = ``src_time`` (bisection on the monotone spline)."""
+    lo, hi = 0.0, float(res.spline.out[-1])
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if res.spline.evaluate(res.z, np.array([mid]))[0][0] < src_time:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
+    """JSON-able report: per output frame timing, torques, contact forces, feasibility; summary.
+
+    Infeasible frames are listed, never hidden: source frames the contact model cannot explain
+    (at any timing) and output frames whose (p̈, ṗ²) lies outside its frame's polygon.
+    """
+    m, obj, cont = plan.motion, plan.baked, plan.contacts
+    edges = pyramid_edges(cont, plan.body.up_axis)  # (3, 4)
+    frames = []
+    outside = []
+    for k in range(len(res.t)):
+        x = np.array([res.pdd[k], res.pd[k] ** 2])
+        i = int(np.clip(np.rint(res.p[k] * m.fps), 0, m.n_frames - 1))
+        cp = closest_point(plan.polygons.vertices[i], x) if len(plan.polygons.vertices[i]) else obj.center[i]
+        dist = float(np.linalg.norm(x - cp))
+        lam = contact_lambda(obj, i, x)
+        tau = plan.A[i] * x[0] + plan.B[i] * x[1] + plan.C[i] - cont.basis[i] @ lam
+        forces = {}
+        for fi, foot in enumerate(cont.feet):
+            if cont.active[i, fi]:
+                lf = lam[fi * 16:(fi + 1) * 16].reshape(4, 4)
+                forces[foot.name] = (edges @ lf.sum(axis=0)).round(4).tolist()
+        feasible = dist <= 1e-3 * (1 + np.abs(x).max())
+        if not feasible:
+            outside.append(k)
+        frames.append({"t": round(float(res.t[k]), 6), "source_time": round(float(res.p[k]), 6),
+                       "speed": round(float(res.pd[k]), 6), "accel": round(float(res.pdd[k]), 6),
+                       "source_frame": i, "feasible": bool(feasible), "distance": round(dist, 6),
+                       "torques": tau[N_ROOT:].round(4).tolist(), "root_residual": tau[:N_ROOT].round(4).tolist(),
+                       "contact_forces": forces})
+    flights = []
+    for s0, s1 in flight_intervals(cont.active, m.fps):
+        if s0 <= 0.0 or s1 >= m.duration:
+            continue
+        o0, o1 = output_time(res, s0), output_time(res, s1)
+        flights.append({"source": [s0, s1], "output": [o0, o1], "source_duration": s1 - s0,
+                        "output_duration": o1 - o0, "ratio": (o1 - o0) / (s1 - s0)})
+    polys = plan.polygons
+    return {
+        "clip": m.name, "frames_in": m.n_frames, "frames_out": len(res.t), "fps": m.fps,
+        "duration_in": m.duration, "duration_out": float(res.t[-1]),
+        "gravity": plan.gravity.tolist(), "mass_factors": dict(zip(plan.body.skeleton.names,
+                                                                   plan.factors.round(6).tolist(), strict=True)),
+        "total_mass_kg": plan.body.total_mass,
+        "objective": float(res.objective), "converged": res.converged, "iterations": res.iterations,
+        "contacts": cont.intervals(m.fps), "contacts_detected": cont.detected, "flights": flights,
+        "phase_seconds": {k: {"source": s, "output": o} for k, (s, o) in phase_times(cont, res, m.fps).items()},
+        "shortest_feasible_duration": shortest_duration(polys, m.fps),
+        "infeasible_source_frames": np.flatnonzero(polys.infeasible).tolist(),
+        "original_timing_outside_polygon": np.flatnonzero(~polys.original_inside).tolist(),
+        "infeasible_output_frames": outside,
+        "root_residual_source": polys.residual.round(4).tolist(),
+        "torque_limits": plan.original.limits[N_ROOT:].round(4).tolist(),
+        "timings_s": {**plan.timings, "optimize": res.seconds},
+        "frames": frames,
+    }
+
+
+def pyramid_edges(cont: Contacts, up_axis: int) -> np.ndarray:
+    up = np.zeros(3)
+    up[up_axis] = 1.0
+    return pyramid(up, cont.friction)
