@@ -44,13 +44,14 @@ import numpy as np
 import psutil
 from motionweb.flows.config import Config
 from motionweb.store.bvh import write_bvh
-from motionweb.store.cache import MotionStore
 from motionweb.store.catalog import load_clip, scan_corpus
 from motionweb.store.datasets import mocap_root
 from motionweb.store.demo.corpus import write_demo_corpus
 from motionweb.store.demo.perturb import random_warp, time_warp_clip
+from motionweb.store.generations import load_generation
 from motionweb.store.kinematics import resample
 from motionweb.store.motion import Motion
+from motionweb.store.zarr_store import MotionStore
 
 RATE = 60.0
 
@@ -204,7 +205,7 @@ def serial_compute_s(store: Path, every: int) -> float:
     from motionweb.flows.workers import clip_operands
     from motionweb.tasks.matchweb import build_web_operands
 
-    gen = MotionStore(str(store)).generation()
+    gen = load_generation(MotionStore(str(store)))
     cfg = Config.model_validate(gen.config)
     fdig = gen.params["features"]
     webs = sorted({w["key"]: w for w in gen.webs}.values(), key=lambda w: w["key"])
@@ -233,7 +234,7 @@ def run_index(corpus: Path, store: Path, rate: float, chunk_by: str, workers: in
         s = index_library(cfg)
     s["call_s"] = time.perf_counter() - t
     s["peak_gb"] = mem.peak / 1e9
-    chunks = {c["name"]: c["frames"] for c in MotionStore(str(store)).generation().chunks}
+    chunks = {c["name"]: c["frames"] for c in load_generation(MotionStore(str(store))).chunks}
     s["max_chunk_frames"] = max(chunks.values()) if chunks else 0
     return s
 

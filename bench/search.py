@@ -35,9 +35,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from motionweb.store.cache import MotionStore
 from motionweb.store.datasets import mocap_root
+from motionweb.store.generations import load_generation
 from motionweb.store.webs import StoreWebs
+from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.search import MatchSearch, SearchParams, epsilon_from_quantile
 
@@ -60,7 +61,7 @@ def random_queries(gen, n: int, rate: float, rng: np.random.Generator) -> list[S
 
 def per_query(store: MotionStore, queries: list[Segment], all_categories: bool, eps: float) -> dict:
     """One-tier query times (warm) and the load + pack time per clip."""
-    gen = store.generation()
+    gen = load_generation(store)
     cfg = SearchParams(max_tiers=1)
     load, warm, n_match, n_webs, cells = [], [], [], [], []
     searchers: dict[str, MatchSearch] = {}
@@ -145,7 +146,7 @@ def real_queries(store: MotionStore, rate: float, q_eps: float = 0.75) -> None:
     index (their BVH variations carry another skeleton signature, so they are not paired with
     them). Each real clip is a different single action, so ε is a generous quantile of the query
     clip's webs and the search is one tier (further tiers drift from action to action)."""
-    gen = store.generation()
+    gen = load_generation(store)
     cats = {c["path"]: c["category"] for c in gen.clips}
     clips = {Path(c["path"]).name: c for c in gen.clips}
     for name, seconds, label in (("humanoid3d_walk.txt", (0.1, 1.1), "walk cycle"),
@@ -192,7 +193,7 @@ def main() -> None:
     with temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
         for mode in ("category", "none"):
             path = work / f"store-{mode}-{args.rate:g}"
-            if MotionStore(str(path)).generation() is None:
+            if load_generation(MotionStore(str(path))) is None:
                 s = run_index(work / "corpus", path, args.rate, mode, args.workers)
                 print(f"index ({'by category' if mode == 'category' else 'unsplit'}, {args.rate:g} Hz): "
                       f"{s['chunks']} chunks, {s['pairs']} webs, {s['frames']} frames, {s['wall_s']:.1f} s")

@@ -30,21 +30,18 @@ from typing import Any
 
 from motionweb.flows.config import Config, DaskConfig, load_config
 from motionweb.flows.workers import compute_features_batch, compute_web_batch
-from motionweb.store.cache import (
-    Generation,
-    MotionStore,
+from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
+from motionweb.store.generations import Generation, commit, current_id, load_generation, package_versions
+from motionweb.store.keys import (
     feature_digest,
     feature_key,
     feature_params,
-    new_generation_id,
-    now_iso,
-    package_versions,
     rate_tag,
     web_digest,
     web_key,
     web_params,
 )
-from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
+from motionweb.store.zarr_store import MotionStore, new_id, now_iso
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
@@ -276,7 +273,7 @@ def build_generation(
         "skeleton_minority": sum(len(p.skeleton.minority) for p in plans),
     }
     return Generation(
-        id=gen_id or new_generation_id(),
+        id=gen_id or new_id(),
         created=now_iso(),
         parent=parent,
         params={"features": fdig, "webs": web_digest(cfg),
@@ -474,7 +471,7 @@ def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> 
 @task(name="commit", cache_policy=NO_CACHE)
 def commit_task(gen: Generation, store_url: str) -> str:
     """Write the manifest and switch the ``current`` pointer (design §9)."""
-    return MotionStore(store_url).commit(gen)
+    return commit(MotionStore(store_url), gen)
 
 
 # ------------------------------------------------------------------------------------ flow
@@ -490,8 +487,8 @@ def index_library(config: str | Config) -> dict[str, Any]:
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     store = MotionStore(cfg.store.path)
-    parent = store.current_id()
-    prev = store.generation(parent) if parent else None
+    parent = current_id(store)
+    prev = load_generation(store, parent) if parent else None
 
     catalog = catalog_task(cfg)
     timings["catalog_s"] = time.perf_counter() - t0

@@ -20,11 +20,12 @@ from typing import Any
 import numpy as np
 from motionweb.flows.config import Config, load_config
 from motionweb.store.bvh import write_bvh
-from motionweb.store.cache import Generation, MotionStore, package_versions
 from motionweb.store.formats import read_motion
+from motionweb.store.generations import Generation, current_id, load_generation, package_versions
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
+from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
@@ -76,7 +77,7 @@ class QueryResult:
 def committed_generation(store_url: str) -> tuple[MotionStore, Generation]:
     """The store's committed generation (ValueError when it was never indexed)."""
     store = MotionStore(store_url, read_only=True)
-    gen = store.generation() if store.current_id() else None
+    gen = load_generation(store) if current_id(store) else None
     if gen is None:
         raise ValueError(f"store {store_url} was never indexed: run `motionweb index CONFIG` first")
     return store, gen

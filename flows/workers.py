@@ -12,8 +12,9 @@ from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from motionweb.store.cache import MotionStore, feature_digest
 from motionweb.store.catalog import ClipEntry, load_clip
+from motionweb.store.keys import feature_digest
+from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.distance import ClipOperands
 from motionweb.tasks.features import clip_features, point_weights
 from motionweb.tasks.matchweb import build_web_operands

@@ -9,8 +9,9 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
-from motionweb.store.cache import Generation, MotionStore
+from motionweb.store.generations import Generation, load_generation
 from motionweb.store.web import MatchWeb, transpose
+from motionweb.store.zarr_store import MotionStore
 
 #: clip key -> [(other clip key, web oriented with the clip as rows)]
 WebSource = Mapping[str, Sequence[tuple[str, MatchWeb]]]
@@ -22,7 +23,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     and cached (with its transpose when needed)."""
 
     def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None):
-        gen = generation if generation is not None else store.generation()
+        gen = generation if generation is not None else load_generation(store)
         if gen is None:
             raise ValueError(f"store {store.url} was never indexed (no committed generation)")
         self.store, self.generation, self.category = store, gen, category
@@ -40,7 +41,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     def for_query(cls, store: MotionStore, clip: str, all_categories: bool = False,
                   generation: Generation | None = None) -> StoreWebs:
         """The webs a query on ``clip`` searches: its category's, or all with ``all_categories``."""
-        gen = generation if generation is not None else store.generation()
+        gen = generation if generation is not None else load_generation(store)
         if gen is None:
             raise ValueError(f"store {store.url} was never indexed (no committed generation)")
         cats = {c["path"]: c.get("category", "") for c in gen.clips}

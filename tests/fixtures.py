@@ -123,3 +123,18 @@ def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
     output frame): source time per output time."""
     out = np.arange(len(times))
     return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))
+
+
+def ragged_web(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Flat arrays of a web with three paths of different lengths (values + offsets)."""
+    lengths = [5, 0, 12]
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    n = int(offsets[-1])
+    return {
+        "paths_cells": rng.integers(0, 100, size=(n, 2)).astype(np.int32),
+        "paths_values": rng.random(n).astype(np.float32),
+        "paths_offsets": offsets,
+        "bridges": np.zeros((0, 4), np.int32),
+        "shape": np.array([100, 80], np.int64),
+        "rate": np.array([30.0]),
+    }

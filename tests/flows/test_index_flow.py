@@ -38,10 +38,12 @@ from motionweb.flows.index import (
 )
 from motionweb.flows.workers import web_counts
 from motionweb.store.bvh import write_bvh
-from motionweb.store.cache import MotionStore, web_digest
 from motionweb.store.catalog import Catalog, ClipEntry, ScanError
+from motionweb.store.generations import current_id, load_generation
+from motionweb.store.keys import web_digest
 from motionweb.store.kinematics import quat_from_euler
 from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.zarr_store import MotionStore
 
 
 # ------------------------------------------------------------------------------ plain functions
@@ -183,8 +185,8 @@ def test_flow_end_to_end(indexed):
     assert [b["path"] for b in s["broken"]] == ["run/broken.bvh"]
     assert s["skeleton_minority"] == ["walk/odd.bvh"]
     store = MotionStore(cfg.store.path, read_only=True)
-    gen = store.generation()
-    assert gen.id == s["generation"] and store.current_id() == gen.id
+    gen = load_generation(store)
+    assert gen.id == s["generation"] and current_id(store) == gen.id
     assert gen.broken[0]["path"] == "run/broken.bvh" and gen.skeleton[0]["minority"] == ["walk/odd.bvh"]
     assert gen.versions["zarr"] and gen.timings["catalog_s"] >= 0 and gen.config["store"]["path"]
     rec, _ = gen.web_for("walk/w1.bvh", "walk/w2.bvh")
@@ -209,7 +211,7 @@ def test_incremental_rerun_change_remove_and_params(indexed):
     assert s3["pairs_computed"] == 3  # w1×w1, w1×w2, w1×w3
     assert s3["features_computed"] == 1
     assert s3["pairs"] == 8 and s3["pairs_cached"] == 5
-    gen = store.generation()
+    gen = load_generation(store)
     assert all("run/r2.bvh" not in (w["a"], w["b"]) for w in gen.webs)
     assert gen.parent == s2["generation"]
     # another matchweb config: a new parameter hash, nothing mixed with the old webs
@@ -217,7 +219,7 @@ def test_incremental_rerun_change_remove_and_params(indexed):
     s4 = index_library(cfg2)
     assert s4["params"]["webs"] != s3["params"]["webs"] and s4["params_changed"]
     assert s4["pairs_computed"] == s4["pairs"] == 8 and s4["features_computed"] == 0
-    new, old = store.generation(), store.generation(s3["generation"])
+    new, old = load_generation(store), load_generation(store, s3["generation"])
     assert not {w["key"] for w in new.webs} & {w["key"] for w in old.webs}
     assert all(store.has(w["key"]) for w in old.webs)  # the old generation stays readable
 
@@ -239,7 +241,7 @@ def test_flow_on_distributed_scheduler(prefect_harness, tmp_path):
         cfg = make_config(tmp_path, corpus, str(tmp_path / "store"), dask={"address": cluster.scheduler_address})
         s = index_library(cfg)
     assert s["pairs"] == s["pairs_computed"] == 3 and s["clips"] == 2
-    gen = MotionStore(cfg.store.path).generation()
+    gen = load_generation(MotionStore(cfg.store.path))
     assert {(w["a"], w["b"]) for w in gen.webs} >= {("walk/a.bvh", "walk/a.bvh"), ("walk/b.bvh", "walk/b.bvh")}
 
 
@@ -252,7 +254,7 @@ def test_flow_with_fsspec_store(prefect_harness, tmp_path):
     cfg = make_config(tmp_path, corpus, f"memory://mw-{tmp_path.name}/store")
     s = index_library(cfg)
     assert s["pairs"] == 3 and s["pairs_computed"] == 1
-    assert MotionStore(cfg.store.path).current_id() == s["generation"]
+    assert current_id(MotionStore(cfg.store.path)) == s["generation"]
 
 
 def test_plot_web_figure(tmp_path):

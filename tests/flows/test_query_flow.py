@@ -10,12 +10,14 @@ import threading
 from pathlib import Path
 
 import pytest
+from motionweb.flows import index as index_flow
 from motionweb.flows.cli import app
 from motionweb.flows.config import load_config
 from motionweb.flows.index import index_library
 from motionweb.flows.query import QueryRequest, query
 from motionweb.store.bvh import read_bvh
-from motionweb.store.cache import MotionStore
+from motionweb.store.generations import commit, current_id, load_generation
+from motionweb.store.zarr_store import MotionStore
 from typer.testing import CliRunner
 
 runner = CliRunner()
@@ -39,7 +41,7 @@ def test_demo_generates_indexes_searches_and_registers(demo) -> None:
     work, output = demo
     cfg = load_config(work / "config.yaml")
     assert cfg.corpus.path == str((work / "corpus").resolve())
-    gen = MotionStore(cfg.store.path, read_only=True).generation()
+    gen = load_generation(MotionStore(cfg.store.path, read_only=True))
     n_clips = len(list((work / "corpus").rglob("*.bvh")))
     assert len(gen.clips) == n_clips > 0 and not gen.broken
     assert f"clips {n_clips}" in output and f"computed {len(gen.webs)}, cached 0" in output
@@ -120,7 +122,7 @@ def test_queries_are_served_while_an_index_run_writes(demo, monkeypatch) -> None
     work, _ = demo
     cfg = load_config(work / "config.yaml")
     store = MotionStore(cfg.store.path, read_only=True)
-    before = store.current_id()
+    before = current_id(store)
     request = QueryRequest(clip=cfg.demo.query_clip, start=cfg.demo.query_start, end=cfg.demo.query_end,
                            quantile=cfg.demo.query_quantile, out=str(work / "q-during"))
     expected = query(cfg, request)["matches"]
@@ -129,14 +131,12 @@ def test_queries_are_served_while_an_index_run_writes(demo, monkeypatch) -> None
     clip = work / "corpus" / "walk" / "walk_01.bvh"
     clip.write_text(clip.read_text() + "\n")
     reached, release = threading.Event(), threading.Event()
-    commit = MotionStore.commit
-
-    def held_commit(self, gen):
+    def held_commit(store, gen):
         reached.set()
         assert release.wait(120)
-        return commit(self, gen)
+        return commit(store, gen)
 
-    monkeypatch.setattr(MotionStore, "commit", held_commit)
+    monkeypatch.setattr(index_flow, "commit", held_commit)
     result: dict = {}
     t = threading.Thread(target=lambda: result.update(index_library(cfg)))
     t.start()
@@ -147,7 +147,7 @@ def test_queries_are_served_while_an_index_run_writes(demo, monkeypatch) -> None
     finally:
         release.set()
         t.join(300)
-    assert result["pairs_computed"] > 0 and store.current_id() == result["generation"] != before
+    assert result["pairs_computed"] > 0 and current_id(store) == result["generation"] != before
 
 
 def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: Path) -> None:
@@ -162,7 +162,7 @@ def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: 
     work, _ = demo
     cfg = load_config(work / "config.yaml")
     store = MotionStore(cfg.store.path, read_only=True)
-    before = store.current_id()
+    before = current_id(store)
     clip = work / "corpus" / "run" / "run_00.bvh"
     clip.write_text(clip.read_text() + "\n")  # new content: its pairs must be recomputed
     objects = Path(cfg.store.path) / "webs"
@@ -178,10 +178,10 @@ def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: 
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(60)
-    assert store.current_id() == before
+    assert current_id(store) == before
     res = query(cfg, QueryRequest(clip=cfg.demo.query_clip, start=cfg.demo.query_start, end=cfg.demo.query_end,
                                   quantile=cfg.demo.query_quantile, out=str(tmp_path)))
     assert res["generation"] == before and res["matches"]
     summary = index_library(cfg)
-    assert summary["generation"] != before and store.current_id() == summary["generation"]
+    assert summary["generation"] != before and current_id(store) == summary["generation"]
     assert summary["pairs_computed"] + summary["pairs_cached"] == summary["pairs"] and not summary["broken"]

@@ -8,9 +8,11 @@ import itertools
 
 import numpy as np
 import pytest
-from motionweb.store.cache import Generation, MotionStore, new_generation_id, now_iso, web_key
+from motionweb.store.generations import Generation, commit
+from motionweb.store.keys import web_key
 from motionweb.store.web import MatchWeb, transpose
 from motionweb.store.webs import StoreWebs
+from motionweb.store.zarr_store import MotionStore, new_id, now_iso
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb import MatchWebParams, build_web_full, self_band
 from motionweb.tasks.search import (
@@ -219,7 +221,7 @@ def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> Non
             store.write_web(key, webs.web(a, b).to_arrays())
             recs.append({"a": a, "b": b, "key": key, "chunk": "all"})
     clips = [{"path": k, "category": pc.categories[k]} for k in keys]
-    store.commit(Generation(new_generation_id(), now_iso(), clips=clips, webs=recs))
+    commit(store, Generation(new_id(), now_iso(), clips=clips, webs=recs))
     ro = MotionStore(str(tmp_path / "store"), read_only=True)
     src = StoreWebs.for_query(ro, pc.query.clip)
     assert set(src) == {k for k in keys if pc.categories[k] == "kick"}

@@ -1,41 +1,16 @@
-"""The Zarr store (design §9): round trips, content addressing, generation pointer semantics."""
+"""The Zarr store (design §9): round trips, shards, complete-only objects."""
 
 from __future__ import annotations
-
-import json
 
 import numpy as np
 import pytest
 import zarr
-from motionweb.flows.config import Config
-from motionweb.store.cache import (
-    Generation,
-    MotionStore,
-    feature_digest,
-    feature_key,
-    new_generation_id,
-    now_iso,
-    web_digest,
-    web_key,
-)
+from fixtures import ragged_web
+from motionweb.store.keys import feature_key, web_key
+from motionweb.store.zarr_store import MotionStore
 
 SHA_A = "a" * 64
 SHA_B = "b" * 64
-
-
-def ragged_web(rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Flat arrays of a web with three paths of different lengths (values + offsets)."""
-    lengths = [5, 0, 12]
-    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    n = int(offsets[-1])
-    return {
-        "paths_cells": rng.integers(0, 100, size=(n, 2)).astype(np.int32),
-        "paths_values": rng.random(n).astype(np.float32),
-        "paths_offsets": offsets,
-        "bridges": np.zeros((0, 4), np.int32),
-        "shape": np.array([100, 80], np.int64),
-        "rate": np.array([30.0]),
-    }
 
 
 @pytest.fixture(params=["local", "memory"])
@@ -126,85 +101,3 @@ def test_a_batch_of_webs_shares_one_shard(tmp_path):
         for k in keys:
             fresh.read_web_arrays(k)
     assert sorted(opened) == sorted(set(opened)) and len(opened) == 2  # wd1's and wd2's shard
-
-
-def test_parameter_digests():
-    base = Config()
-    mw = Config.model_validate({"matchweb": {"valid_a": 0.3}})
-    assert web_digest(mw) != web_digest(base)
-    assert feature_digest(mw) == feature_digest(base)  # features are reused across web parameters
-    feat = Config.model_validate({"features": {"window": 7}})
-    assert feature_digest(feat) != feature_digest(base) and web_digest(feat) != web_digest(base)
-    rates = Config.model_validate({"features": {"rates": [10.0, 20.0, 60.0]}})
-    assert feature_digest(rates) == feature_digest(base)  # rates are part of the feature key itself
-    assert web_digest(rates) != web_digest(base)
-    grids = Config.model_validate({"matchweb": {"keep_grids": True}})
-    assert web_digest(grids) == web_digest(base)
-
-
-def _gen(store: MotionStore, webs: list[str]) -> Generation:
-    return Generation(id=new_generation_id(), created=now_iso(),
-                      webs=[{"a": f"x{i}", "b": f"y{i}", "key": k} for i, k in enumerate(webs)])
-
-
-def test_generation_pointer_and_crash(tmp_path):
-    store = MotionStore(str(tmp_path / "s"))
-    assert store.current_id() is None and store.generation() is None
-    k1 = web_key(SHA_A, SHA_A, "wd1")
-    store.write_web(k1, ragged_web(np.random.default_rng(3)))
-    g1 = _gen(store, [k1])
-    store.commit(g1)
-    assert store.current_id() == g1.id
-
-    # a second run writes a new object then "crashes" before committing
-    k2 = web_key(SHA_A, SHA_B, "wd1")
-
-    def crashing_run():
-        store.write_web(k2, ragged_web(np.random.default_rng(4)))
-        raise RuntimeError("worker lost")
-
-    with pytest.raises(RuntimeError):
-        crashing_run()
-    reader = MotionStore(str(tmp_path / "s"), read_only=True)
-    assert reader.current_id() == g1.id
-    assert [w["key"] for w in reader.generation().webs] == [k1]
-    reader.read_web_arrays(k1)  # still readable
-    # the next run resumes: the complete object from the crashed run is reused as cached
-    assert store.has(k2)
-    g2 = _gen(store, [k1, k2])
-    g2.parent = g1.id
-    store.commit(g2)
-    assert store.current_id() == g2.id and store.generation_ids() == sorted([g1.id, g2.id])
-    assert store.generation(g1.id).webs == g1.webs  # old generations stay readable
-    with pytest.raises(PermissionError):
-        reader.commit(_gen(reader, []))
-
-
-def test_commit_refuses_missing_objects(tmp_path):
-    store = MotionStore(str(tmp_path / "s"))
-    with pytest.raises(RuntimeError, match="missing"):
-        store.commit(_gen(store, [web_key(SHA_A, SHA_B, "nope")]))
-    assert store.current_id() is None
-
-
-def test_pointer_is_atomic_json(tmp_path):
-    store = MotionStore(str(tmp_path / "s"))
-    g = _gen(store, [])
-    store.commit(g)
-    data = json.loads((tmp_path / "s" / "current").read_text())
-    assert data["generation"] == g.id
-    assert not list((tmp_path / "s").glob("current.tmp-*"))
-
-
-def test_gc_keeps_listed_objects(tmp_path):
-    store = MotionStore(str(tmp_path / "s"))
-    rng = np.random.default_rng(5)
-    k_old = web_key(SHA_A, SHA_B, "wd0")
-    k_new = web_key(SHA_A, SHA_B, "wd1")
-    store.write_web(k_old, ragged_web(rng))
-    store.commit(_gen(store, [k_old]))
-    store.write_web(k_new, ragged_web(rng))
-    store.commit(_gen(store, [k_new]))
-    assert store.gc(keep=1) == [k_old]
-    assert store.has(k_new) and not store.has(k_old)
-    assert len(store.generation_ids()) == 1

@@ -1,4 +1,4 @@
-"""The content-addressed Zarr v3 store of features and match webs, with generations (design §9).
+"""Zarr v3 persistence of features, web shards and grids (design §9).
 
 Layout under the store root (a local folder or any fsspec URL)::
 
@@ -15,54 +15,31 @@ Layout under the store root (a local folder or any fsspec URL)::
                                                  per ordered clip pair and web parameters) to its
                                                  byte range, array layout and attributes
     grids/...                                    full grids, only with matchweb.keep_grids
-    generations/<id>.json                        manifest of one complete run
-    current                                      JSON pointer {"generation": <id>}
+    generations/, current                        manifests (``store/generations.py``)
 
-Objects are keyed by content: a clip by the SHA-256 of its file, a derived array additionally by
-a digest of the parameters that produce it, so objects are shared by every generation that
-lists them and a rerun recomputes only what is missing. An object is marked ``complete`` in its
-attributes only after all its arrays are written; a half-written object is never seen as
-present. Webs are many and small (zarr costs ~2 ms of CPU per array created), so a batch of webs
-shares one array (a shard) and a web key is found through the index in the shards' attributes,
-listed once per store instance and again when a key is not found. A generation becomes visible
-only when its manifest is written and ``current`` is switched to it (an atomic rename on local
-disks, a single-object put on object stores), so readers never see a half-written index and a
-crashed run leaves the previous one current.
+Keys come from ``store/keys.py``. An object is marked ``complete`` in its attributes only after
+all its arrays are written; a half-written object is never seen as present. Webs are many and
+small (zarr costs ~2 ms of CPU per array created), so a batch of webs shares one array (a shard)
+and a web key is found through the index in the shards' attributes, listed once per store
+instance and again when a key is not found.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import uuid
-from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
-from importlib import metadata
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any
 
 import fsspec
 import numpy as np
 import zarr
-from motionweb.store.params import Params
+from motionweb.store.keys import SHARDS, feature_key, grid_key, rate_tag, web_digest_of
 from motionweb.store.web import MatchWeb
 from zarr.codecs import BloscCodec
 from zarr.storage import FsspecStore, LocalStore
 
-if TYPE_CHECKING:
-    from motionweb.store.catalog import CorpusParams
-
-
-class IndexSettings(Protocol):
-    """What keys the index: a run config's corpus, features and matchweb sections (duck-typed, so
-    the store needs none of the stages that define them)."""
-
-    corpus: CorpusParams
-    features: Params
-    matchweb: Params
-
-#: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
-STORE_SCHEMA = 2
 #: Blosc lz4 + byte shuffle: fastest writes and a better ratio on float32 (measured on this store)
 COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
 #: frames per chunk along the first axis of large arrays (2000-4000 rows wrote fastest when measured)
@@ -71,73 +48,6 @@ CHUNK_ROWS = 4096
 PACKED_CHUNK = 1 << 24
 #: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
 SHARD_CHUNK = 1 << 18
-#: web shards live under webs/ next to the (logical) web keys webs/<sha_a[:2]>/...
-SHARDS = "webs/shards"
-POINTER = "current"
-PACKAGES = ("motionweb", "numpy", "scipy", "dask", "distributed", "zarr", "fsspec", "prefect", "prefect-dask")
-
-
-def _digest(data: Any) -> str:
-    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def feature_params(cfg: IndexSettings) -> dict[str, Any]:
-    """Everything that changes a clip's features at one rate (the rate list itself excluded)."""
-    feats = cfg.features.model_dump(mode="json")
-    feats.pop("rates", None)
-    corpus = cfg.corpus
-    return {
-        "schema": STORE_SCHEMA,
-        "features": feats,
-        "up_axis": corpus.up_axis,
-        "length_unit": corpus.length_unit,
-        "scale_to_m": corpus.scale_to_m,
-    }
-
-
-def feature_digest(cfg: IndexSettings) -> str:
-    """Parameter hash keying features: clip sha256 + this + rate (design §9)."""
-    return _digest(feature_params(cfg))[:16]
-
-
-def web_params(cfg: IndexSettings) -> dict[str, Any]:
-    """Everything that changes a web: feature parameters, the rate ladder and the matchweb section."""
-    mw = cfg.matchweb.model_dump(mode="json")
-    mw.pop("keep_grids", None)  # storing grids on the side does not change a web
-    return {
-        "schema": STORE_SCHEMA,
-        "features": feature_params(cfg),
-        "rates": sorted(float(r) for r in cfg.features.rates),
-        "matchweb": mw,
-    }
-
-
-def web_digest(cfg: IndexSettings) -> str:
-    """Parameter hash keying webs: ordered pair of clip hashes + this (design §9)."""
-    return _digest(web_params(cfg))[:16]
-
-
-def rate_tag(rate: float) -> str:
-    """Array name of one feature rate, e.g. ``r30`` or ``r7.5``."""
-    return f"r{float(rate):g}"
-
-
-def feature_key(sha: str, fdigest: str) -> str:
-    return f"features/{sha[:2]}/{sha}/{fdigest}"
-
-
-def web_key(sha_a: str, sha_b: str, wdigest: str) -> str:
-    """Key of the web whose rows are clip ``sha_a`` and columns clip ``sha_b``."""
-    return f"webs/{sha_a[:2]}/{sha_a}-{sha_b}/{wdigest}"
-
-
-def grid_key(web: str) -> str:
-    return "grids/" + web.removeprefix("webs/")
-
-
-def _web_digest_of(key: str) -> str:
-    """The web parameter digest at the end of a web key (names the key's shard folder)."""
-    return key.rsplit("/", 1)[-1]
 
 
 def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
@@ -157,75 +67,17 @@ def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0) -> dict[str
             for name, dtype, shape, start, nbytes in layout}
 
 
-def package_versions() -> dict[str, str]:
-    """Installed versions of the packages that shape the results (recorded in each generation)."""
-    out = {}
-    for name in PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "absent"
-    return out
-
-
 def now_iso() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
-def new_generation_id() -> str:
-    """Sortable, unique: UTC timestamp plus a random suffix."""
+def new_id() -> str:
+    """Sortable, unique: UTC timestamp plus a random suffix (names generations and web shards)."""
     return datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ") + "-" + uuid.uuid4().hex[:6]
 
 
-@dataclass
-class Generation:
-    """The manifest of one complete index run: which content-addressed objects it includes.
-
-    ``clips``: one record per indexed clip (path, sha256, category, frames, fps, skeleton, ...).
-    ``features``: sha256 -> {rate tag: key}. ``webs``: one record per pair with keys ``a``, ``b``
-    (corpus paths; ``a`` indexes the rows), ``a_sha``, ``b_sha``, ``key``, ``chunk`` and counts.
-    ``broken``: files that could not be read, with the reason. ``skeleton``: per chunk, the
-    majority signature and the clips indexed only against compatible ones.
-    """
-
-    id: str
-    created: str
-    completed: str = ""
-    parent: str | None = None
-    store_schema: int = STORE_SCHEMA
-    params: dict[str, Any] = field(default_factory=dict)
-    config: dict[str, Any] = field(default_factory=dict)
-    clips: list[dict[str, Any]] = field(default_factory=list)
-    features: dict[str, dict[str, str]] = field(default_factory=dict)
-    webs: list[dict[str, Any]] = field(default_factory=list)
-    chunks: list[dict[str, Any]] = field(default_factory=list)
-    broken: list[dict[str, str]] = field(default_factory=list)
-    skeleton: list[dict[str, Any]] = field(default_factory=list)
-    versions: dict[str, str] = field(default_factory=dict)
-    timings: dict[str, float] = field(default_factory=dict)
-    stats: dict[str, Any] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Generation:
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(**known)
-
-    def web_for(self, path_a: str, path_b: str) -> tuple[dict[str, Any], bool] | None:
-        """The web record of two clips (corpus paths) and whether it is stored transposed
-        (rows = ``path_b``); None when the pair is not in this generation."""
-        for w in self.webs:
-            if w["a"] == path_a and w["b"] == path_b:
-                return w, False
-            if w["a"] == path_b and w["b"] == path_a:
-                return w, True
-        return None
-
-
 class MotionStore:
-    """A Zarr v3 store of features and webs with generation manifests (design §9).
+    """A Zarr v3 store of features, webs and grids (design §9); manifests: ``store/generations.py``.
 
     ``url`` is a local folder or any fsspec URL (``memory://``, ``s3://``, ``file://`` ...).
     Instances are cheap and picklable by URL, so Dask workers open their own.
@@ -356,7 +208,7 @@ class MotionStore:
         web parameter digest: one Zarr array for the whole batch, O(1) Zarr calls per batch."""
         by_digest: dict[str, list[tuple[str, dict[str, np.ndarray], dict[str, Any]]]] = {}
         for item in webs:
-            by_digest.setdefault(_web_digest_of(item[0]), []).append(item)
+            by_digest.setdefault(web_digest_of(item[0]), []).append(item)
         for wdig, items in by_digest.items():
             parts, entries, start = [], {}, 0
             for key, arrays, attrs in items:
@@ -364,7 +216,7 @@ class MotionStore:
                 parts += p
                 entries[key] = {"start": start, "nbytes": end - start, "layout": layout, "attrs": attrs}
                 start = end
-            shard = f"{SHARDS}/{wdig}/{new_generation_id()}"
+            shard = f"{SHARDS}/{wdig}/{new_id()}"
             self._shards[shard] = self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries})
             self._webs.update({key: (shard, e) for key, e in entries.items()})
 
@@ -375,12 +227,12 @@ class MotionStore:
     def _web_entry(self, key: str) -> tuple[str, dict[str, Any]] | None:
         """(shard, entry) of a web key; lists the digest's shards again when the key is unknown."""
         if key not in self._webs:
-            self._load_shards(_web_digest_of(key))
+            self._load_shards(web_digest_of(key))
         return self._webs.get(key)
 
     def _load_shards(self, wdig: str) -> None:
         try:
-            entries = self.fs.ls(self._path(f"{SHARDS}/{wdig}"), detail=True)
+            entries = self.fs.ls(self.path(f"{SHARDS}/{wdig}"), detail=True)
         except FileNotFoundError:
             return
         for name in sorted(e["name"] for e in entries if e["type"] == "directory"):
@@ -396,7 +248,7 @@ class MotionStore:
     def web_keys(self, wdig: str) -> set[str]:
         """Every completely written web key with parameter digest ``wdig`` (one shard listing)."""
         self._load_shards(wdig)
-        return {k for k in self._webs if _web_digest_of(k) == wdig}
+        return {k for k in self._webs if web_digest_of(k) == wdig}
 
     def web_attrs(self, key: str) -> dict[str, Any]:
         """The attributes a web was written with ({} when absent)."""
@@ -426,14 +278,15 @@ class MotionStore:
     def read_grid(self, web: str) -> np.ndarray:
         return self._read_group(grid_key(web), ["grid"])[0]["grid"]
 
-    # ------------------------------------------------------------ generations
-    def _path(self, rel: str) -> str:
+    # ----------------------------------------------------------- plain files
+    def path(self, rel: str) -> str:
+        """The filesystem path (for ``self.fs``) of a key relative to the store root."""
         return f"{self.root.rstrip('/')}/{rel}"
 
-    def _write_json(self, rel: str, data: Any, atomic: bool = True) -> None:
+    def write_json(self, rel: str, data: Any, atomic: bool = True) -> None:
         """Write a JSON file; on local disks by rename of a temp file (atomic), elsewhere by one put."""
         payload = json.dumps(data, indent=1, sort_keys=True, default=str).encode()
-        path = self._path(rel)
+        path = self.path(rel)
         self.fs.makedirs(os.path.dirname(path) or self.root, exist_ok=True)
         if self._local and atomic:
             tmp = f"{path}.tmp-{uuid.uuid4().hex[:8]}"
@@ -445,52 +298,13 @@ class MotionStore:
         else:
             self.fs.pipe_file(path, payload)
 
-    def _read_json(self, rel: str) -> Any:
-        return json.loads(self.fs.cat_file(self._path(rel)))
+    def read_json(self, rel: str) -> Any:
+        return json.loads(self.fs.cat_file(self.path(rel)))
 
-    def current_id(self) -> str | None:
-        """Id of the current (last completely committed) generation, None for a new store."""
-        try:
-            return self._read_json(POINTER)["generation"]
-        except FileNotFoundError:
-            return None
-
-    def generation(self, gen_id: str | None = None) -> Generation | None:
-        """A generation's manifest (the current one by default); None when there is none."""
-        gen_id = gen_id or self.current_id()
-        if gen_id is None:
-            return None
-        return Generation.from_dict(self._read_json(f"generations/{gen_id}.json"))
-
-    def generation_ids(self) -> list[str]:
-        """Committed manifests, oldest first (ids sort by time)."""
-        try:
-            names = self.fs.ls(self._path("generations"), detail=False)
-        except FileNotFoundError:
-            return []
-        return sorted(os.path.basename(n)[:-5] for n in names if n.endswith(".json"))
-
-    def commit(self, gen: Generation) -> str:
-        """Publish a generation: write its manifest, then switch ``current`` to it.
-
-        Every object it lists must already be complete (checked); until the pointer moves the
-        previous generation stays current.
-        """
-        if self.read_only:
-            raise PermissionError(f"{self.url}: store opened read-only")
-        for wdig in {_web_digest_of(w["key"]) for w in gen.webs}:
-            self._load_shards(wdig)
-        missing = [w["key"] for w in gen.webs if w["key"] not in self._webs]
-        missing += [k for rates in gen.features.values() for k in set(rates.values()) if not self.has(k)]
-        if missing:
-            raise RuntimeError(f"refusing to commit generation {gen.id}: {len(missing)} objects missing, "
-                               f"e.g. {missing[0]}")
-        if not self.fs.exists(self._path("zarr.json")):
+    def ensure_root(self) -> None:
+        """Create the root Zarr group if the store has none yet."""
+        if not self.fs.exists(self.path("zarr.json")):
             zarr.open_group(store=self.zstore, mode="a")
-        gen.completed = gen.completed or now_iso()
-        self._write_json(f"generations/{gen.id}.json", gen.to_dict())
-        self._write_json(POINTER, {"generation": gen.id, "committed": gen.completed})
-        return gen.id
 
     def size_bytes(self) -> int:
         """Total bytes under the store root (all generations and objects)."""
@@ -499,47 +313,29 @@ class MotionStore:
         except FileNotFoundError:
             return 0
 
-    def gc(self, keep: int = 3) -> list[str]:
-        """Delete objects no kept generation lists (the ``keep`` newest plus the current one).
-
-        Returns the deleted keys. Never run concurrently with an index run.
-        """
-        ids = self.generation_ids()
-        cur = self.current_id()
-        kept = set(ids[-keep:]) | ({cur} if cur else set())
-        live: set[str] = set()
-        for gid in kept:
-            g = self.generation(gid)
-            live |= {w["key"] for w in g.webs} | {grid_key(w["key"]) for w in g.webs}
-            live |= {k for rates in g.features.values() for k in rates.values()}
-        dropped: list[str] = []
-        for top, depth in (("features", 3), ("grids", 3)):
-            for key in self._leaf_keys(top, depth):
-                if key not in live:
-                    self.fs.rm(self._path(key), recursive=True)
-                    dropped.append(key)
-        for shard in self._leaf_keys(SHARDS, 2):  # a shard goes when none of its webs is live
-            z = self._open(shard)
-            keys = sorted(z.attrs.get("webs", {})) if z is not None else []
-            if not live.intersection(keys):
-                self.fs.rm(self._path(shard), recursive=True)
-                dropped += keys
-        self._webs.clear()
-        self._shards.clear()
-        for gid in set(ids) - kept:
-            self.fs.rm(self._path(f"generations/{gid}.json"))
-        return dropped
-
-    def _leaf_keys(self, top: str, depth: int) -> list[str]:
+    # ------------------------------------------------------------- listing
+    def leaf_keys(self, top: str, depth: int) -> list[str]:
+        """Keys ``depth`` folder levels below ``top`` (e.g. ``features``, 3: every features object)."""
         level = [top]
         for _ in range(depth):
             nxt = []
             for rel in level:
                 try:
-                    entries = self.fs.ls(self._path(rel), detail=True)
+                    entries = self.fs.ls(self.path(rel), detail=True)
                 except FileNotFoundError:
                     continue
                 nxt += [f"{rel}/{os.path.basename(e['name'].rstrip('/'))}" for e in entries
                         if e["type"] == "directory"]
             level = nxt
         return level
+
+    def shard_web_keys(self, shard: str) -> list[str]:
+        """The web keys a shard holds ([] when it is unreadable or was never completed)."""
+        z = self._open(shard)
+        return sorted(z.attrs.get("webs", {})) if z is not None else []
+
+    def delete(self, key: str) -> None:
+        """Remove an object (a folder of the store) and forget the shards and webs seen so far."""
+        self.fs.rm(self.path(key), recursive=True)
+        self._webs.clear()
+        self._shards.clear()
