@@ -38,7 +38,7 @@ file and 1-based line.
 
 from __future__ import annotations
 
-import hashlib
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -54,11 +54,14 @@ from motionweb.store.errors import (
 )
 from motionweb.store.kinematics import quat_from_axis_angle, quat_identity, quat_inv, quat_mul, quat_rotate
 from motionweb.store.motion import UNIT_SCALES, Motion, Skeleton
+from motionweb.store.textfile import decode, number, read_bytes, text_lines
 
 #: the frame rate of the CMU library's AMC files (the files do not record it)
 CMU_FPS = 120.0
 
 _DOFS = ("rx", "ry", "rz", "tx", "ty", "tz", "l")
+#: accepted ``:units`` mass and length multipliers
+UNIT_RANGE = (1e-6, 1e6)
 _AXES = "xyz"
 
 
@@ -73,7 +76,7 @@ class AsfBone:
     axis: np.ndarray  # (3,) X, Y, Z angles (rad)
     axis_order: str  # e.g. "XYZ": order of application about fixed axes
     dof: tuple[str, ...]  # subset of rx ry rz tx ty tz l, in AMC value order
-    limits: np.ndarray  # (len(dof), 2) as written (angles converted to rad), ±inf allowed
+    limits: np.ndarray  # (len(dof), 2) as written (angles converted to rad), ±inf where none
     line: int  # line of the block's ``begin``
 
 
@@ -116,13 +119,10 @@ def _clean(line: str) -> str:
     return line.split("#", 1)[0].replace(",", " ").replace("(", " ").replace(")", " ")
 
 
-def _float(tok: str, path: str | None, line: int, what: str, finite: bool = True) -> float:
-    try:
-        v = float(tok)
-    except ValueError:
-        raise SyntaxFormatError(path, line, f"expected a number for {what}, found {tok!r}") from None
-    if finite and not np.isfinite(v):
-        raise FrameValueError(path, line, f"{what} is {tok}")
+def _float(tok: str, path: str | None, line: int, what: str) -> float:
+    v = number(tok)
+    if v is None:
+        raise FrameValueError(path, line, f"expected a finite number for {what}, found {tok!r}")
     return v
 
 
@@ -156,7 +156,7 @@ class _Lines:
 
     def __init__(self, text: str, path: str | None):
         self.path = path
-        raw = text.splitlines()
+        raw = text_lines(text.removeprefix("\ufeff"))
         self.n_lines = len(raw)
         self.items = [(toks, i + 1, s) for i, s in enumerate(raw) if (toks := _clean(s).split())]
         self.pos = 0
@@ -188,7 +188,9 @@ def _parse_bone(lines: _Lines, begin_line: int, deg: bool) -> AsfBone:
         if key.startswith(":"):
             raise TruncatedFileError(path, line, f"bone block from line {begin_line} has no 'end' before {toks[0]}")
         if key == "id":
-            bone_id = int(_float(toks[1], path, line, "id")) if len(toks) > 1 else None
+            if len(toks) > 1 and not (toks[1].isascii() and toks[1].isdigit()):
+                raise SyntaxFormatError(path, line, f"bone id must be a whole number, found {toks[1]!r}")
+            bone_id = int(toks[1]) if len(toks) > 1 else None
         elif key == "name":
             if len(toks) < 2:
                 raise SyntaxFormatError(path, line, "bone 'name' without a value")
@@ -197,12 +199,18 @@ def _parse_bone(lines: _Lines, begin_line: int, deg: bool) -> AsfBone:
             direction = _floats(toks[1:], 3, path, line, "direction")
         elif key == "length":
             length = float(_floats(toks[1:], 1, path, line, "length")[0])
+            if length < 0:
+                raise FrameValueError(path, line, f"bone length must not be negative, got {toks[1]}")
         elif key == "axis":
             axis = _floats(toks[1:], 3, path, line, "axis") * scale
             axis_order = toks[4].upper() if len(toks) > 4 else "XYZ"
             if sorted(axis_order) != ["X", "Y", "Z"]:
                 raise SyntaxFormatError(path, line, f"bad axis order {axis_order!r}")
         elif key == "dof":
+            if dof:
+                raise SyntaxFormatError(path, line, "a second 'dof' line in one bone")
+            if limits:
+                raise SyntaxFormatError(path, line, "'dof' after 'limits'")
             d = tuple(t.lower() for t in toks[1:])
             for t in d:
                 if t not in _DOFS:
@@ -211,26 +219,34 @@ def _parse_bone(lines: _Lines, begin_line: int, deg: bool) -> AsfBone:
                 raise SyntaxFormatError(path, line, f"repeated dof in {' '.join(d)}")
             dof = d
         elif key == "limits":
+            if not dof or limits:
+                raise SyntaxFormatError(path, line, "'limits' without a 'dof' line before it" if not dof
+                                        else "a second 'limits' in one bone")
             rest = toks[1:]
             while True:  # one (lo hi) pair per dof, on this line and the following ones
                 if len(rest) < 2 or len(rest) % 2:
                     raise SyntaxFormatError(path, line, "limits must be (lo hi) pairs")
                 for a in range(0, len(rest), 2):
-                    limits.append((_float(rest[a], path, line, "limits", finite=False),
-                                   _float(rest[a + 1], path, line, "limits", finite=False)))
-                if len(limits) >= len(dof):
+                    limits.append((_float(rest[a], path, line, "limits"), _float(rest[a + 1], path, line, "limits")))
+                if len(limits) > len(dof):
+                    raise SyntaxFormatError(path, line, f"{len(limits)} limits for {len(dof)} dofs")
+                if len(limits) == len(dof):
                     break
                 toks, line = lines.next(f"the limits of the bone block from line {begin_line}")
                 rest = toks
         # bodymass, cofmass and vendor extensions are ignored
     if name is None:
         raise SyntaxFormatError(path, begin_line, "bone block without a name")
+    if limits and len(limits) != len(dof):
+        raise SyntaxFormatError(path, begin_line, f"bone {name}: {len(limits)} limits for {len(dof)} dofs")
     norm = np.linalg.norm(direction)
+    if not np.isfinite(norm) or (norm == 0 and length > 0):
+        raise FrameValueError(path, begin_line, f"bone {name}: direction {direction.tolist()} is not a direction")
     if norm > 0:
         direction = direction / norm
     lim = np.full((len(dof), 2), [-np.inf, np.inf])
     if limits:
-        lim[: len(limits)] = np.array(limits[: len(dof)])
+        lim[:] = np.array(limits)
         rot = np.array([d.startswith("r") for d in dof])
         lim[rot] *= scale
     return AsfBone(name, bone_id, direction, length, axis, axis_order, dof, lim, begin_line)
@@ -248,7 +264,7 @@ def parse_asf(text: str, path: str | None = None, *, length_unit: str = "in",
     hierarchy: dict[str, tuple[str, ...]] = {}
     hierarchy_lines: dict[str, int] = {}
     seen: set[str] = set()
-    raw_lines = text.splitlines()
+    raw_lines = text_lines(text.removeprefix("\ufeff"))
     while lines.pos < len(lines.items):
         toks, line = lines.next("the file")
         key = toks[0].lower()
@@ -267,10 +283,12 @@ def parse_asf(text: str, path: str | None = None, *, length_unit: str = "in",
                     raise SyntaxFormatError(path, line, f"unit {toks[0]!r} without a value")
                 if k == "mass":
                     mass = _float(toks[1], path, line, "mass unit")
+                    if not UNIT_RANGE[0] <= mass <= UNIT_RANGE[1]:
+                        raise FrameValueError(path, line, f"mass unit {toks[1]} is outside {UNIT_RANGE}")
                 elif k == "length":
                     length_mult = _float(toks[1], path, line, "length unit")
-                    if length_mult <= 0:
-                        raise SyntaxFormatError(path, line, f"length unit must be positive, got {toks[1]}")
+                    if not UNIT_RANGE[0] <= length_mult <= UNIT_RANGE[1]:
+                        raise FrameValueError(path, line, f"length unit {toks[1]} is outside {UNIT_RANGE}")
                 elif k == "angle":
                     angle = toks[1].lower()
                     if angle not in ("deg", "rad"):
@@ -324,6 +342,8 @@ def parse_asf(text: str, path: str | None = None, *, length_unit: str = "in",
                     break
                 if toks[0].startswith(":"):
                     raise TruncatedFileError(path, line, f":hierarchy from line {start} has no 'end'")
+                if "root" in toks[1:]:
+                    raise SyntaxFormatError(path, line, "the root cannot be a child in :hierarchy")
                 hierarchy[toks[0]] = hierarchy.get(toks[0], ()) + tuple(toks[1:])
                 for child in toks[1:]:
                     hierarchy_lines[child] = line
@@ -414,15 +434,8 @@ def _joint_channels(dof: tuple[str, ...], translated: bool) -> tuple[str, ...]:
 
 
 def _read_text(path: str | Path) -> tuple[str, str]:
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise MissingSectionError(str(path), None, f"cannot read file: {exc.strerror}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")
-    return text, hashlib.sha256(raw).hexdigest()
+    raw, digest = read_bytes(path)
+    return decode(raw), digest
 
 
 def read_asf(path: str | Path, *, length_unit: str = "in") -> AsfSkeleton:
@@ -446,9 +459,10 @@ def parse_amc(text: str, asf: AsfSkeleton, path: str | None = None, *, fps: floa
     tokens: dict[int, list[str]] = {}
     rows: dict[int, list[int]] = {}  # per joint, the line of each of its frame lines
     frame_lines: list[int] = []
+    frame_number = -1
     present: set[int] = set()
     required: set[int] | None = None
-    raw = text.splitlines()
+    raw = text_lines(text.removeprefix("\ufeff"))
     for i, line in enumerate(raw):
         toks = line.split("#", 1)[0].split()
         if not toks:
@@ -461,9 +475,14 @@ def parse_amc(text: str, asf: AsfSkeleton, path: str | None = None, *, fps: floa
             elif u == ":RADIANS":
                 deg = False
             continue
-        if len(toks) == 1 and head.isdigit():
+        if len(toks) == 1 and head not in index:  # a frame number
+            if not (head.isascii() and head.isdigit()):
+                raise SyntaxFormatError(path, i + 1, f"expected a frame number, found {head!r}")
+            if frame_lines and int(head) != frame_number + 1:
+                raise SyntaxFormatError(path, i + 1, f"frame {head} follows frame {frame_number}")
             if frame_lines:
                 required = _check_frame(required, present, frame_lines[-1], sk.names, path)
+            frame_number = int(head)
             frame_lines.append(i + 1)
             present = set()
             continue
@@ -478,7 +497,9 @@ def parse_amc(text: str, asf: AsfSkeleton, path: str | None = None, *, fps: floa
                 raise TruncatedFileError(path, i + 1, f"file ends inside the values of bone {head!r}")
             raise FrameValueError(path, i + 1, f"bone {head!r} has {len(toks) - 1} values, expected {n}")
         if k in present:
-            raise FrameValueError(path, i + 1, f"bone {head!r} appears twice in frame {frame_lines[-1]}")
+            raise FrameValueError(path, i + 1, f"bone {head!r} appears twice in frame {frame_number}")
+        if required is not None and k not in required:
+            raise FrameValueError(path, i + 1, f"bone {head!r} is in frame {frame_number} but not in the first")
         present.add(k)
         tokens.setdefault(k, []).extend(toks[1:])
         rows.setdefault(k, []).append(i + 1)
@@ -488,32 +509,33 @@ def parse_amc(text: str, asf: AsfSkeleton, path: str | None = None, *, fps: floa
     if missing:
         raise TruncatedFileError(
             path, len(raw),
-            f"file ends inside frame {frame_lines[-1]}: no {', '.join(sk.names[m] for m in sorted(missing))}")
+            f"file ends inside frame {frame_number}: no {', '.join(sk.names[m] for m in sorted(missing))}")
     n_frames = len(frame_lines)
     values: dict[int, np.ndarray] = {}
     bad_line = None
     for k, toks in tokens.items():
-        try:
-            arr = np.array(toks, dtype=np.float64).reshape(n_frames, -1)
-        except ValueError:
-            row = next(r for r, line_no in enumerate(rows[k]) if not _numeric(raw[line_no - 1]))
-            bad_line = min(bad_line or rows[k][row], rows[k][row])
-            continue
-        finite = np.isfinite(arr)
-        if not finite.all():
-            r = int(np.argwhere(~finite)[0][0])
+        arr = None
+        if not _NOT_DECIMAL.search("".join(toks)):
+            try:
+                arr = np.array(toks, dtype=np.float64).reshape(n_frames, -1)
+            except ValueError:
+                arr = None
+        if arr is None or not np.isfinite(arr).all():
+            r = next((r for r, line_no in enumerate(rows[k]) if not _numeric(raw[line_no - 1])), 0)
             bad_line = min(bad_line or rows[k][r], rows[k][r])
+            continue
         values[k] = arr
     if bad_line is not None:
         raise FrameValueError(path, bad_line, f"non-numeric or non-finite value in {raw[bad_line - 1].strip()!r}")
     return _amc_motion(asf, values, n_frames, deg, fps, path, name, content_hash)
 
 
+#: a character no plain decimal number has (letters of nan/inf, ``_``, ...)
+_NOT_DECIMAL = re.compile(r"[^0-9eE+\-.]")
+
+
 def _numeric(line: str) -> bool:
-    try:
-        return all(np.isfinite(float(t)) for t in line.split("#", 1)[0].split()[1:])
-    except ValueError:
-        return False
+    return all(number(t) is not None for t in line.split("#", 1)[0].split()[1:])
 
 
 def _check_frame(required: set[int] | None, present: set[int], frame_line: int, names: tuple[str, ...],

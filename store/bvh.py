@@ -9,7 +9,6 @@ block is then scanned line by line only to name the faulty line. Every fault rai
 
 from __future__ import annotations
 
-import hashlib
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from motionweb.store.errors import (
 )
 from motionweb.store.kinematics import quat_from_euler, quat_identity, quat_to_euler
 from motionweb.store.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
+from motionweb.store.textfile import decode, number, read_bytes, text_lines
 from numba import njit
 
 _CHANNELS = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}
@@ -70,48 +70,71 @@ class _Tokens:
     def number(self, what: str) -> float:
         line = self.line()
         tok = self.next(what)
-        try:
-            value = float(tok)
-        except ValueError:
-            raise SyntaxFormatError(self.path, line, f"expected a number for {what}, found {tok!r}") from None
-        if not np.isfinite(value):
-            raise FrameValueError(self.path, line, f"{what} is {tok}")
+        value = number(tok)
+        if value is None:
+            if _is_float(tok):
+                raise FrameValueError(self.path, line, f"{what} is {tok}, not a finite number")
+            raise SyntaxFormatError(self.path, line, f"expected a number for {what}, found {tok!r}")
         return value
 
 
-def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int) -> None:
-    """Parse ``NAME { OFFSET .. CHANNELS .. children }`` after ROOT/JOINT."""
-    name_line = tk.line()
-    name = tk.next("a joint name")
-    if name == "{":
-        raise SyntaxFormatError(tk.path, name_line, "joint without a name")
-    index = len(joints)
-    joint = _Joint(name=name, parent=parent)
-    joints.append(joint)
-    tk.expect("{")
-    while True:
+def _parse_hierarchy(tk: _Tokens) -> list[_Joint]:
+    """Parse ``ROOT NAME { OFFSET .. CHANNELS .. JOINT .. End Site .. }`` with an explicit stack
+    (no recursion: the nesting depth is bounded by the file, not by Python)."""
+    joints: list[_Joint] = []
+    open_lines: list[int] = []  # line of each joint still open, innermost last
+    stack: list[int] = []  # indices of the open joints
+    offset_seen: list[bool] = []
+
+    def begin(parent: int) -> None:
+        name_line = tk.line()
+        name = tk.next("a joint name")
+        if name == "{":
+            raise SyntaxFormatError(tk.path, name_line, "joint without a name")
+        joints.append(_Joint(name=name, parent=parent))
+        offset_seen.append(False)
+        tk.expect("{")
+        stack.append(len(joints) - 1)
+        open_lines.append(name_line)
+
+    begin(-1)
+    while stack:
+        joint = joints[stack[-1]]
+        name = joint.name
         line = tk.line()
         tok = tk.next("'}' closing joint " + name)
         low = tok.lower()
         if low == "}":
-            return
-        if low == "offset":
+            if not offset_seen[stack[-1]]:
+                raise SyntaxFormatError(tk.path, open_lines[-1], f"joint {name} has no OFFSET")
+            stack.pop()
+            open_lines.pop()
+        elif low == "offset":
+            if offset_seen[stack[-1]]:
+                raise SyntaxFormatError(tk.path, line, f"joint {name} has a second OFFSET")
+            offset_seen[stack[-1]] = True
             joint.offset = np.array([tk.number(f"OFFSET of {name}") for _ in range(3)])
         elif low == "channels":
-            count = tk.number(f"CHANNELS count of {name}")
-            if count != int(count) or count < 0:
-                raise SyntaxFormatError(tk.path, line, f"bad channel count {count} for {name}")
+            if joint.channels:
+                raise SyntaxFormatError(tk.path, line, f"joint {name} has a second CHANNELS line")
+            count_tok = tk.next(f"CHANNELS count of {name}")
+            if not count_tok.isascii() or not count_tok.isdigit() or int(count_tok) > 6:
+                raise SyntaxFormatError(tk.path, line, f"bad channel count {count_tok!r} for {name} (0 to 6)")
             chans = []
-            for _ in range(int(count)):
+            for _ in range(int(count_tok)):
                 cline = tk.line()
                 c = tk.next(f"a channel name of {name}")
                 if c.lower() not in _CHANNELS:
                     raise UnknownChannelError(tk.path, cline, f"unknown channel {c!r} on joint {name}")
+                if _CHANNELS[c.lower()] in chans:
+                    raise SyntaxFormatError(tk.path, cline, f"channel {c} repeated on joint {name}")
                 chans.append(_CHANNELS[c.lower()])
             joint.channels = tuple(chans)
         elif low == "joint":
-            _parse_joint(tk, joints, index)
+            begin(stack[-1])
         elif low == "end":
+            if joint.end_site is not None:
+                raise SyntaxFormatError(tk.path, line, f"joint {name} has a second End Site")
             tk.expect("Site")
             tk.expect("{")
             tk.expect("OFFSET")
@@ -119,6 +142,7 @@ def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int) -> None:
             tk.expect("}")
         else:
             raise SyntaxFormatError(tk.path, line, f"unexpected {tok!r} in joint {name}")
+    return joints
 
 
 _POW10 = np.array([10.0**k for k in range(23)])
@@ -150,7 +174,7 @@ def _parse_frames(buf, n_rows, n_cols, out, pow10):  # pragma: no cover - compil
             line += 1
             i += 1
             continue
-        if c == 32 or c == 9 or c == 13:
+        if c == 32 or c == 9 or c == 11 or c == 12 or c == 13:
             i += 1
             continue
         if row >= n_rows:
@@ -199,7 +223,7 @@ def _parse_frames(buf, n_rows, n_cols, out, pow10):  # pragma: no cover - compil
             if not eseen:
                 return _BAD_TOKEN, line, row
             exp += -e if eneg else e
-        if not seen or (i < n and not (buf[i] == 32 or buf[i] == 9 or buf[i] == 13 or buf[i] == 10)):
+        if not seen or (i < n and not (buf[i] == 32 or 9 <= buf[i] <= 13)):  # tab, LF, VT, FF, CR
             return _BAD_TOKEN, line, row
         v = float(mant)
         if 0 <= exp <= 22:
@@ -226,34 +250,40 @@ def _find(lines: list[str], word: str, start: int = 0) -> int:
 
 
 def _header_value(lines: list[str], i: int, key: str, path: str | None) -> tuple[str, int]:
-    """The value after ``key`` ('Frames:' / 'Frame Time:') on line i (skipping blank lines)."""
+    """The value after ``key`` ('Frames:' / 'Frame Time:') on line i (skipping blank lines; any
+    white space between the key's words)."""
     while i < len(lines) and not lines[i].strip():
         i += 1
     if i >= len(lines):
         raise TruncatedFileError(path, len(lines), f"file ends before '{key}'")
-    s = lines[i].strip()
+    s = " ".join(lines[i].split())
     if not s.lower().startswith(key.lower()):
         raise SyntaxFormatError(path, i + 1, f"expected '{key}', found {s[:40]!r}")
     return s[len(key):].strip(), i
 
 
-_NON_FINITE = ("nan", "inf", "infinity")
+#: accepted frame times (s): 100 kHz to one frame per 10 s
+FRAME_TIME_RANGE = (1e-5, 10.0)
 
 
-def _is_number(token: str) -> bool:
+def _is_float(token: str) -> bool:
+    """Whether Python reads the token as a float at all (to tell 'inf' or '1e999' from 'abc')."""
     try:
-        return bool(np.isfinite(float(token)))
+        float(token)
     except ValueError:
         return False
+    return "_" not in token
 
 
 def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
               scale_to_m: float | None = None, name: str | None = None, content_hash: str = "") -> Motion:
     """Parse BVH text into a :class:`Motion`.
 
-    ``unit``/``scale_to_m`` come from the caller (BVH declares no unit). Cost: O(file size).
+    ``unit``/``scale_to_m`` come from the caller (BVH declares no unit). The declared frame count
+    is checked against the bytes left in the file before the frame array is allocated. Cost:
+    O(file size).
     """
-    lines = text.splitlines()
+    lines = text_lines(text.removeprefix("\ufeff"))
     h = _find(lines, "HIERARCHY")
     if h < 0:
         raise MissingSectionError(path, 1, "no HIERARCHY section")
@@ -262,26 +292,24 @@ def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
         raise MissingSectionError(path, len(lines), "no MOTION section")
     tk = _Tokens(lines[: m], path)
     tk.pos = sum(len(line.split()) for line in lines[: h + 1])
-    joints: list[_Joint] = []
     root_line = tk.line()
     if (tok := tk.next("ROOT")).upper() != "ROOT":
         raise SyntaxFormatError(path, root_line, f"expected ROOT, found {tok!r}")
-    _parse_joint(tk, joints, -1)
+    joints = _parse_hierarchy(tk)
     if tk.peek() is not None:
         raise SyntaxFormatError(path, tk.line(), f"unexpected {tk.peek()!r} after the hierarchy")
 
     frames_text, i = _header_value(lines, m + 1, "Frames:", path)
-    try:
-        n_frames = int(frames_text)
-    except ValueError:
-        raise SyntaxFormatError(path, i + 1, f"bad frame count {frames_text!r}") from None
+    if not (frames_text.isascii() and frames_text.isdigit()):
+        raise SyntaxFormatError(path, i + 1, f"bad frame count {frames_text!r}")
+    n_frames = int(frames_text)
     ft_text, i = _header_value(lines, i + 1, "Frame Time:", path)
-    try:
-        frame_time = float(ft_text)
-    except ValueError:
-        raise SyntaxFormatError(path, i + 1, f"bad frame time {ft_text!r}") from None
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise FrameValueError(path, i + 1, f"frame time must be positive, got {ft_text}")
+    frame_time = number(ft_text)
+    if frame_time is None:
+        raise SyntaxFormatError(path, i + 1, f"bad frame time {ft_text!r}")
+    lo, hi = FRAME_TIME_RANGE
+    if not lo <= frame_time <= hi:
+        raise FrameValueError(path, i + 1, f"frame time {ft_text} s is outside {lo:g}..{hi:g} s")
     if n_frames <= 0:
         raise EmptyMotionError(path, i, f"the file declares {n_frames} frames")
 
@@ -290,6 +318,9 @@ def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
     if n_cols == 0:
         raise SyntaxFormatError(path, h + 1, "the hierarchy declares no channels")
     block = "\n".join(lines[first:]).encode("ascii", errors="replace")
+    if n_frames * n_cols * 2 - 1 > len(block):  # each value takes a digit and a separator at least
+        raise TruncatedFileError(path, len(lines), f"the file declares {n_frames} frames of {n_cols} values, "
+                                 f"more than its {len(block)} bytes of frame lines can hold")
     data = np.empty((n_frames, n_cols))
     status, fault, rows = _parse_frames(np.frombuffer(block, dtype=np.uint8), n_frames, n_cols, data, _POW10)
     line_no = first + 1 + int(fault)
@@ -297,14 +328,31 @@ def parse_bvh(text: str, path: str | None = None, *, unit: str | None = None,
         count = len(lines[line_no - 1].split())
         raise FrameValueError(path, line_no, f"frame line has {count} values, expected {n_cols}")
     if status == _BAD_TOKEN:
-        bad = next((t for t in lines[line_no - 1].split() if not _is_number(t)), "?")
-        what = "a value that is not finite" if bad.lower().lstrip("+-") in _NON_FINITE else "non-numeric value"
+        bad = next((t for t in lines[line_no - 1].split() if number(t) is None), "?")
+        what = "a value that is not finite" if _is_float(bad) else "non-numeric value"
         raise FrameValueError(path, line_no, f"{what} {bad!r}")
     if status == _TOO_MANY:
         raise FrameValueError(path, line_no, f"more frame lines than the {n_frames} declared")
     if rows < n_frames:
         raise TruncatedFileError(path, len(lines), f"file ends after {rows} of the {n_frames} declared frames")
+    finite = np.isfinite(data).all(axis=1)
+    if not finite.all():
+        row = int(np.flatnonzero(~finite)[0])
+        line_no = first + 1 + _nth_frame_line(lines[first:], row)
+        bad = next((t for t in lines[line_no - 1].split() if number(t) is None), "?")
+        raise FrameValueError(path, line_no, f"a value that is not finite {bad!r}")
     return _to_motion(joints, data, frame_rate(frame_time), path, unit, scale_to_m, name, content_hash)
+
+
+def _nth_frame_line(lines: list[str], row: int) -> int:
+    """0-based index among ``lines`` of the ``row``-th non-blank line."""
+    seen = -1
+    for k, line in enumerate(lines):
+        if line.strip():
+            seen += 1
+            if seen == row:
+                return k
+    return len(lines) - 1
 
 
 def frame_rate(frame_time: float) -> float:
@@ -361,18 +409,9 @@ def _to_motion(joints: list[_Joint], data: np.ndarray, fps: float, path: str | N
 
 
 def read_bvh(path: str | Path, *, unit: str | None = None, scale_to_m: float | None = None) -> Motion:
-    """Read a BVH file (any newline convention). See :func:`parse_bvh`."""
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise MissingSectionError(str(path), None, f"cannot read file: {exc.strerror}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")
-    return parse_bvh(text, str(path), unit=unit, scale_to_m=scale_to_m,
-                     content_hash=hashlib.sha256(raw).hexdigest())
+    """Read a BVH file (any newline convention, UTF-8 or Latin-1). See :func:`parse_bvh`."""
+    raw, digest = read_bytes(path)
+    return parse_bvh(decode(raw), str(path), unit=unit, scale_to_m=scale_to_m, content_hash=digest)
 
 
 def _channel_values(motion: Motion, order: list[int] | None = None) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -136,22 +137,45 @@ def load_clip(entry: ClipEntry, cfg: CorpusParams) -> Motion:
     return motion
 
 
+def corpus_files(root: Path) -> list[Path]:
+    """Every file under ``root``, sorted, following directory symlinks; a folder reached again
+    (a symlink loop, or two links to one folder) is walked once."""
+    seen: set[tuple[int, int]] = set()
+    out: list[Path] = []
+    for folder, dirs, files in os.walk(root, followlinks=True):
+        try:
+            st = os.stat(folder)
+        except OSError:
+            dirs[:] = []
+            continue
+        if (st.st_dev, st.st_ino) in seen:
+            dirs[:] = []
+            continue
+        seen.add((st.st_dev, st.st_ino))
+        dirs.sort()
+        out += [Path(folder, f) for f in files if os.path.isfile(os.path.join(folder, f))]
+    return sorted(out)
+
+
 def scan_corpus(root: str | Path, cfg: CorpusParams | None = None) -> Catalog:
-    """Scan ``root`` recursively; every readable clip becomes a :class:`ClipEntry` (sorted by path)."""
+    """Scan ``root`` recursively (following directory symlinks); every readable clip becomes a
+    :class:`ClipEntry` (sorted by path), every file that fails is listed in ``errors`` with the
+    reason and the scan goes on."""
     cfg = cfg or CorpusParams(path=str(root))
     root = Path(root).resolve()
     if not root.is_dir():
         raise FileNotFoundError(f"corpus folder {root} does not exist")
     manifest = _read_manifest(cfg.manifest) if cfg.manifest else {}
     catalog = Catalog(root=str(root))
-    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+    for path in corpus_files(root):
         rel = path.relative_to(root).as_posix()
         try:
             if not is_clip(path):
                 continue
             motion = read_motion(path, unit=cfg.length_unit, scale_to_m=cfg.scale_to_m)
-        except (MotionFormatError, ValueError, OSError) as exc:
-            catalog.errors.append(ScanError(rel, str(exc)))
+        except Exception as exc:  # any per-file failure is listed, never raised: the scan goes on
+            reason = str(exc) if isinstance(exc, MotionFormatError) else f"{type(exc).__name__}: {exc}"
+            catalog.errors.append(ScanError(rel, reason))
             continue
         catalog.entries.append(
             ClipEntry(

@@ -38,6 +38,7 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from xml.parsers import expat
 
 import numpy as np
 from motionweb.store.errors import (
@@ -59,6 +60,7 @@ from motionweb.store.kinematics import (
     sample_motion,
 )
 from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.textfile import line_of, number
 
 #: DeepMimic's ``globalScaling`` for humanoid.urdf: metres per URDF unit.
 URDF_SCALE = 0.25
@@ -70,6 +72,12 @@ DEEPMIMIC_JOINTS: tuple[tuple[str, int], ...] = (
     ("left_hip", 4), ("left_knee", 1), ("left_ankle", 4), ("left_shoulder", 4), ("left_elbow", 1),
 )
 FRAME_WIDTH = 1 + 3 + 4 + sum(n for _, n in DEEPMIMIC_JOINTS)  # 44
+#: accepted frame durations (s), as for BVH frame times
+FRAME_TIME_RANGE = (1e-5, 10.0)
+#: norms of a stored quaternion that normalise safely
+QUAT_NORM_RANGE = (1e-6, 1e6)
+#: at most this many times the clip's frames after resampling unequal durations to the median
+MAX_RESAMPLE = 4
 
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
@@ -202,29 +210,67 @@ class HumanoidModel:
         return self.inertias
 
 
-def _vec(el: ET.Element | None, attr: str, default: str, path: str | None, n: int = 3) -> np.ndarray:
-    text = default if el is None else el.get(attr, default)
-    try:
-        v = np.array([float(t) for t in text.split()])
-    except ValueError:
-        raise SyntaxFormatError(path, None, f"bad {attr}={text!r} in <{el.tag if el is not None else '?'}>") from None
-    if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise SyntaxFormatError(path, None, f"{attr}={text!r} must be {n} finite numbers")
-    return v
+#: collision shapes the model computes volumes and inertias of
+SHAPE_KINDS = ("sphere", "capsule", "cylinder", "box")
 
 
-def _num(el: ET.Element | None, attr: str, default: float, path: str | None) -> float:
-    if el is None or el.get(attr) is None:
-        return default
-    return float(_vec(el, attr, "", path, 1)[0])
+class _Xml:
+    """A parsed XML document with the line of every element; DTDs (and so entities) refused."""
+
+    def __init__(self, text: str, path: str | None):
+        self.path = path
+        self.lines: dict[int, int] = {}  # id(element) -> 1-based line of its start tag
+        builder = ET.TreeBuilder()
+        parser = expat.ParserCreate()
+
+        def start(tag: str, attrs: dict[str, str]) -> None:
+            el = builder.start(tag, attrs)
+            self.lines[id(el)] = parser.CurrentLineNumber
+
+        def refuse(*_args: object) -> None:
+            raise SyntaxFormatError(path, parser.CurrentLineNumber, "XML document types and entities are refused")
+
+        parser.StartElementHandler = start
+        parser.EndElementHandler = builder.end
+        parser.CharacterDataHandler = builder.data
+        parser.StartDoctypeDeclHandler = refuse
+        parser.EntityDeclHandler = refuse
+        try:
+            parser.Parse(text, True)
+            self.root = builder.close()
+        except expat.ExpatError as exc:
+            raise SyntaxFormatError(path, exc.lineno, f"bad XML: {expat.ErrorString(exc.code)}") from None
+        except (AssertionError, IndexError):  # the tree builder's own checks (e.g. no root element)
+            raise SyntaxFormatError(path, parser.CurrentLineNumber, "bad XML: no complete root element") from None
+
+    def line(self, el: ET.Element | None) -> int | None:
+        return None if el is None else self.lines.get(id(el))
+
+    def vec(self, el: ET.Element | None, attr: str, default: str, n: int = 3) -> np.ndarray:
+        """``n`` finite numbers from attribute ``attr`` of ``el`` (``default`` when absent)."""
+        text = default if el is None else el.get(attr, default)
+        values = [number(t) for t in text.split()]
+        if len(values) != n or any(v is None for v in values):
+            tag = el.tag if el is not None else "?"
+            raise SyntaxFormatError(self.path, self.line(el), f"{attr}={text!r} in <{tag}> must be {n} finite numbers")
+        return np.array(values, dtype=np.float64)
+
+    def num(self, el: ET.Element | None, attr: str, default: float, minimum: float | None = None) -> float:
+        """One finite number (``default`` when absent), at least ``minimum`` when given."""
+        if el is None or el.get(attr) is None:
+            return default
+        v = float(self.vec(el, attr, "", 1)[0])
+        if minimum is not None and v < minimum:
+            raise FrameValueError(self.path, self.line(el), f"{attr}={v:g} in <{el.tag}> must be at least {minimum:g}")
+        return v
 
 
-def _parse_link(el: ET.Element, s: float, path: str | None) -> UrdfLink:
+def _parse_link(el: ET.Element, s: float, xml: _Xml) -> UrdfLink:
     inertial = el.find("inertial")
     origin = inertial.find("origin") if inertial is not None else None
-    mass = _num(inertial.find("mass") if inertial is not None else None, "value", 0.0, path)
+    mass = xml.num(inertial.find("mass") if inertial is not None else None, "value", 0.0, minimum=0.0)
     ie = inertial.find("inertia") if inertial is not None else None
-    get = {k: _num(ie, k, 0.0, path) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    get = {k: xml.num(ie, k, 0.0) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
     inertia = np.array([[get["ixx"], get["ixy"], get["ixz"]],
                         [get["ixy"], get["iyy"], get["iyz"]],
                         [get["ixz"], get["iyz"], get["izz"]]])
@@ -235,40 +281,46 @@ def _parse_link(el: ET.Element, s: float, path: str | None) -> UrdfLink:
         if geom is None or len(geom) == 0:
             continue
         g = geom[0]
-        shape = Shape(g.tag, s * _vec(o, "xyz", "0 0 0", path), _rpy_quat(_vec(o, "rpy", "0 0 0", path)),
-                      radius=s * _num(g, "radius", 0.0, path), length=s * _num(g, "length", 0.0, path),
-                      size=s * _vec(g, "size", "0 0 0", path) if g.tag == "box" else np.zeros(3))
+        if g.tag not in SHAPE_KINDS:
+            raise SyntaxFormatError(xml.path, xml.line(g), f"unsupported collision shape <{g.tag}> "
+                                    f"(expected {', '.join(SHAPE_KINDS)})")
+        size = xml.vec(g, "size", "0 0 0") if g.tag == "box" else np.zeros(3)
+        if np.any(size < 0):
+            raise FrameValueError(xml.path, xml.line(g), f"box size {size.tolist()} must not be negative")
+        shape = Shape(g.tag, s * xml.vec(o, "xyz", "0 0 0"), _rpy_quat(xml.vec(o, "rpy", "0 0 0")),
+                      radius=s * xml.num(g, "radius", 0.0, minimum=0.0),
+                      length=s * xml.num(g, "length", 0.0, minimum=0.0), size=s * size)
         shapes.append(shape)
-    return UrdfLink(el.get("name", ""), mass, s * _vec(origin, "xyz", "0 0 0", path),
-                    _rpy_quat(_vec(origin, "rpy", "0 0 0", path)), inertia, tuple(shapes))
+    return UrdfLink(el.get("name", ""), mass, s * xml.vec(origin, "xyz", "0 0 0"),
+                    _rpy_quat(xml.vec(origin, "rpy", "0 0 0")), inertia, tuple(shapes))
 
 
 def parse_humanoid_urdf(text: str, path: str | None = None, *, scale: float = URDF_SCALE,
                         content_hash: str = "") -> HumanoidModel:
     """Parse URDF text (see :func:`read_humanoid_urdf`)."""
-    text = text.rstrip("\x00 \t\r\n")  # pybullet's humanoid.urdf ends with a NUL byte
-    try:
-        robot = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise SyntaxFormatError(path, exc.position[0], f"bad XML: {exc}") from None
+    text = text.removeprefix("\ufeff").rstrip("\x00 \t\r\n")  # pybullet's humanoid.urdf ends with a NUL
+    xml = _Xml(text, path)
     links = {}
-    for el in robot.iter("link"):
-        link = _parse_link(el, scale, path)
+    for el in xml.root.iter("link"):
+        link = _parse_link(el, scale, xml)
+        if link.name in links:
+            raise SyntaxFormatError(path, xml.line(el), f"link {link.name!r} defined twice")
         links[link.name] = link
-    joint_lines = [i + 1 for i, line in enumerate(text.splitlines()) if "<joint" in line]
     joints = []
-    for k, el in enumerate(robot.iter("joint")):
-        line = joint_lines[k] if k < len(joint_lines) else None
+    for el in xml.root.iter("joint"):
+        line = xml.line(el)
         parent, child = el.find("parent"), el.find("child")
         if parent is None or child is None:
             raise SyntaxFormatError(path, line, f"joint {el.get('name')!r} needs <parent> and <child>")
         o = el.find("origin")
-        axis = _vec(el.find("axis"), "xyz", "1 0 0", path)
+        axis = xml.vec(el.find("axis"), "xyz", "1 0 0")
+        norm = float(np.linalg.norm(axis))
+        if not (np.isfinite(norm) and norm > 1e-9):
+            raise FrameValueError(path, line, f"joint {el.get('name')!r}: axis {axis.tolist()} is not a direction")
         lim = el.find("limit")
-        limits = None if lim is None else (_num(lim, "lower", 0.0, path), _num(lim, "upper", 0.0, path))
+        limits = None if lim is None else (xml.num(lim, "lower", 0.0), xml.num(lim, "upper", 0.0))
         j = UrdfJoint(el.get("name", ""), el.get("type", ""), parent.get("link", ""), child.get("link", ""),
-                      scale * _vec(o, "xyz", "0 0 0", path), _vec(o, "rpy", "0 0 0", path),
-                      axis / (np.linalg.norm(axis) or 1.0), limits, line)
+                      scale * xml.vec(o, "xyz", "0 0 0"), xml.vec(o, "rpy", "0 0 0"), axis / norm, limits, line)
         for ln in (j.parent, j.child):
             if ln not in links:
                 raise UnknownJointError(path, line, f"joint {j.name!r} names an unknown link {ln!r}")
@@ -455,10 +507,10 @@ def _frame_lines(text: str) -> list[int]:
     start = text.find('"Frames"')
     if start < 0:
         return []
-    out, depth, line = [], 0, text.count("\n", 0, start) + 1
-    for m in re.finditer(r"[\[\]\n]", text[start:]):
+    out, depth, line = [], 0, line_of(text, start)
+    for m in re.finditer(r"\r\n|[\[\]\r\n]", text[start:]):
         c = m.group()
-        if c == "\n":
+        if c in ("\n", "\r", "\r\n"):
             line += 1
         elif c == "[":
             depth += 1
@@ -474,11 +526,14 @@ def _frame_lines(text: str) -> list[int]:
 def parse_deepmimic(text: str, model: HumanoidModel, path: str | None = None, *, name: str | None = None,
                     content_hash: str = "") -> Motion:
     """Parse a DeepMimic clip against its humanoid (see the module notes for fps and scale)."""
+    text = text.removeprefix("\ufeff")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         err = TruncatedFileError if exc.pos >= len(text.rstrip()) else SyntaxFormatError
-        raise err(path, exc.lineno, f"bad JSON: {exc.msg}") from None
+        raise err(path, line_of(text, exc.pos), f"bad JSON: {exc.msg}") from None
+    except (RecursionError, ValueError) as exc:  # nesting deeper than the decoder's stack; huge integers
+        raise SyntaxFormatError(path, None, f"bad JSON: {type(exc).__name__}: {exc}") from None
     if not isinstance(doc, dict) or "Frames" not in doc:
         raise MissingSectionError(path, 1, 'no "Frames" list')
     frames = doc["Frames"]
@@ -490,25 +545,28 @@ def parse_deepmimic(text: str, model: HumanoidModel, path: str | None = None, *,
         return lines[k] if k < len(lines) else None
 
     if not frames:
-        start = text.find('"Frames"')
-        raise EmptyMotionError(path, text.count("\n", 0, max(start, 0)) + 1, "the clip has zero frames")
+        raise EmptyMotionError(path, line_of(text, max(text.find('"Frames"'), 0)), "the clip has zero frames")
     for k, fr in enumerate(frames):
         if not isinstance(fr, list) or len(fr) != FRAME_WIDTH:
             got = len(fr) if isinstance(fr, list) else type(fr).__name__
             raise FrameValueError(path, where(k), f"frame {k} has {got} values, expected {FRAME_WIDTH}")
+        if not all(type(v) in (int, float) for v in fr):  # bool is an int to Python, not to JSON
+            raise FrameValueError(path, where(k), f"frame {k} has a value that is not a number")
     try:
         data = np.array(frames, dtype=np.float64)
-    except (TypeError, ValueError):
-        k = next(i for i, fr in enumerate(frames) if not all(isinstance(v, int | float) for v in fr))
-        raise FrameValueError(path, where(k), f"frame {k} has a non-numeric value") from None
+    except OverflowError:  # an integer beyond float range
+        data = np.array([[float(v) if abs(v) < 1e308 else np.inf for v in fr] for fr in frames])
     bad = ~np.isfinite(data)
     if bad.any():
         k, c = (int(x) for x in np.argwhere(bad)[0])
-        raise FrameValueError(path, where(k), f"frame {k} value {c} is {data[k, c]}")
+        raise FrameValueError(path, where(k), f"frame {k} value {c} is not a finite number")
     durations = data[:, 0]
-    if np.any(durations[:-1] <= 0):
-        k = int(np.flatnonzero(durations[:-1] <= 0)[0])
-        raise FrameValueError(path, where(k), f"frame {k} has a non-positive duration {durations[k]}")
+    lo, hi = FRAME_TIME_RANGE
+    steps_ok = (durations >= lo) & (durations <= hi)
+    steps_ok[-1] |= durations[-1] == 0  # the last frame's duration is usually 0
+    if not steps_ok.all():
+        k = int(np.flatnonzero(~steps_ok)[0])
+        raise FrameValueError(path, where(k), f"frame {k} has duration {durations[k]:g} s, outside {lo:g}..{hi:g} s")
 
     sk = model.skeleton
     f = len(data)
@@ -530,9 +588,11 @@ def parse_deepmimic(text: str, model: HumanoidModel, path: str | None = None, *,
         col += width
     for j, q, c in quats:
         norm = np.linalg.norm(q, axis=1)
-        if np.any(norm < 1e-6):
-            k = int(np.flatnonzero(norm < 1e-6)[0])
-            raise FrameValueError(path, where(k), f"frame {k}: zero quaternion at values {c}-{c + 3}")
+        bad = ~((norm > QUAT_NORM_RANGE[0]) & (norm < QUAT_NORM_RANGE[1]))
+        if np.any(bad):
+            k = int(np.flatnonzero(bad)[0])
+            raise FrameValueError(path, where(k), f"frame {k}: quaternion at values {c}-{c + 3} has norm "
+                                  f"{norm[k]:g}, it cannot be normalised")
         rot[:, j] = quat_normalize(q)
 
     if f > 1:
@@ -557,6 +617,10 @@ def parse_deepmimic(text: str, model: HumanoidModel, path: str | None = None, *,
     if f > 1 and np.ptp(steps) > 1e-3 * dt:
         times = np.concatenate([[0.0], np.cumsum(steps)])
         n = int(np.floor(times[-1] * fps + 1e-6)) + 1
+        if n > MAX_RESAMPLE * f:
+            k = int(np.argmax(steps))
+            raise FrameValueError(path, where(k), f"frame {k} lasts {steps[k]:g} s, {steps[k] / dt:.0f} times the "
+                                  f"median {dt:g} s: resampling would make {n} frames of {f}")
         idx = np.interp(np.arange(n) / fps, times, np.arange(f, dtype=np.float64))
         motion = replace(sample_motion(motion, idx), fps=fps)
     return motion
@@ -568,8 +632,8 @@ def read_deepmimic(path: str | Path, urdf: str | Path | HumanoidModel | None = N
     raw = _read_bytes(path)
     try:
         text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise SyntaxFormatError(str(path), None, "not UTF-8 text (expected JSON)") from None
+    except UnicodeDecodeError as exc:
+        raise SyntaxFormatError(str(path), raw.count(b"\n", 0, exc.start) + 1, "not UTF-8 text (expected JSON)") from None
     return parse_deepmimic(text, model, str(path), content_hash=hashlib.sha256(raw).hexdigest())
 
 

@@ -48,3 +48,12 @@ class UnknownJointError(MotionFormatError):
 
 class SyntaxFormatError(MotionFormatError):
     """Any other violation of the file's grammar."""
+
+
+class SidecarError(MotionFormatError):
+    """The metadata JSON beside a clip is malformed or holds a bad ``unit`` / ``scale_to_m``."""
+
+
+class ReaderFailure(MotionFormatError):
+    """A fault no reader check named (a bug to report: every malformed input should get a
+    specific error); raised by ``read_motion`` instead of a foreign exception."""

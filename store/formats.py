@@ -7,10 +7,12 @@ clips with their URDF humanoid (store.deepmimic).
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
-from motionweb.store.errors import MissingSectionError
-from motionweb.store.motion import Motion
+from motionweb.store.errors import MissingSectionError, MotionFormatError, ReaderFailure, SidecarError
+from motionweb.store.motion import UNIT_SCALES, Motion
+from motionweb.store.textfile import decode, line_of, read_bytes
 
 #: suffixes of files that hold a clip (an .asf alone is a skeleton, not a clip)
 CLIP_SUFFIXES = (".bvh", ".amc", ".txt")
@@ -28,15 +30,30 @@ def is_clip(path: Path) -> bool:
 
 
 def sidecar(path: Path) -> dict:
-    """The ground-truth/metadata JSON written beside a clip (``<stem>.json``), or {}."""
+    """The ground-truth/metadata JSON written beside a clip (``<stem>.json``), or {}.
+
+    Its ``unit`` must name a known length unit and its ``scale_to_m`` be a positive finite number
+    (a bad sidecar is a :class:`SidecarError` naming the sidecar and the key)."""
     side = path.with_suffix(".json")
     if not side.is_file():
         return {}
+    raw, _ = read_bytes(side)
+    text = decode(raw)
     try:
-        data = json.loads(side.read_text())
-    except (OSError, json.JSONDecodeError):
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SidecarError(str(side), line_of(text, exc.pos), f"bad JSON in the sidecar of {path.name}: {exc.msg}") from None
+    except (RecursionError, ValueError) as exc:
+        raise SidecarError(str(side), None, f"bad JSON in the sidecar of {path.name}: {type(exc).__name__}") from None
+    if not isinstance(data, dict):
         return {}
-    return data if isinstance(data, dict) else {}
+    unit = data.get("unit")
+    if unit is not None and (not isinstance(unit, str) or unit not in UNIT_SCALES):
+        raise SidecarError(str(side), None, f"'unit' must be one of {', '.join(UNIT_SCALES)}, found {unit!r}")
+    scale = data.get("scale_to_m")
+    if scale is not None and (type(scale) not in (int, float) or not math.isfinite(scale) or scale <= 0):
+        raise SidecarError(str(side), None, f"'scale_to_m' must be a positive finite number, found {scale!r}")
+    return data
 
 
 def find_asf(amc: Path) -> Path:
@@ -54,8 +71,21 @@ def find_asf(amc: Path) -> Path:
 
 def read_motion(path: str | Path, *, unit: str | None = None, scale_to_m: float | None = None) -> Motion:
     """Read any supported clip. ``unit``/``scale_to_m`` apply where the file declares no unit
-    (BVH); a sidecar JSON with a ``unit`` key takes precedence over them."""
+    (BVH); a sidecar JSON with a ``unit`` key takes precedence over them.
+
+    Raises only :class:`MotionFormatError` subclasses: a fault a reader did not foresee becomes a
+    :class:`ReaderFailure` naming the file (the fuzz tests require that none occurs).
+    """
     path = Path(path)
+    try:
+        return _read_motion(path, unit, scale_to_m)
+    except MotionFormatError:
+        raise
+    except Exception as exc:  # RecursionError and MemoryError included
+        raise ReaderFailure(str(path), None, f"unreadable ({type(exc).__name__}: {exc})") from exc
+
+
+def _read_motion(path: Path, unit: str | None, scale_to_m: float | None) -> Motion:
     suffix = path.suffix.lower()
     if suffix == ".bvh":
         from motionweb.store.bvh import read_bvh
