@@ -210,6 +210,8 @@ class HumanoidModel:
         return self.inertias
 
 
+#: largest magnitude of a URDF number (lengths, masses, inertias, angles): beyond it products overflow
+URDF_MAX = 1e6
 #: collision shapes the model computes volumes and inertias of
 SHAPE_KINDS = ("sphere", "capsule", "cylinder", "box")
 
@@ -250,9 +252,10 @@ class _Xml:
         """``n`` finite numbers from attribute ``attr`` of ``el`` (``default`` when absent)."""
         text = default if el is None else el.get(attr, default)
         values = [number(t) for t in text.split()]
-        if len(values) != n or any(v is None for v in values):
+        if len(values) != n or any(v is None or abs(v) > URDF_MAX for v in values):
             tag = el.tag if el is not None else "?"
-            raise SyntaxFormatError(self.path, self.line(el), f"{attr}={text!r} in <{tag}> must be {n} finite numbers")
+            raise SyntaxFormatError(self.path, self.line(el), f"{attr}={text!r} in <{tag}> must be {n} numbers "
+                                    f"of magnitude at most {URDF_MAX:g}")
         return np.array(values, dtype=np.float64)
 
     def num(self, el: ET.Element | None, attr: str, default: float, minimum: float | None = None) -> float:
@@ -285,10 +288,12 @@ def _parse_link(el: ET.Element, s: float, xml: _Xml) -> UrdfLink:
             raise SyntaxFormatError(xml.path, xml.line(g), f"unsupported collision shape <{g.tag}> "
                                     f"(expected {', '.join(SHAPE_KINDS)})")
         size = xml.vec(g, "size", "0 0 0") if g.tag == "box" else np.zeros(3)
-        if np.any(size < 0):
-            raise FrameValueError(xml.path, xml.line(g), f"box size {size.tolist()} must not be negative")
+        radius = xml.num(g, "radius", 0.0, minimum=0.0)
+        if (radius <= 0) if g.tag != "box" else np.any(size <= 0):
+            raise FrameValueError(xml.path, xml.line(g), f"<{g.tag}> needs a positive "
+                                  f"{'radius' if g.tag != 'box' else 'size'}")
         shape = Shape(g.tag, s * xml.vec(o, "xyz", "0 0 0"), _rpy_quat(xml.vec(o, "rpy", "0 0 0")),
-                      radius=s * xml.num(g, "radius", 0.0, minimum=0.0),
+                      radius=s * radius,
                       length=s * xml.num(g, "length", 0.0, minimum=0.0), size=s * size)
         shapes.append(shape)
     return UrdfLink(el.get("name", ""), mass, s * xml.vec(origin, "xyz", "0 0 0"),
@@ -587,7 +592,8 @@ def parse_deepmimic(text: str, model: HumanoidModel, path: str | None = None, *,
             rot[:, j] = quat_from_axis_angle(axis, vals[:, 0])
         col += width
     for j, q, c in quats:
-        norm = np.linalg.norm(q, axis=1)
+        with np.errstate(over="ignore"):
+            norm = np.linalg.norm(q, axis=1)
         bad = ~((norm > QUAT_NORM_RANGE[0]) & (norm < QUAT_NORM_RANGE[1]))
         if np.any(bad):
             k = int(np.flatnonzero(bad)[0])

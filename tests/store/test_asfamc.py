@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import CHAIN_AMC, CHAIN_ASF
 from motionweb.store.asfamc import CMU_FPS, read_amc, read_asf, read_asfamc
 from motionweb.store.bvh import read_bvh, write_bvh
 from motionweb.store.errors import (
@@ -17,64 +18,6 @@ from motionweb.store.errors import (
     UnknownJointError,
 )
 from motionweb.store.kinematics import end_site_positions, forward_kinematics
-
-CHAIN_ASF = """\
-# a two-bone arm, hand written for the tests
-:version 1.10
-:name arm
-:units
-  mass 1.0
-  length 0.5
-  angle deg
-:documentation
-  upper points along +X with its axis turned 90 degrees about Z,
-  lower points along +Y.
-:root
-  order TX TY TZ RX RY RZ
-  axis XYZ
-  position 0 0 0
-  orientation 0 0 0
-:bonedata
-  begin
-    id 1
-    name upper
-    direction 1 0 0
-    length 2
-    axis 0 0 90 XYZ
-    dof rx ry rz
-    limits (-180.0 180.0)
-           (-180.0 180.0)
-           (-180.0 180.0)
-  end
-  begin
-    id 2
-    name lower
-    direction 0 1 0
-    length 3
-    axis 0 0 0 XYZ
-    dof rx
-    limits (-10.0 170.0)
-  end
-:hierarchy
-  begin
-    root upper
-    upper lower
-  end
-"""
-
-CHAIN_AMC = """\
-# hand written
-:FULLY-SPECIFIED
-:DEGREES
-1
-root 1 2 3 0 0 0
-upper 90 0 0
-lower 90
-2
-root 1 2 3 0 0 0
-upper 0 0 90
-lower 0
-"""
 
 
 def _write(tmp_path: Path, name: str, text: str) -> Path:

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import BASE_MASS, HUMANOID_BODY, ROOT_MASS, deepmimic_frame, handmade_urdf_text
 from motionweb.store.bvh import read_bvh, write_bvh
 from motionweb.store.deepmimic import (
-    DEEPMIMIC_JOINTS,
     FRAME_WIDTH,
     URDF_SCALE,
     centre_of_mass,
@@ -32,60 +32,13 @@ from motionweb.store.kinematics import end_site_positions, forward_kinematics, q
 
 G = 9.81
 
-# ---- a hand-made humanoid (own numbers, URDF units = 4 x metres) -------------------------------
-
-#  joint, type, parent link, origin, link mass, link com, collision
-_BODY = [
-    ("chest", "spherical", "root", "0 1 0", 10.0, "0 0.4 0", '<sphere radius="0.4"/>'),
-    ("neck", "spherical", "chest", "0 0.8 0", 2.0, "0 0.6 0", '<sphere radius="0.4"/>'),
-    ("right_hip", "spherical", "root", "0 0 0.4", 4.0, "0 -0.8 0", '<capsule length="1.2" radius="0.2"/>'),
-    ("right_knee", "revolute", "right_hip", "0 -1.6 0", 3.0, "0 -0.8 0", '<capsule length="1.2" radius="0.2"/>'),
-    ("right_ankle", "spherical", "right_knee", "0 -1.6 0", 1.0, "0.2 -0.1 0", '<box size="0.8 0.2 0.4"/>'),
-    ("right_shoulder", "spherical", "chest", "0 0.8 0.8", 1.5, "0 -0.5 0", '<sphere radius="0.2"/>'),
-    ("right_elbow", "revolute", "right_shoulder", "0 -1 0", 1.0, "0 -0.5 0", '<sphere radius="0.2"/>'),
-    ("right_wrist", "fixed", "right_elbow", "0 -1 0", 0.5, "0 0 0", '<sphere radius="0.2"/>'),
-]
-_BODY += [(r[0].replace("right", "left"), r[1], r[2].replace("right", "left"),
-           r[3].replace(" 0.4", " -0.4").replace(" 0.8 0.8", " 0.8 -0.8"), *r[4:]) for r in _BODY[2:]]
-_ROOT_MASS, _BASE_MASS = 6.0, 0.001
-
-
-def _urdf_text() -> str:
-    def link(name: str, mass: float, com: str, geom: str) -> str:
-        rpy = "-1.570796 0 0" if "capsule" in geom else "0 0 0"
-        return (f'  <link name="{name}">\n    <inertial>\n      <origin rpy="0 0 0" xyz="{com}"/>\n'
-                f'      <mass value="{mass}"/>\n'
-                f'      <inertia ixx="0.2" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.2"/>\n    </inertial>\n'
-                f'    <collision>\n      <origin rpy="{rpy}" xyz="{com}"/>\n'
-                f'      <geometry>{geom}</geometry>\n    </collision>\n  </link>\n')
-
-    out = ['<robot name="handmade">\n',
-           f'  <link name="base"><inertial><mass value="{_BASE_MASS}"/></inertial></link>\n',
-           link("root", _ROOT_MASS, "0 0.2 0", '<sphere radius="0.3"/>'),
-           ('  <joint name="root" type="fixed"><parent link="base"/><child link="root"/>'
-            '<origin rpy="0 0 0" xyz="0 0 0"/></joint>\n')]
-    for name, kind, parent, origin, mass, com, geom in _BODY:
-        out.append(link(name, mass, com, geom))
-        axis = '<axis xyz="0 0 1"/><limit lower="-3" upper="0"/>' if kind == "revolute" else ""
-        out.append(f'  <joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{name}"/>'
-                   f'<origin rpy="0 0 0" xyz="{origin}"/>{axis}</joint>\n')
-    out.append("</robot>\n\x00")  # pybullet's file ends with a NUL byte too
-    return "".join(out)
-
+# ---- the hand-made humanoid of fixtures.py (own numbers, URDF units = 4 x metres) --------------
 
 @pytest.fixture
 def urdf_path(tmp_path: Path) -> Path:
     p = tmp_path / "humanoid.urdf"
-    p.write_text(_urdf_text())
+    p.write_text(handmade_urdf_text())
     return p
-
-
-def _frame(duration: float = 1 / 30, root=(0.0, 0.9, 0.0), root_q=(1.0, 0, 0, 0), **angles: float) -> list[float]:
-    """A frame with identity joints except revolute ``angles`` (rad) by joint name."""
-    out = [duration, *root, *root_q]
-    for name, width in DEEPMIMIC_JOINTS:
-        out += [angles.get(name, 0.0)] if width == 1 else [1.0, 0.0, 0.0, 0.0]
-    return out
 
 
 def _clip(tmp_path: Path, frames: list, name: str = "clip.txt", raw: str | None = None) -> Path:
@@ -109,7 +62,7 @@ def test_handmade_urdf(urdf_path: Path) -> None:
     s = URDF_SCALE
     np.testing.assert_allclose(sk.offsets[sk.index("right_knee")], [0, -1.6 * s, 0])
     np.testing.assert_allclose(sk.offsets[sk.index("left_shoulder")], [0, 0.8 * s, -0.8 * s])
-    assert model.total_mass == pytest.approx(_ROOT_MASS + _BASE_MASS + sum(r[4] for r in _BODY))
+    assert model.total_mass == pytest.approx(ROOT_MASS + BASE_MASS + sum(r[4] for r in HUMANOID_BODY))
     assert model.mass is model.masses and model.com is model.coms and model.inertia is model.inertias
     # the wrist is fixed to the elbow: one body, COM between them, the wrist as end site
     e = sk.index("right_elbow")
@@ -131,9 +84,9 @@ def test_handmade_urdf(urdf_path: Path) -> None:
 
 def test_handmade_clip_fk(tmp_path: Path, urdf_path: Path) -> None:
     half = np.sqrt(0.5)
-    frames = [_frame(root=(1.0, 0.9, 2.0)),
-              _frame(root=(1.0, 0.9, 2.0), root_q=(half, 0.0, half, 0.0), right_knee=-np.pi / 2),
-              _frame(0.0)]
+    frames = [deepmimic_frame(root=(1.0, 0.9, 2.0)),
+              deepmimic_frame(root=(1.0, 0.9, 2.0), root_q=(half, 0.0, half, 0.0), right_knee=-np.pi / 2),
+              deepmimic_frame(0.0)]
     p = _clip(tmp_path, frames)
     m = read_deepmimic(p, urdf_path)
     assert m.fps == 30.0 and m.n_frames == 3 and m.unit == "m" and m.scale_to_m == 1.0
@@ -154,8 +107,8 @@ def test_handmade_clip_fk(tmp_path: Path, urdf_path: Path) -> None:
 
 
 def test_unequal_durations_are_resampled(tmp_path: Path, urdf_path: Path) -> None:
-    frames = [_frame(0.1, root=(0.0, 0.9, 0)), _frame(0.2, root=(1.0, 0.9, 0)),
-              _frame(0.1, root=(2.0, 0.9, 0)), _frame(0.0, root=(3.0, 0.9, 0))]
+    frames = [deepmimic_frame(0.1, root=(0.0, 0.9, 0)), deepmimic_frame(0.2, root=(1.0, 0.9, 0)),
+              deepmimic_frame(0.1, root=(2.0, 0.9, 0)), deepmimic_frame(0.0, root=(3.0, 0.9, 0))]
     m = read_deepmimic(_clip(tmp_path, frames), urdf_path)
     assert m.fps == 10.0
     np.testing.assert_allclose(m.root_positions[:, 0], [0.0, 1.0, 1.5, 2.0, 3.0])
@@ -165,7 +118,7 @@ def test_bvh_round_trip_handmade(tmp_path: Path, urdf_path: Path) -> None:
     rng = np.random.default_rng(0)
     frames = []
     for _ in range(5):
-        f = np.array(_frame(right_knee=-1.0, left_elbow=0.7, right_elbow=2.0))
+        f = np.array(deepmimic_frame(right_knee=-1.0, left_elbow=0.7, right_elbow=2.0))
         for c in range(4, FRAME_WIDTH - 3, 4):
             if f[c] == 1.0:
                 q = rng.normal(size=4)
@@ -206,7 +159,7 @@ def test_bad_json(tmp_path: Path, urdf_path: Path) -> None:
 
 
 def test_truncated_json(tmp_path: Path, urdf_path: Path) -> None:
-    good = _clip(tmp_path, [_frame(), _frame(), _frame(0.0)])
+    good = _clip(tmp_path, [deepmimic_frame(), deepmimic_frame(), deepmimic_frame(0.0)])
     text = good.read_text()
     line5 = sum(len(x) for x in text.splitlines(keepends=True)[:4])
     p = _clip(tmp_path, [], name="cut.txt", raw=text[: line5 + 30])  # ends inside frame 1
@@ -214,7 +167,7 @@ def test_truncated_json(tmp_path: Path, urdf_path: Path) -> None:
 
 
 def test_wrong_value_count(tmp_path: Path, urdf_path: Path) -> None:
-    frames = [_frame(), _frame(), _frame(0.0)]
+    frames = [deepmimic_frame(), deepmimic_frame(), deepmimic_frame(0.0)]
     frames[1] = frames[1][:-1]
     p = _clip(tmp_path, frames)
     _expect(FrameValueError, p, 5, lambda: read_deepmimic(p, urdf_path))
@@ -222,7 +175,7 @@ def test_wrong_value_count(tmp_path: Path, urdf_path: Path) -> None:
 
 @pytest.mark.parametrize("bad", ["NaN", "Infinity", '"x"', "null"])
 def test_bad_value(tmp_path: Path, urdf_path: Path, bad: str) -> None:
-    frames = [json.dumps(_frame()) for _ in range(3)]
+    frames = [json.dumps(deepmimic_frame()) for _ in range(3)]
     frames[2] = frames[2].replace("0.9", bad, 1)
     p = _clip(tmp_path, [], raw='{\n"Loop": "wrap",\n"Frames": [\n' + ",\n".join(frames) + "\n]\n}\n")
     _expect(FrameValueError, p, 6, lambda: read_deepmimic(p, urdf_path))
@@ -236,7 +189,7 @@ def test_zero_frames_and_missing_frames(tmp_path: Path, urdf_path: Path) -> None
 
 
 def test_zero_quaternion(tmp_path: Path, urdf_path: Path) -> None:
-    frames = [_frame(), _frame(root_q=(0.0, 0.0, 0.0, 0.0)), _frame(0.0)]
+    frames = [deepmimic_frame(), deepmimic_frame(root_q=(0.0, 0.0, 0.0, 0.0)), deepmimic_frame(0.0)]
     p = _clip(tmp_path, frames)
     _expect(FrameValueError, p, 5, lambda: read_deepmimic(p, urdf_path))
 
