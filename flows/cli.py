@@ -379,5 +379,10 @@ def plot_web(
                f"{rep.minima} minima, {rep.chains} chains, {rep.bridges} bridges")
 
 
+from motionweb.flows import store_cli  # noqa: E402 - commands of their own module
+
+app.command()(store_cli.verify)
+app.command()(store_cli.gc)
+
 if __name__ == "__main__":
     app()

@@ -58,6 +58,8 @@ class StoreConfig(Params):
 class IndexConfig(Params):
     chunk_by: Literal["category", "none"] = "category"
     schedule: str = "0 2 * * *"
+    #: generations kept by the gc after each run (the current one and those committed before it)
+    keep_generations: int = Field(3, ge=1)
 
 
 class Config(Params):

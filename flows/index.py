@@ -31,7 +31,15 @@ from typing import Any
 from motionweb.flows.config import Config, DaskConfig, load_config
 from motionweb.flows.workers import compute_features_batch, compute_web_batch
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
-from motionweb.store.generations import Generation, commit, current_id, load_generation, package_versions
+from motionweb.store.generations import (
+    Generation,
+    commit,
+    current_id,
+    gc,
+    load_generation,
+    package_versions,
+    same_content,
+)
 from motionweb.store.keys import (
     feature_digest,
     feature_key,
@@ -426,19 +434,30 @@ def catalog_task(cfg: Config) -> Catalog:
 def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list[ChunkPlan]:
     """Pair plan of every chunk, split into cached and to-compute by the store.
 
-    Objects the current generation lists are present (gc never drops them), so only the others
-    are looked up in the store.
+    Every object reused is verified first (read whole, checksum against the one recorded with
+    it and in the current manifest): a missing or damaged one is recomputed, never committed
+    again. Cost: one read of every reused object, O(store bytes used by this generation).
     """
     store = MotionStore(cfg.store.path)
     fdig = feature_digest(cfg)
     rates = [float(r) for r in cfg.features.rates]
-    listed = {w["key"] for w in prev.webs} if prev else set()
+    expected = prev.checksums if prev else {}
     stored = store.web_keys(web_digest(cfg))  # one listing of the web shards, not a lookup per pair
-    listed_f = {sha for sha, rs in (prev.features if prev else {}).items()
-                if prev.params.get("features") == fdig and {rate_tag(r) for r in rates} <= set(rs)}
-    plans = [plan_chunk(c, cfg, lambda k: k in listed or k in stored,
-                        lambda sha: sha in listed_f or store.has_features(sha, fdig, rates)) for c in chunks]
     logger = get_run_logger()
+
+    def sound(key: str) -> bool:
+        problem = store.verify(key, expected.get(key))
+        if problem is not None and (key in stored or key in expected):
+            logger.warning("store object %s %s: recomputing it", key, problem)
+        return problem is None
+
+    def web_ok(key: str) -> bool:
+        return key in stored and sound(key)
+
+    def features_ok(sha: str) -> bool:
+        return store.has_features(sha, fdig, rates) and sound(feature_key(sha, fdig))
+
+    plans = [plan_chunk(c, cfg, web_ok, features_ok) for c in chunks]
     for p in plans:
         logger.info("chunk %s: %d clips, %d pairs (%d to compute, %d cached), %d clips need features",
                     p.chunk.name, len(p.chunk.clips), len(p.pairs), len(p.todo), len(p.cached),
@@ -491,6 +510,9 @@ def index_library(config: str | Config) -> dict[str, Any]:
     prev = load_generation(store, parent) if parent else None
 
     catalog = catalog_task(cfg)
+    if not catalog.entries:
+        raise ValueError(f"corpus {catalog.root} holds no readable clip ({len(catalog.errors)} unreadable "
+                         "files): nothing to index")
     timings["catalog_s"] = time.perf_counter() - t0
     chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
     t = time.perf_counter()
@@ -520,8 +542,17 @@ def index_library(config: str | Config) -> dict[str, Any]:
     for key in cached_keys - set(cached_meta):
         cached_meta[key] = store.web_attrs(key)
     gen = build_generation(cfg, catalog, plans, results, failed, parent, timings, cached_meta=cached_meta)
+    keys = [w["key"] for w in gen.webs] + sorted({k for rs in gen.features.values() for k in rs.values()})
+    gen.checksums = {k: c for k in keys if (c := store.recorded_checksum(k)) is not None}
     gen.timings["before_commit_s"] = time.perf_counter() - t0
-    commit_task(gen, cfg.store.path)
+    if prev is not None and same_content(prev, gen):
+        logger.info("nothing changed: generation %s stays current", prev.id)
+        gen.id = prev.id  # no manifest repeating the current one
+    else:
+        commit_task(gen, cfg.store.path)
+    removed = gc(store, cfg.index.keep_generations)
+    if removed:
+        logger.info("gc: removed %d objects and files no kept generation needs", len(removed))
     wall = time.perf_counter() - t0
     summary = IndexSummary(
         generation=gen.id, store=cfg.store.path,

@@ -25,7 +25,7 @@ from motionweb.store.generations import Generation, current_id, load_generation,
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
-from motionweb.store.zarr_store import MotionStore
+from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
@@ -265,7 +265,11 @@ def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: M
     fdig = gen.params["features"]
     feats, weights = {}, None
     for clip in {n.segment.clip for n in graph.nodes}:
-        by_rate, weights = store.read_features(clips[clip]["sha256"], fdig, [graph.rate])
+        try:
+            by_rate, weights = store.read_features(clips[clip]["sha256"], fdig, [graph.rate])
+        except StoreError as exc:
+            raise StoreError(store.url, exc.key, f"(features of {clip}) {exc.reason}; "
+                             "run motionweb index to recompute them") from None
         feats[clip] = by_rate[graph.rate]
     return register(graph, feats, weights, gen_cfg.matchweb)
 

@@ -11,7 +11,7 @@ from typing import Any
 
 from motionweb.store.generations import Generation, load_generation
 from motionweb.store.web import MatchWeb, transpose
-from motionweb.store.zarr_store import MotionStore
+from motionweb.store.zarr_store import MotionStore, StoreError
 
 #: clip key -> [(other clip key, web oriented with the clip as rows)]
 WebSource = Mapping[str, Sequence[tuple[str, MatchWeb]]]
@@ -52,7 +52,14 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     def _read(self, rec: dict[str, Any]) -> MatchWeb:
         web = self._webs.get(rec["key"])
         if web is None:
-            web = self._webs[rec["key"]] = self.store.read_web(rec["key"])
+            try:
+                web = self._webs[rec["key"]] = self.store.read_web(rec["key"])
+            except KeyError:
+                raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) is missing; "
+                                 "run motionweb index to recompute it") from None
+            except StoreError as exc:
+                raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) {exc.reason}; "
+                                 "run motionweb index to recompute it") from None
         return web
 
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:

@@ -18,7 +18,11 @@ Layout under the store root (a local folder or any fsspec URL)::
     generations/, current                        manifests (``store/generations.py``)
 
 Keys come from ``store/keys.py``. An object is marked ``complete`` in its attributes only after
-all its arrays are written; a half-written object is never seen as present. Webs are many and
+all its arrays are written; a half-written object is never seen as present. Every feature object
+and every web records the SHA-256 of its uncompressed bytes (``checksum``, also listed in the
+generation manifest); each read recomputes it, so a truncated, bit-flipped or deleted chunk
+(which zarr would read back as zeros) raises :class:`StoreIntegrityError` naming the object
+instead of returning wrong numbers. Webs are many and
 small (zarr costs ~2 ms of CPU per array created), so a batch of webs shares one array (a shard)
 and a web key is found through the index in the shards' attributes, listed once per store
 instance and again when a key is not found.
@@ -26,6 +30,7 @@ instance and again when a key is not found.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import uuid
@@ -65,6 +70,26 @@ def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0) -> dict[str
     """Inverse of :func:`_pack` on ``buf`` holding the bytes from offset ``base`` on."""
     return {name: buf[start - base:start - base + nbytes].view(np.dtype(dtype)).reshape(shape).copy()
             for name, dtype, shape, start, nbytes in layout}
+
+
+class StoreError(ValueError):
+    """A store object that cannot be used: ``key`` names it, ``reason`` says why."""
+
+    def __init__(self, url: str, key: str, reason: str):
+        self.key, self.reason = key, reason
+        super().__init__(f"{url}: object {key} {reason}")
+
+
+class StoreIntegrityError(StoreError):
+    """A stored object whose bytes are missing, undecodable or differ from their checksum."""
+
+
+def checksum(parts: list[np.ndarray] | np.ndarray) -> str:
+    """SHA-256 (hex) of the concatenated bytes of ``parts``."""
+    h = hashlib.sha256()
+    for p in parts if isinstance(parts, list) else [parts]:
+        h.update(np.ascontiguousarray(p).data)
+    return h.hexdigest()
 
 
 def now_iso() -> str:
@@ -107,10 +132,11 @@ class MotionStore:
 
     # ---------------------------------------------------------------- objects
     def _open(self, key: str) -> zarr.Group | zarr.Array | None:
-        """The group (features, grids) or packed array (webs) stored at ``key``, None if absent."""
+        """The group (features, grids) or packed array (webs) stored at ``key``, None if absent or
+        its metadata is unreadable."""
         try:
             return zarr.open(store=self.zstore, path=key, mode="r")
-        except (FileNotFoundError, zarr.errors.NodeNotFoundError, KeyError):
+        except (FileNotFoundError, zarr.errors.NodeNotFoundError, KeyError, ValueError, TypeError):
             return None
 
     def has(self, key: str) -> bool:
@@ -135,7 +161,7 @@ class MotionStore:
         buf = np.concatenate(parts) if parts else np.zeros(0, np.uint8)
         z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, min(buf.size, chunk)),),
                               dtype=np.uint8, compressors=COMPRESSORS, overwrite=True,
-                              attributes={**attrs, "written": now_iso()})
+                              attributes={**attrs, "checksum": checksum(buf), "written": now_iso()})
         if buf.size:
             z[...] = buf
         z.update_attributes({"complete": True})
@@ -146,8 +172,47 @@ class MotionStore:
         if z is None or not z.attrs.get("complete", False):
             raise KeyError(f"{self.url}: no complete object {key!r}")
         attrs = dict(z.attrs)
-        buf = np.asarray(z[...]) if z.shape[0] else np.zeros(0, np.uint8)
+        buf = self._read_range(z, key, 0, z.shape[0], attrs.get("checksum"))
         return _unpack(buf, attrs.pop("layout")), attrs
+
+    def _read_range(self, z: zarr.Array, key: str, start: int, nbytes: int, expected: str | None) -> np.ndarray:
+        """Bytes ``start:start+nbytes`` of a packed array, checked against their recorded checksum."""
+        try:
+            buf = np.asarray(z[start:start + nbytes]) if nbytes else np.zeros(0, np.uint8)
+        except Exception as exc:  # noqa: BLE001 - any codec or I/O failure is damage to this object
+            raise StoreIntegrityError(self.url, key, f"is unreadable ({type(exc).__name__}: {exc})") from None
+        if expected is not None and checksum(buf) != expected:
+            raise StoreIntegrityError(self.url, key, "is damaged (its bytes differ from their checksum)")
+        return buf
+
+    def recorded_checksum(self, key: str) -> str | None:
+        """The checksum a feature object or web was written with (None: absent or written without)."""
+        if key.startswith("webs/"):
+            found = self._web_entry(key)
+            return found[1].get("checksum") if found else None
+        z = self._open(key)
+        return z.attrs.get("checksum") if z is not None else None
+
+    def verify(self, key: str, expected: str | None = None) -> str | None:
+        """Why the object at ``key`` cannot be reused (missing, incomplete, unreadable, checksum
+        differs from the recorded one or from ``expected``), None when it is sound. Reads it whole."""
+        try:
+            if key.startswith("webs/"):
+                if self._web_entry(key) is None:
+                    return "missing"
+                self.read_web_arrays(key)
+            elif key.startswith("features/"):
+                self._read_packed(key)
+            elif not self.has(key):
+                return "missing"
+        except KeyError:
+            return "missing"
+        except StoreIntegrityError as exc:
+            return exc.reason
+        recorded = self.recorded_checksum(key)
+        if expected is not None and recorded != expected:
+            return "checksum differs from the manifest's"
+        return None
 
     def _write_group(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None:
         """Write arrays into a fresh group; mark it complete last (a crash leaves it incomplete)."""
@@ -214,7 +279,8 @@ class MotionStore:
             for key, arrays, attrs in items:
                 p, layout, end = _pack(arrays, start)
                 parts += p
-                entries[key] = {"start": start, "nbytes": end - start, "layout": layout, "attrs": attrs}
+                entries[key] = {"start": start, "nbytes": end - start, "layout": layout, "attrs": attrs,
+                                "checksum": checksum(p)}
                 start = end
             shard = f"{SHARDS}/{wdig}/{new_id()}"
             self._shards[shard] = self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries})
@@ -239,11 +305,20 @@ class MotionStore:
             shard = f"{SHARDS}/{wdig}/{os.path.basename(name.rstrip('/'))}"
             if shard in self._shards:
                 continue
-            z = self._open(shard)
-            if z is None or not z.attrs.get("complete", False):
-                continue  # being written, or its writer died: not seen yet
+            try:
+                z = self._open(shard)
+                ok = z is not None and z.attrs.get("complete", False) and isinstance(z.attrs.get("webs"), dict)
+            except Exception:  # noqa: BLE001 - a damaged shard header: its webs are missing
+                ok = False
+            if not ok:
+                continue  # being written, its writer died, or damaged: its webs are not seen
             self._shards[shard] = z
             self._webs.update({key: (shard, e) for key, e in z.attrs["webs"].items()})
+
+    def web_shard(self, key: str) -> str | None:
+        """The shard that serves a web key (the newest complete one holding it), None if none."""
+        found = self._web_entry(key)
+        return found[0] if found else None
 
     def web_keys(self, wdig: str) -> set[str]:
         """Every completely written web key with parameter digest ``wdig`` (one shard listing)."""
@@ -262,7 +337,7 @@ class MotionStore:
         if z is None:
             raise KeyError(f"{self.url}: no complete web {key!r}")
         e = found[1]
-        buf = np.asarray(z[e["start"]:e["start"] + e["nbytes"]]) if e["nbytes"] else np.zeros(0, np.uint8)
+        buf = self._read_range(z, key, e["start"], e["nbytes"], e.get("checksum"))
         return _unpack(buf, e["layout"], e["start"]), dict(e["attrs"])
 
     def read_web(self, key: str) -> MatchWeb:

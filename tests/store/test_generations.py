@@ -78,6 +78,53 @@ def test_gc_keeps_listed_objects(tmp_path):
     commit(store, _gen(store, [k_old]))
     store.write_web(k_new, ragged_web(rng))
     commit(store, _gen(store, [k_new]))
-    assert gc(store, keep=1) == [k_old]
+    removed = gc(store, keep=1)
+    assert any(r.startswith("webs/shards/wd0/") for r in removed) and len(removed) == 2  # shard + manifest
     assert store.has(k_new) and not store.has(k_old)
     assert len(generation_ids(store)) == 1
+
+
+def test_gc_removes_leftovers_of_killed_runs(tmp_path):
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(6)
+    k = web_key(SHA_A, SHA_B, "wd1")
+    store.write_web(k, ragged_web(rng))
+    g = _gen(store, [k])
+    commit(store, g)
+    store.write_web(web_key(SHA_B, SHA_B, "wd1"), ragged_web(rng))  # written, never committed
+    store.write_webs([(k, ragged_web(rng), {})])  # a newer shard now serves k; the old one is superseded
+    (tmp_path / "s" / "current.tmp-0dead").write_text("{")
+    (tmp_path / "s" / "generations" / "99991231T000000000000Z-0dead0.json").write_text("{}")  # uncommitted
+    removed = gc(store, keep=3)
+    assert "current.tmp-0dead" in removed and "generations/99991231T000000000000Z-0dead0.json" in removed
+    fresh = MotionStore(str(tmp_path / "s"))
+    assert fresh.has(k) and not fresh.has(web_key(SHA_B, SHA_B, "wd1"))
+    assert len(fresh.leaf_keys("webs/shards", 2)) == 1 and current_id(fresh) == g.id
+
+
+def test_damaged_pointer_or_manifest_falls_back(tmp_path, caplog):
+    store = MotionStore(str(tmp_path / "s"))
+    g1, g2 = _gen(store, []), _gen(store, [])
+    commit(store, g1)
+    commit(store, g2)
+    (tmp_path / "s" / "generations" / f"{g2.id}.json").write_text('{"id": ')
+    assert current_id(store) == g1.id and "falling back to generation " + g1.id in caplog.text
+    (tmp_path / "s" / "current").write_bytes(b"\x00\xff")
+    assert current_id(store) == g1.id
+    (tmp_path / "s" / "current").unlink()
+    assert load_generation(store).id == g1.id
+
+
+def test_verify_generation_names_clip_and_web(tmp_path):
+    from motionweb.store.generations import verify_generation
+
+    store = MotionStore(str(tmp_path / "s"))
+    k = web_key(SHA_A, SHA_B, "wd1")
+    store.write_web(k, ragged_web(np.random.default_rng(7)))
+    g = _gen(store, [k])
+    g.checksums = {k: store.recorded_checksum(k)}
+    commit(store, g)
+    assert verify_generation(store, g) == []
+    g.checksums[k] = "0" * 64
+    (problem,) = verify_generation(store, g)
+    assert problem.what == "web x0 x y0" and problem.key == k and "manifest" in problem.reason

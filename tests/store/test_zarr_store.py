@@ -101,3 +101,25 @@ def test_a_batch_of_webs_shares_one_shard(tmp_path):
         for k in keys:
             fresh.read_web_arrays(k)
     assert sorted(opened) == sorted(set(opened)) and len(opened) == 2  # wd1's and wd2's shard
+
+
+def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
+    from motionweb.store.zarr_store import StoreIntegrityError
+
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(8)
+    fk = store.write_features(SHA_A, "fd", {30.0: rng.random((50, 4, 3)).astype(np.float32)}, np.ones(4))
+    wk = web_key(SHA_A, SHA_B, "wd")
+    store.write_web(wk, ragged_web(rng))
+    assert store.verify(fk) is None and store.verify(wk) is None
+    (feature_chunk,) = [p for p in (tmp_path / "s" / "features").rglob("c/*") if p.is_file()]
+    feature_chunk.unlink()  # zarr reads a missing chunk as zeros: the checksum tells
+    with pytest.raises(StoreIntegrityError, match=fk):
+        MotionStore(str(tmp_path / "s")).read_features(SHA_A, "fd")
+    (web_chunk,) = [p for p in (tmp_path / "s" / "webs").rglob("c/*") if p.is_file()]
+    web_chunk.write_bytes(web_chunk.read_bytes()[:10])  # truncated: blosc cannot decode it
+    fresh = MotionStore(str(tmp_path / "s"))
+    with pytest.raises(StoreIntegrityError, match="unreadable"):
+        fresh.read_web_arrays(wk)
+    assert fresh.verify(wk).startswith("is unreadable") and fresh.verify(fk).startswith("is damaged")
+    assert fresh.verify(web_key(SHA_B, SHA_B, "wd")) == "missing"

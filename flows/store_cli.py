@@ -1,0 +1,53 @@
+"""``motionweb verify`` and ``motionweb gc``: integrity and housekeeping of a config's store (design §9)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from motionweb.store.generations import gc as store_gc
+from motionweb.store.generations import load_generation, verify_generation
+from motionweb.store.zarr_store import MotionStore, StoreError
+
+
+def _store(config: Path) -> MotionStore:
+    from motionweb.flows.cli import config_or_fail
+
+    return MotionStore(config_or_fail(config).store.path)
+
+
+def verify(
+    config: Annotated[Path, typer.Argument(help="Config file whose store is checked.")],
+) -> None:
+    """Check every object of the current generation against its checksums; exit 1 when any is
+    missing or damaged (``motionweb index`` recomputes them)."""
+    from motionweb.flows.cli import fail
+
+    store = _store(config)
+    try:
+        gen = load_generation(store)
+    except StoreError as exc:
+        fail(str(exc))
+    if gen is None:
+        fail(f"store {store.url} was never indexed (no committed generation)")
+    problems = verify_generation(store, gen)
+    n = len(gen.webs) + sum(len(set(r.values())) for r in gen.features.values())
+    for p in problems:
+        typer.echo(f"damaged: {p}")
+    typer.echo(f"generation {gen.id}: {n} objects checked, {len(problems)} missing or damaged")
+    if problems:
+        raise typer.Exit(1)
+
+
+def gc(
+    config: Annotated[Path, typer.Argument(help="Config file whose store is cleaned.")],
+    keep: Annotated[int, typer.Option(min=1, help="Generations kept: the current one and those before it.")] = 3,
+) -> None:
+    """Remove old generations, leftovers of killed runs and objects no kept generation lists.
+    Do not run it while an index run writes to the same store."""
+    store = _store(config)
+    before = store.size_bytes()
+    removed = store_gc(store, keep)
+    typer.echo(f"removed {len(removed)} objects and files; store {before / 1e6:.2f} MB -> "
+               f"{store.size_bytes() / 1e6:.2f} MB")
