@@ -3,6 +3,13 @@
 They live apart from :mod:`motionweb.flows.index` so that worker processes import neither Prefect
 (~5 s per worker) nor the flow; they take plain values (clip entries, keys, the config) and return
 small records. Each clip's distance operands are cached per worker process.
+
+Same bytes whatever the workers: a multi-threaded BLAS splits a GEMM's sums by its thread
+count (measured: a distance grid computed with 1 and with 2 OpenBLAS threads differs by up to
+1e-7), and Dask process workers run one BLAS thread while thread workers share the parent's
+pool. So every producer pins the process to one BLAS thread before computing; the parallelism
+is across workers. Features and webs are then identical with thread or process workers, any
+worker count and any BLAS configuration (tests/flows/test_same_bytes.py).
 """
 
 from __future__ import annotations
@@ -18,9 +25,16 @@ from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.distance import ClipOperands
 from motionweb.tasks.features import clip_features, point_weights
 from motionweb.tasks.matchweb import build_web_operands
+from threadpoolctl import threadpool_limits
 
 if TYPE_CHECKING:
     from motionweb.flows.config import Config
+
+@lru_cache(maxsize=1)
+def pin_blas_threads() -> None:
+    """One BLAS thread in this process from now on (see the module notes); idempotent."""
+    threadpool_limits(1)
+
 
 @lru_cache(maxsize=8)
 def worker_store(url: str) -> MotionStore:
@@ -50,6 +64,7 @@ def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) 
 
     Returns one small record per clip (``error`` when the clip cannot be read or featurized).
     """
+    pin_blas_threads()
     store = worker_store(store_url)
     fdig = feature_digest(cfg)
     out = []
@@ -76,6 +91,7 @@ def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, stor
     the side with ``keep_grids``): a failed batch leaves nothing behind and is recomputed whole.
     Returns small records only.
     """
+    pin_blas_threads()
     store = worker_store(store_url)
     fdig = feature_digest(cfg)
     rate = float(max(cfg.features.rates))
