@@ -250,7 +250,9 @@ def _quiet_services() -> None:
 def run_index(cfg: Config, progress: bool) -> dict:
     """Run the index flow with an optional progress counter on stderr; errors become ``fail``."""
     import motionweb.flows.index as idx
+    from motionweb.flows.reaper import start_reaper
 
+    start_reaper()  # the Prefect server and Dask workers die with this process
     seen: dict[str, tuple[int, int]] = {}
 
     def show(stage: str, done: int, total: int) -> None:
@@ -316,6 +318,9 @@ def matches_table(rows: list[dict]) -> str:
 def run_query(cfg: Config, request) -> dict:
     """Check the request, run the query flow and print its matches; errors become ``fail``."""
     from motionweb.flows.query import plan_query, query
+    from motionweb.flows.reaper import start_reaper
+
+    start_reaper()
 
     try:
         plan_query(cfg, request)

@@ -1,0 +1,84 @@
+"""Services die with the CLI: kill only the main process, its descendants follow (flows/reaper.py)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+from fixtures import wiggle
+from motionweb.flows.reaper import descendants
+from motionweb.store.bvh import write_bvh
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the reaper reads /proc")
+
+
+def _alive(procs: set[tuple[int, str]]) -> set[tuple[int, str]]:
+    out = set()
+    for pid, start in procs:
+        try:
+            with open(f"/proc/{pid}/stat") as fh:
+                if fh.read().rsplit(")", 1)[1].split()[19] == start:
+                    out.add((pid, start))
+        except OSError:
+            pass
+    return out
+
+
+def _wait_gone(procs: set[tuple[int, str]], timeout: float) -> set[tuple[int, str]]:
+    deadline = time.monotonic() + timeout
+    while _alive(procs) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return _alive(procs)
+
+
+def test_children_die_with_a_killed_parent() -> None:
+    code = ("import subprocess, sys, time; from motionweb.flows.reaper import start_reaper; start_reaper(); "
+            "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); time.sleep(120)")
+    parent = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while len(descendants(parent.pid)) < 2 and time.monotonic() < deadline:  # reaper + sleeper
+            time.sleep(0.2)
+        time.sleep(1.0)  # one poll of the reaper
+        kids = descendants(parent.pid)
+        assert len(kids) >= 2
+    finally:
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
+    assert not _wait_gone(kids, 20), "descendants outlived their killed parent"
+
+
+def test_killing_the_cli_ends_its_prefect_server_and_workers(tmp_path: Path) -> None:
+    corpus = tmp_path / "corpus" / "walk"
+    corpus.mkdir(parents=True)
+    for k in range(3):
+        write_bvh(wiggle(300, 30.0, seed=k), corpus / f"w{k}.bvh")
+    cfg = {"corpus": {"path": str(tmp_path / "corpus"), "length_unit": "m"}, "store": {"path": str(tmp_path / "s")},
+           "dask": {"processes": True, "n_workers": 1}, "output": str(tmp_path / "out")}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
+    env["PREFECT_HOME"] = str(tmp_path / "prefect")
+    cli = subprocess.Popen([sys.executable, "-m", "motionweb.flows.cli", "index", str(tmp_path / "c.yaml"),
+                            "--no-progress"], env=env, start_new_session=True,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        seen: set[tuple[int, str]] = set()
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and cli.poll() is None:
+            seen |= descendants(cli.pid)
+            if len(seen) >= 3:  # the reaper, Prefect's server and at least one Dask process
+                break
+            time.sleep(0.2)
+        assert cli.poll() is None and len(seen) >= 3, "the CLI finished before its services were seen"
+        time.sleep(1.0)
+        seen |= descendants(cli.pid)
+    finally:
+        os.kill(cli.pid, signal.SIGKILL)
+        cli.wait()
+    assert not _wait_gone(seen, 30), "services outlived the killed CLI"
