@@ -3,15 +3,16 @@
 Each foot in contact is a rectangle whose 4 corners each carry a 4-edge friction pyramid
 inscribed in the Coulomb cone of coefficient μ (MPS06 Fig. 3): 16 basis forces per foot with
 magnitudes λ ≥ 0, mapped to generalized forces by the corners' Jacobians, f_q = Jᵀ P λ = N λ
-(MPS06 Eqn. 11). Contacts are detected from the height and speed of the foot's lowest corner;
-intervals can be given per clip instead.
+(MPS06 Eqn. 11). Contacts are detected per foot end (toe, heel) from its height above the clip's
+own floor and its speed, with hysteresis and minimum durations (:class:`ContactRule`); intervals
+can be given per clip instead.
 
 Cost: one forward kinematics + 4 frame Jacobians per foot per frame, O(F · n_feet · nv).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
@@ -41,7 +42,11 @@ class Contacts:
         basis: (F, nv, n_feet * 16) generalized force of a unit λ on each basis edge
             (columns of inactive feet are still filled; use ``active`` to select).
         corner_positions: (F, n_feet, 4, 3) world positions of the sole corners, m.
-        ground: ground height, m. friction: μ. detected: False when intervals were given.
+        ground: ground (floor) height, m. friction: μ. detected: False when intervals were given.
+        corner_active: (F, n_feet, 4) sole corners that may push (toe or heel down), None: all
+            corners of an active foot.
+        carried: the basis has one more column past the feet's, the clip's own unexplained root
+            wrench, active in every frame (:meth:`carrying`).
     """
 
     feet: tuple[Foot, ...]
@@ -51,23 +56,29 @@ class Contacts:
     ground: float
     friction: float
     detected: bool = True
+    corner_active: np.ndarray | None = None
+    carried: bool = False
+
+    def carrying(self, wrench: np.ndarray) -> Contacts:
+        """These contacts with the wrench (F, 6) appended as a last basis column on the root rows."""
+        col = np.zeros(self.basis.shape[:2] + (1,))
+        col[:, :wrench.shape[1], 0] = wrench
+        return replace(self, basis=np.concatenate([self.basis, col], axis=2), carried=True)
 
     def columns(self, frame: int) -> np.ndarray:
-        """Indices of the λ columns of the feet in contact at ``frame``."""
+        """Indices of the λ columns of the feet (and sole corners) in contact at ``frame``."""
         per = CORNERS * EDGES_PER_CORNER
         feet = np.flatnonzero(self.active[frame])
-        return (feet[:, None] * per + np.arange(per)[None]).reshape(-1)
+        cols = (feet[:, None] * per + np.arange(per)[None]).reshape(-1)
+        if self.corner_active is not None:
+            cols = cols[self.corner_active[frame][feet].repeat(EDGES_PER_CORNER, axis=1).reshape(-1)]
+        return np.append(cols, self.basis.shape[2] - 1) if self.carried else cols
 
     def intervals(self, fps: float) -> dict[str, list[tuple[float, float]]]:
         """Contact intervals in seconds per foot name."""
         out: dict[str, list[tuple[float, float]]] = {}
         for k, foot in enumerate(self.feet):
-            runs = []
-            a = self.active[:, k].astype(np.int8)
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], a, [0]])))
-            for s, e in zip(edges[::2], edges[1::2], strict=True):
-                runs.append((s / fps, (e - 1) / fps))
-            out[foot.name] = runs
+            out[foot.name] = [(s / fps, (e - 1) / fps) for s, e in runs(self.active[:, k])]
         return out
 
 
@@ -172,26 +183,90 @@ def contact_bases(body: BodyModel, q: np.ndarray, feet: tuple[Foot, ...], mu: fl
     return basis, pos
 
 
-def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, ground: float = 0.0,
-                    height: float = 0.05, speed: float = 0.3, min_frames: int = 2) -> np.ndarray:
-    """(F, n_feet) contact flags: lowest corner within ``height`` of the ground and slower than ``speed``.
+@dataclass(frozen=True)
+class ContactRule:
+    """How contacts are read from mocap (MPS06 §3.2 needs them; the paper does not say how).
 
-    Runs shorter than ``min_frames`` are dropped. Speeds by central differences (m/s).
+    A foot's two ends — toe (sole corners 0, 1) and heel (corners 2, 3) — are each in contact
+    while low and slow, with hysteresis: an end touches down when its lower corner is within
+    ``height_on`` of the floor and its midpoint slower than ``speed_on``, and stays down while
+    within ``height_off`` and slower than ``speed_off``. The foot is in contact when an end is;
+    then gaps shorter than ``min_gap_s`` are closed and contacts shorter than ``min_contact_s``
+    dropped. ``floor``: the ground height, or None for the clip's own floor (:func:`clip_floor`).
     """
-    h = corner_positions[..., up_axis] - ground  # (F, nf, 4)
-    vel = np.gradient(corner_positions, 1.0 / fps, axis=0) if corner_positions.shape[0] > 1 else \
-        np.zeros_like(corner_positions)
-    low = np.argmin(h, axis=2)  # (F, nf)
-    hmin = np.take_along_axis(h, low[..., None], axis=2)[..., 0]
-    v = np.linalg.norm(np.take_along_axis(vel, low[..., None, None], axis=2)[:, :, 0], axis=-1)
-    act = (hmin <= height) & (v <= speed)
-    for k in range(act.shape[1]):
-        a = act[:, k].astype(np.int8)
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], a, [0]])))
-        for s, e in zip(edges[::2], edges[1::2], strict=True):
-            if e - s < min_frames:
-                act[s:e, k] = False
-    return act
+
+    height_on: float = 0.04
+    height_off: float = 0.07
+    speed_on: float = 0.6
+    speed_off: float = 1.2
+    min_contact_s: float = 0.05
+    min_gap_s: float = 0.05
+    floor: float | None = None
+
+
+def clip_floor(corner_positions: np.ndarray, up_axis: int = 1, quantile: float = 0.05) -> float:
+    """The clip's floor: over the feet, the lowest ``quantile`` of each foot's per-frame lowest sole height.
+
+    Mocap floors are rarely at exactly 0 (marker offsets, skeleton fitting): reading the floor from
+    the clip's own feet makes the contact heights relative to where this subject stood. Robust to
+    a few frames of a foot sinking (a quantile, not the minimum). O(F · n_feet).
+    """
+    h = corner_positions[..., up_axis].min(axis=2)  # (F, nf)
+    return float(np.quantile(h, quantile, axis=0).min())
+
+
+def runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) index pairs of the runs of True in a 1-D bool array."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def hysteresis(low_on: np.ndarray, low_off: np.ndarray) -> np.ndarray:
+    """(F,) on where ``low_on`` holds, staying on while ``low_off`` holds (``low_on`` ⊂ ``low_off``)."""
+    out = np.zeros(len(low_on), bool)
+    state = False
+    for i in range(len(low_on)):
+        state = bool(low_on[i]) or (state and bool(low_off[i]))
+        out[i] = state
+    return out
+
+
+def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactRule | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Contact flags per foot (F, n_feet) and per sole corner (F, n_feet, 4), and the floor used.
+
+    See :class:`ContactRule`. Speeds by central differences (m/s). In a frame where a foot is in
+    contact by gap closing only, all its corners may push. O(F · n_feet).
+    """
+    rule = rule or ContactRule()
+    f, nf = corner_positions.shape[:2]
+    floor = clip_floor(corner_positions, up_axis) if rule.floor is None else float(rule.floor)
+    h = corner_positions[..., up_axis] - floor  # (F, nf, 4)
+    vel = np.gradient(corner_positions, 1.0 / fps, axis=0) if f > 1 else np.zeros_like(corner_positions)
+    act = np.zeros((f, nf), bool)
+    corner = np.zeros((f, nf, CORNERS), bool)
+    min_gap = int(round(rule.min_gap_s * fps))
+    min_contact = int(round(rule.min_contact_s * fps))
+    for k in range(nf):
+        ends = []
+        for pair in ((0, 1), (2, 3)):
+            hp = h[:, k, pair].min(axis=1)
+            vp = np.linalg.norm(vel[:, k, pair].mean(axis=1), axis=-1)
+            ends.append(hysteresis((hp <= rule.height_on) & (vp <= rule.speed_on),
+                                   (hp <= rule.height_off) & (vp <= rule.speed_off)))
+        a = ends[0] | ends[1]
+        for s, e in runs(~a):
+            if s > 0 and e < f and e - s < min_gap:
+                a[s:e] = True
+        for s, e in runs(a):
+            if e - s < min_contact:
+                a[s:e] = False
+        act[:, k] = a
+        toe, heel = ends[0] & a, ends[1] & a
+        neither = a & ~toe & ~heel
+        corner[:, k, 0:2] = (toe | neither)[:, None]
+        corner[:, k, 2:4] = (heel | neither)[:, None]
+    return act, corner, floor
 
 
 def intervals_to_active(intervals: dict[str, list[tuple[float, float]]], feet: tuple[Foot, ...],
@@ -210,18 +285,16 @@ def intervals_to_active(intervals: dict[str, list[tuple[float, float]]], feet: t
     return act
 
 
-def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, mu: float = 0.5, height: float = 0.05,
-                 speed: float = 0.3, ground: float = 0.0,
+def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, mu: float = 0.5, rule: ContactRule | None = None,
                  intervals: dict[str, list[tuple[float, float]]] | None = None,
                  foot_corners: dict[int, np.ndarray] | None = None) -> Contacts:
-    """Feet, their contact flags (detected, or from ``intervals``) and force bases (MPS06 §3.2)."""
+    """Feet, their contact flags (detected by ``rule``, or from ``intervals``) and force bases (MPS06 §3.2)."""
     feet = find_feet(body.skeleton, body.scale, body.up_axis, foot_corners or body.foot_corners or None)
     if not feet:
         raise ValueError("no feet found in the skeleton (no low leaf joints); give foot corners")
     basis, pos = contact_bases(body, q, feet, mu)
+    active, corner, floor = detect_contacts(pos, fps, up_axis=body.up_axis, rule=rule)
     if intervals:
-        active = intervals_to_active(intervals, feet, q.shape[0], fps)
-    else:
-        active = detect_contacts(pos, fps, up_axis=body.up_axis, ground=ground, height=height, speed=speed)
-    return Contacts(feet=feet, active=active, basis=basis, corner_positions=pos, ground=ground,
-                    friction=mu, detected=not intervals)
+        active, corner = intervals_to_active(intervals, feet, q.shape[0], fps), None
+    return Contacts(feet=feet, active=active, basis=basis, corner_positions=pos, ground=floor,
+                    friction=mu, detected=not intervals, corner_active=corner)

@@ -28,17 +28,15 @@ DEFAULT_RADIUS_RATIO = 0.15  # cylinder radius / bone length
 LEAF_SPHERE_RADIUS = 0.04  # m, for leaf joints with no bone
 GRAVITY = 9.81
 
-#: Segment mass fractions (Winter, Biomechanics and Motor Control of Human Movement, Table 4.1),
-#: matched to joint names by keyword; joints that match nothing share the rest by bone volume.
-ANTHROPOMETRIC_TABLE: tuple[tuple[tuple[str, ...], float], ...] = (
-    (("head", "neck"), 0.081),
-    (("hand", "wrist"), 0.006),
-    (("forearm", "elbow", "lowerarm"), 0.016),
-    (("upperarm", "shoulder", "arm"), 0.028),
-    (("foot", "ankle", "toe"), 0.0145),
-    (("shin", "knee", "leg", "calf", "lowerleg"), 0.0465),
-    (("thigh", "upleg", "hip", "femur", "upperleg"), 0.100),
-)
+#: Segment mass fractions of total body mass (Winter, Biomechanics and Motor Control of Human
+#: Movement, 4th ed., Table 4.1; per side for limbs). Trunk = pelvis 0.142 + abdomen and thorax 0.355,
+#: of which 0.01 per side sits on the shoulder girdle (the bodies of an arm before the upper arm), so
+#: that the long clavicle bones of mocap skeletons do not take the chest's mass by their volume.
+SEGMENT_FRACTIONS: dict[str, float] = {
+    "pelvis": 0.142, "torso": 0.335, "shoulder": 0.01, "head_neck": 0.081, "upper_arm": 0.028, "forearm": 0.016, "hand": 0.006,
+    "thigh": 0.100, "shank": 0.0465, "foot": 0.0145,
+}
+DEFAULT_TOTAL_MASS = 70.0  # kg, an adult
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,28 +125,111 @@ def _cylinder_inertias(skeleton: Skeleton, scale: float, radius_ratio: float) ->
     return out
 
 
-def _table_fractions(skeleton: Skeleton, volumes: np.ndarray) -> np.ndarray:
-    """Per-joint mass fractions: table entries split among matching joints, trunk the rest."""
-    names = [n.lower() for n in skeleton.names]
-    groups: dict[int, list[int]] = {}
-    for j, n in enumerate(names):
-        for g, (keys, _) in enumerate(ANTHROPOMETRIC_TABLE):
-            if any(k in n for k in keys):
-                groups.setdefault(g, []).append(j)
-                break
-    frac = np.zeros(len(names))
-    assigned = np.zeros(len(names), bool)
-    for g, js in groups.items():
-        per_side = ANTHROPOMETRIC_TABLE[g][1] * 2 if g != 0 else ANTHROPOMETRIC_TABLE[g][1]
+def segments(skeleton: Skeleton, scale: float, up_axis: int = 1) -> list[str]:
+    """The anthropometric segment (a key of :data:`SEGMENT_FRACTIONS`) of each body, from the skeleton's shape.
+
+    Body ``j`` spans joint ``j`` to its children. Names are not trusted (a joint named "hip" carries
+    the thigh in one skeleton and the pelvis in another); the structure decides: a leg is the
+    path from the root to a foot joint (:func:`motionweb.tasks.retime.contacts.find_feet`), its two
+    longest bodies thigh and shank, those above pelvis, the foot joint's subtree foot. The spine
+    is the path to the highest leaf; an arm is the path from the spine to any other leaf, its two
+    longest bodies upper arm and forearm, those before shoulder (clavicle), the forearm's
+    descendants hand. Spine bodies past the highest arm branch are head and neck; the root is
+    pelvis; the rest torso. O(J²).
+    """
+    from motionweb.tasks.retime.contacts import find_feet, rest_positions
+
+    n = skeleton.n_joints
+    seg = ["torso"] * n
+    seg[0] = "pelvis"
+    rest = rest_positions(skeleton, scale)
+    lengths = np.array([sum(float(np.linalg.norm(e)) for e in _bones(skeleton, j, scale)) for j in range(n)])
+
+    def path(j: int) -> list[int]:  # root (excluded) .. j
+        out = []
+        while j > 0:
+            out.append(j)
+            j = int(skeleton.parents[j])
+        return out[::-1]
+
+    def descendants(j: int) -> list[int]:
+        out, todo = [], list(skeleton.children(j))
+        while todo:
+            c = todo.pop()
+            out.append(c)
+            todo += skeleton.children(c)
+        return out
+
+    def limb(chain: list[int], upper: str, lower: str, above: str, below: str) -> None:
+        if len(chain) < 2:
+            return
+        top2 = sorted(sorted(chain, key=lambda j: -lengths[j])[:2], key=chain.index)
+        k0, k1 = chain.index(top2[0]), chain.index(top2[1])
+        for j in chain[:k0]:
+            seg[j] = above
+        seg[top2[0]] = upper
+        for j in chain[k0 + 1:k1 + 1]:
+            seg[j] = lower
+        for j in descendants(top2[1]):
+            seg[j] = below
+
+    feet = find_feet(skeleton, scale, up_axis)
+    in_leg: set[int] = set()
+    for foot in feet:
+        chain = path(foot.joint)
+        in_leg |= set(chain) | set(descendants(foot.joint))
+        limb(chain, "thigh", "shank", "pelvis", "foot")
+        for j in [foot.joint, *descendants(foot.joint)]:
+            seg[j] = "foot"
+    tips = {j: rest[j] + (np.asarray(skeleton.end_sites[j], float) * scale if j in skeleton.end_sites else 0.0)
+            for j in range(n) if not skeleton.children(j)}
+    free = [j for j in tips if j not in in_leg and j > 0]
+    if not free:
+        return seg
+    head = max(free, key=lambda j: tips[j][up_axis])
+    spine = path(head)
+    branches = []
+    for leaf in free:
+        if leaf == head:
+            continue
+        chain = path(leaf)
+        k = 0
+        while k < len(chain) and k < len(spine) and chain[k] == spine[k]:
+            k += 1
+        if k > 0 and chain[k:]:
+            branches.append((k, chain[k:]))
+    top = max((k for k, _ in branches), default=len(spine) - 1)
+    for j in spine[top:]:
+        seg[j] = "head_neck"
+    done: set[int] = set()
+    for _, chain in sorted(branches, key=lambda b: -len(b[1])):  # the longest path of each arm (to a finger)
+        if chain[0] in done:
+            continue
+        done.add(chain[0])
+        limb(chain, "upper_arm", "forearm", "shoulder", "hand")
+    return seg
+
+
+def segment_fractions(skeleton: Skeleton, scale: float, volumes: np.ndarray, up_axis: int = 1) -> np.ndarray:
+    """(J,) mass fractions: each segment's share of :data:`SEGMENT_FRACTIONS` split among its bodies
+    by volume (each side of a limb its own share), renormalized to sum to 1."""
+    seg = segments(skeleton, scale, up_axis)
+    frac = np.zeros(len(seg))
+    groups: dict[tuple[str, int], list[int]] = {}
+    for j, name in enumerate(seg):
+        groups.setdefault((name, limb_root(skeleton, j, seg)), []).append(j)
+    for (name, _), js in groups.items():
         v = volumes[js] + 1e-12
-        frac[js] = per_side * v / v.sum()
-        assigned[js] = True
-    rest = max(1.0 - frac.sum(), 0.05)
-    free = ~assigned
-    if free.any():
-        v = volumes[free] + 1e-12
-        frac[free] = rest * v / v.sum()
+        frac[js] = SEGMENT_FRACTIONS[name] * v / v.sum()
+    # a segment missing from this skeleton (no arms, say) leaves its share to the others
     return frac / frac.sum()
+
+
+def limb_root(skeleton: Skeleton, j: int, seg: list[str]) -> int:
+    """The topmost body of ``j``'s run of bodies with the same segment (tells left from right)."""
+    while j > 0 and seg[int(skeleton.parents[j])] == seg[j]:
+        j = int(skeleton.parents[j])
+    return j if seg[j] not in ("pelvis", "torso", "head_neck") else -1
 
 
 def build_body_model(
@@ -165,7 +246,8 @@ def build_body_model(
 
     ``kind='cylinders'``: each bone a water-density cylinder (MPS06 §4), rescaled to
     ``total_mass`` when given. ``kind='table'``: ``total_mass`` (default 70 kg) split by the
-    anthropometric table (keyword match on joint names), each body's shape from its cylinders.
+    anthropometric table (:func:`segments` finds each body's segment from the skeleton's
+    structure), each body's shape (inertia) from its cylinders.
     ``inertias`` (one ``pin.Inertia`` per skeleton joint, in the joint frame, SI) overrides both,
     e.g. the real masses of the DeepMimic URDF. O(J).
     """
@@ -177,8 +259,8 @@ def build_body_model(
         inertias = _cylinder_inertias(skeleton, scale, radius_ratio)
         masses = np.array([i.mass for i in inertias])
         if kind == "table":
-            frac = _table_fractions(skeleton, masses)
-            target = frac * (total_mass or 70.0)
+            frac = segment_fractions(skeleton, scale, masses, up_axis)
+            target = frac * (total_mass or DEFAULT_TOTAL_MASS)
             inertias = [_scaled(i, t / max(i.mass, 1e-12)) for i, t in zip(inertias, target, strict=True)]
         elif kind == "cylinders":
             if total_mass is not None:
@@ -247,27 +329,44 @@ def configurations(body: BodyModel, motion: Motion) -> np.ndarray:
     return q
 
 
-def path_derivatives(body: BodyModel, q: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Source-time derivatives q', q'' (F, nv) by central differences on the manifold.
+def path_derivatives(body: BodyModel, q: np.ndarray, fps: float, smoothing_s: float = 0.0
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Source-time derivatives q', q'' (F, nv): a local quadratic fit on the manifold (Savitzky-Golay).
 
-    q'_i = (q_{i+1} ⊖ q_i − q_{i−1} ⊖ q_i) / 2h, q''_i = (q_{i+1} ⊖ q_i + q_{i−1} ⊖ q_i) / h², with
-    ⊖ = ``pin.difference`` (tangent space at q_i); end frames copy one-sided values. O(F · nq).
+    At frame i the tangent offsets d_j = q_{i+j} ⊖ q_i (``pin.difference``, tangent space at q_i)
+    for |j| ≤ m, m = max(1, round(``smoothing_s`` · fps)), are fitted by least squares with
+    a + q' (jh) + q'' (jh)²/2; windows are cut at the clip's ends. m = 1 is the central difference
+    q'_i = (d_1 − d_{−1}) / 2h, q''_i = (d_1 + d_{−1}) / h². Mocap at 120 fps differentiated twice
+    over one frame turns millimetres of marker noise into tens of m/s²; a window of ±40 ms
+    (a ~10 Hz low-pass) keeps the ground reaction forces of a walk. End frames with fewer than 3
+    frames in their window copy one-sided values. O(F · m · nq).
     """
     m = body.model
     f = q.shape[0]
     h = 1.0 / fps
     if f < 3:
         raise ValueError("need at least 3 frames for path derivatives")
-    fwd = np.stack([pin.difference(m, q[i], q[i + 1]) for i in range(f - 1)])  # at q_i toward q_{i+1}
-    bwd = np.stack([pin.difference(m, q[i], q[i - 1]) for i in range(1, f)])  # at q_i toward q_{i-1}
+    w = max(1, int(round(smoothing_s * fps)))
+    offs = {j: np.stack([pin.difference(m, q[i], q[i + j]) if 0 <= i + j < f else np.full(m.nv, np.nan)
+                         for i in range(f)]) for j in range(-w, w + 1) if j}
     d1 = np.empty((f, m.nv))
     d2 = np.empty((f, m.nv))
-    d1[1:-1] = (fwd[1:] - bwd[:-1]) / (2 * h)
-    d2[1:-1] = (fwd[1:] + bwd[:-1]) / (h * h)
-    d1[0] = fwd[0] / h
-    d1[-1] = -bwd[-1] / h
-    d2[0] = d2[1]
-    d2[-1] = d2[-2]
+    fits: dict[tuple[int, int], np.ndarray] = {}
+    for i in range(f):
+        lo, hi = max(-w, -i), min(w, f - 1 - i)
+        if hi - lo < 2:
+            continue
+        if (lo, hi) not in fits:
+            t = np.arange(lo, hi + 1) * h
+            fits[(lo, hi)] = np.linalg.pinv(np.stack([np.ones_like(t), t, 0.5 * t * t], axis=1))[1:]  # (2, n)
+        coef = fits[(lo, hi)]
+        d = np.stack([offs[j][i] if j else np.zeros(m.nv) for j in range(lo, hi + 1)])  # (n, nv)
+        d1[i], d2[i] = coef @ d
+    if w == 1:
+        d1[0] = offs[1][0] / h
+        d1[-1] = -offs[-1][-1] / h
+        d2[0] = d2[1]
+        d2[-1] = d2[-2]
     return d1, d2
 
 
@@ -305,8 +404,10 @@ class DynamicsTerms:
         return self.a @ w, self.b @ w, np.einsum("fvbk,b,k->fv", self.c, w, g)
 
 
-def dynamics_terms(body: BodyModel, motion: Motion) -> DynamicsTerms:
+def dynamics_terms(body: BodyModel, motion: Motion, smoothing_s: float = 0.0) -> DynamicsTerms:
     """Per-frame per-body path-dynamics coefficients of ``motion`` (MPS06 §3.1).
+
+    ``smoothing_s``: half-width of the derivative fit (:func:`path_derivatives`).
 
     Five joint-torque-regressor evaluations per frame: Y(q, 0, q') for a, Y(q, q', q'') for b
     (gravity off), Y(q, 0, 0) with unit gravity along x, y, z for c. Cost O(F · nv · B).
@@ -314,7 +415,7 @@ def dynamics_terms(body: BodyModel, motion: Motion) -> DynamicsTerms:
     m = body.model
     d = m.createData()
     q = configurations(body, motion)
-    dq, ddq = path_derivatives(body, q, motion.fps)
+    dq, ddq = path_derivatives(body, q, motion.fps, smoothing_s)
     f, nv, nb = q.shape[0], m.nv, body.n_bodies
     pi = body.params  # (B, 10)
     zero = np.zeros(nv)

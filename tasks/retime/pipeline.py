@@ -11,15 +11,16 @@ Costs: polygons O(F · n_LP · LP), baking O(F · K · nv · nλ), one objective
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion, Skeleton
 from motionweb.store.params import Params
-from motionweb.tasks.retime.contacts import Contacts, contacts_for
+from motionweb.tasks.retime.contacts import ContactRule, Contacts, contacts_for
 from motionweb.tasks.retime.dynamics import (
+    DEFAULT_TOTAL_MASS,
     BodyModel,
     DynamicsTerms,
     body_model_for,
@@ -27,6 +28,7 @@ from motionweb.tasks.retime.dynamics import (
     mass_factors,
 )
 from motionweb.tasks.retime.errors import RetimeError
+from motionweb.tasks.retime.limits import table_limits
 from motionweb.tasks.retime.objective import BakedObjective, bake
 from motionweb.tasks.retime.polygons import (
     N_ROOT,
@@ -43,12 +45,33 @@ from pydantic import Field
 class RetimeParams(Params):
     """Physics-based retiming (design §8, MPS06 §3)."""
 
-    body_model: Literal["cylinders", "table"] = "cylinders"
-    total_mass: float | None = None
+    #: segment masses: an anthropometric table given the total mass (an adult by default), or
+    #: water-density cylinders (MPS06 §4; rescaled to total_mass). DeepMimic clips use their URDF.
+    body_model: Literal["cylinders", "table"] = "table"
+    total_mass: float | None = DEFAULT_TOTAL_MASS
     friction: float = 0.5
-    contact_height: float = 0.05
-    contact_speed: float = 0.3
+    #: contact detection per foot end (toe, heel): on below height_on (m above the clip's floor) and
+    #: slower than speed_on (m/s), off above height_off or faster than speed_off; gaps and contacts
+    #: shorter than the minimum durations (s) are closed / dropped (see contacts.ContactRule)
+    contact_height_on: float = 0.04
+    contact_height_off: float = 0.07
+    contact_speed_on: float = 0.6
+    contact_speed_off: float = 1.2
+    contact_min_s: float = 0.05
+    contact_gap_s: float = 0.05
+    #: floor height (m, up axis); None: each clip's own floor from its lowest foot heights
+    floor_height: float | None = None
+    #: per clip name: its floor height (m), overriding floor_height
+    floor_heights: dict[str, float] = Field(default_factory=dict)
+    #: joint torque limits (MPS06 Eqn. 12): "table" — observed over several actions (limits.py,
+    #: scaled by total mass), or "clip" — the clip's own peaks x torque_margin
+    torque_limits_from: Literal["table", "clip"] = "table"
+    #: per joint name, a limit (N·m) overriding the table
+    torque_limits: dict[str, float] = Field(default_factory=dict)
     torque_margin: float = 1.5
+    #: half-width (s) of the local quadratic fit giving q', q'' (dynamics.path_derivatives); at
+    #: 30 fps it is the central difference, at 120 fps ±5 frames
+    smoothing_s: float = 0.04
     samples_per_frame: int = 4
     #: MPS06 Eqn. 14 weights, both unit-free: α on the squared distance to the feasible polygon
     #: priced as unexplained root force in body weights, β on the mean squared torque deviation
@@ -56,7 +79,6 @@ class RetimeParams(Params):
     alpha: float = 1.0
     beta: float = 0.1
     objective: Literal["match", "minimize"] = "match"
-    ground_height: float = 0.0
     #: per clip name: {foot joint: [[start_s, end_s], ...]} replacing detected contacts
     contact_intervals: dict[str, dict[str, list[tuple[float, float]]]] = Field(default_factory=dict)
     #: retime clips with no ground contact as pure flight instead of failing
@@ -64,6 +86,9 @@ class RetimeParams(Params):
     #: box of the (p̈, ṗ²) plane the feasible polygons are clipped to (MPS06 §3.4)
     speed_max: float = 6.0
     pdd_max: float = 40.0
+    #: root force (fraction of body weight) a timing may leave unexplained beyond the clip's own
+    #: (MPS06 Eqn. 13's root rows): the body model and mocap are good to a few percent
+    root_tolerance: float = 0.03
     #: initial sweep directions and the LP budget per frame of the polygon sweep
     directions: int = 8
     max_lps: int = 16
@@ -71,10 +96,18 @@ class RetimeParams(Params):
     knots_per_second: float = 8.0
 
 
+def contact_rule(params: RetimeParams, clip: str | None = None) -> ContactRule:
+    """The contact detection rule of a retiming's parameters for clip ``clip`` (its floor override)."""
+    return ContactRule(height_on=params.contact_height_on, height_off=params.contact_height_off,
+                       speed_on=params.contact_speed_on, speed_off=params.contact_speed_off,
+                       min_contact_s=params.contact_min_s, min_gap_s=params.contact_gap_s,
+                       floor=params.floor_heights.get(clip or "", params.floor_height))
+
+
 def polygon_options(params: RetimeParams) -> PolygonOptions:
     """The polygon sweep's settings of a retiming's parameters."""
     return PolygonOptions(pdd_max=params.pdd_max, speed_max=params.speed_max, directions=params.directions,
-                          max_lps=params.max_lps)
+                          max_lps=params.max_lps, abs_tol=params.root_tolerance)
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,6 +131,7 @@ class RetimePlan:
     polygons: FeasiblePolygons
     baked: BakedObjective
     timings: dict[str, float]
+    limit_sources: dict[str, str] = field(default_factory=dict)
 
 
 def humanoid_foot_corners(humanoid: Any, skeleton: Skeleton) -> dict[int, np.ndarray]:
@@ -127,23 +161,22 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up,
                           humanoid=humanoid)
     factors = mass_factors(body, mass or {})
-    terms = dynamics_terms(body, motion)
+    terms = dynamics_terms(body, motion, opts.smoothing_s)
     tm["dynamics"] = time.perf_counter() - t
     t = time.perf_counter()
     corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
-    contacts = contacts_for(body, terms.q, motion.fps, mu=opts.friction, height=opts.contact_height,
-                            speed=opts.contact_speed, ground=opts.ground_height, intervals=contact_intervals,
-                            foot_corners=corners)
+    contacts = contacts_for(body, terms.q, motion.fps, mu=opts.friction, rule=contact_rule(opts, motion.name),
+                            intervals=contact_intervals, foot_corners=corners)
     tm["contacts"] = time.perf_counter() - t
     if not contacts.active.any() and not opts.allow_flight_only:
         feet = ", ".join(f.name for f in contacts.feet)
-        low = contacts.corner_positions[..., up].min() - opts.ground_height
+        low = contacts.corner_positions[..., up].min() - contacts.ground
         raise RetimeError(
             f"no ground contact detected in {motion.name or 'the clip'}: feet ({feet}) never come within "
-            f"{opts.contact_height} m of the ground at y={opts.ground_height} (lowest {low:.3f} m above) while "
-            f"slower than {opts.contact_speed} m/s. Give contact intervals (retime.contact_intervals in the "
-            "config), adjust contact_height/ground_height, or set retime.allow_flight_only: true to retime it "
-            "as pure flight (ballistic).")
+            f"{opts.contact_height_on} m of the floor at {up_axis}={contacts.ground:.3f} (lowest {low:.3f} m above) "
+            f"while slower than {opts.contact_speed_on} m/s. Give contact intervals (retime.contact_intervals in "
+            "the config), adjust contact_height_on / floor_height, or set retime.allow_flight_only: true to "
+            "retime it as pure flight (ballistic).")
     g0 = body.default_gravity()
     g = g0 if gravity is None else np.asarray(gravity, dtype=float)
     weight = body.total_mass * float(np.linalg.norm(g0))
@@ -151,9 +184,14 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     t = time.perf_counter()
     A0, B0, C0 = terms.combine(g0)
     original = original_forces(A0, B0, C0, contacts, opts.torque_margin, weight, popts)
+    sources = {n: "clip peak x torque_margin" for n in body.skeleton.names[1:]}
+    if opts.torque_limits_from == "table":
+        limits, sources = table_limits(body, opts.torque_limits)
+        original = replace(original, limits=limits)
     tm["original_forces"] = time.perf_counter() - t
     A, B, C = terms.combine(g, factors)
-    polys = feasible_polygons(A, B, C, contacts, original.limits, weight, popts, original_residual=original.tau[:, :N_ROOT])
+    contacts = contacts.carrying(original.tau[:, :N_ROOT])
+    polys = feasible_polygons(A, B, C, contacts, original.limits, weight, popts)
     tm["polygons"] = polys.seconds
     t = time.perf_counter()
     target = original.tau if opts.objective == "match" else np.zeros_like(original.tau)
@@ -163,15 +201,19 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta, tau_scale)
     tm["bake"] = time.perf_counter() - t
     return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors, A=A, B=B,
-                      C=C, original=original, polygons=polys, baked=baked, timings=tm)
+                      C=C, original=original, polygons=polys, baked=baked, timings=tm,
+                      limit_sources=sources)
 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
-                opts: RetimeParams | None = None) -> tuple[Motion, RetimeResult]:
-    """Optimize the timing of a prepared clip and sample the retimed motion at the source fps."""
+                opts: RetimeParams | None = None, free_length: bool = False) -> tuple[Motion, RetimeResult]:
+    """Optimize the timing of a prepared clip and sample the retimed motion at the source fps.
+
+    ``free_length``: ``duration`` is the starting length and the optimizer picks the length too.
+    """
     opts = opts or RetimeParams()
     m = plan.motion
     res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes, samples_per_frame=opts.samples_per_frame,
-                          knots_per_second=opts.knots_per_second, speed_max=opts.speed_max)
+                          knots_per_second=opts.knots_per_second, speed_max=opts.speed_max, free_length=free_length)
     out = replace(sample_motion(m, res.p * m.fps), name=f"{m.name}_retimed", source=None, content_hash="")
     return out, res

@@ -37,6 +37,7 @@ class PolygonOptions:
     edge_tol: float = 0.5
     abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
     infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
+    carried_max: float = 2.0  # the clip's own unexplained root wrench may scale in [0, carried_max]
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,7 +97,7 @@ class FrameLP:
     """
 
     def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, N: np.ndarray, limits: np.ndarray | None,
-                 opts: PolygonOptions, highs: highspy.Highs | None = None):
+                 opts: PolygonOptions, highs: highspy.Highs | None = None, lam_upper: np.ndarray | None = None):
         nv, nl = N.shape
         self.nl = nl
         h = highs or new_highs()  # passModel replaces the previous frame's model
@@ -122,7 +123,8 @@ class FrameLP:
         lp.num_col_, lp.num_row_ = ncol, M.shape[0]
         lp.col_cost_ = np.zeros(ncol)
         lp.col_lower_ = np.concatenate([[-opts.pdd_max, 0.0, 0.0], np.zeros(nl)])
-        lp.col_upper_ = np.concatenate([[opts.pdd_max, opts.speed_max**2, INF], np.full(nl, INF)])
+        lp.col_upper_ = np.concatenate([[opts.pdd_max, opts.speed_max**2, INF],
+                                        np.full(nl, INF) if lam_upper is None else lam_upper])
         lp.row_lower_, lp.row_upper_ = lo, hi
         nz = M != 0
         lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
@@ -300,19 +302,49 @@ def closest_point(v: np.ndarray, x: np.ndarray) -> np.ndarray:
     return proj[np.argmin(((proj - x) ** 2).sum(axis=1))]
 
 
+def convex_hull(points: np.ndarray) -> np.ndarray:
+    """Indices of the convex hull of ``points`` (n, 2), counter-clockwise (Andrew's monotone chain).
+
+    Collinear and repeated points are dropped; fewer than 3 distinct points give those points. O(n log n).
+    """
+    order = sorted(range(len(points)), key=lambda k: (points[k, 0], points[k, 1]))
+
+    def cross(o: int, a: int, b: int) -> float:
+        return float((points[a, 0] - points[o, 0]) * (points[b, 1] - points[o, 1])
+                     - (points[a, 1] - points[o, 1]) * (points[b, 0] - points[o, 0]))
+
+    def chain(seq: list[int]) -> list[int]:
+        out: list[int] = []
+        for k in seq:
+            while len(out) >= 2 and cross(out[-2], out[-1], k) <= 1e-12:
+                out.pop()
+            out.append(k)
+        return out
+
+    lower, upper = chain(order), chain(order[::-1])
+    hull = lower[:-1] + upper[:-1]
+    if not hull:  # a single point
+        hull = order[:1]
+    return np.array(hull, dtype=np.int64)
+
+
 def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Contacts, limits: np.ndarray,
-                      weight: float, opts: PolygonOptions,
-                      original_residual: np.ndarray | None = None) -> FeasiblePolygons:
+                      weight: float, opts: PolygonOptions) -> FeasiblePolygons:
     """Feasible (p̈, ṗ²) polygons of every frame (MPS06 §3.3) with λ at vertices and centre (§3.4).
 
     Mocap is never exactly consistent with the body model: the original timing leaves a root
-    residual ρ (``original_residual``, (F, 6), under the original physics) that its own timing
-    must be allowed. Each root row i gets its own bound |ρ_i| + ``abs_tol``·weight, so that a large
-    inconsistency in one row (e.g. angular momentum in flight) does not loosen the others (the
-    vertical force that makes a flight ballistic). Where no timing meets those bounds (changed
-    physics), every row gets max(1.05 s*, max|ρ|) + ``abs_tol``·weight with s* the smallest
-    uniform residual over the box (an LP; 0 when contacts explain the frame). Then the
-    direction sweep, then
+    wrench ρ ((F, 6), signed, under the original physics: ``OriginalForces.tau``'s root rows) that no contact
+    explains (a flight whose momentum is not exactly ballistic, a centre of pressure just off the
+    sole). Given ``contacts.carrying(ρ)`` it is carried along as one more contact column that may scale but not turn: the root
+    rows become |A p̈ + B ṗ² − N λ − μ ρ + C| ≤ ``abs_tol``·weight with 0 ≤ μ ≤ ``carried_max``
+    (:meth:`Contacts.carrying`; the error of a mass model scales with the motion's accelerations
+    and gravity, so a flight under half gravity at ṗ² = ½ has μ = ½). The original timing is
+    feasible (μ = 1) while a retimed flight must still change its momentum as gravity does — a
+    slack |ρ| + tol instead would let a flight play at any speed its error allows. Where no timing meets that bound
+    (changed physics), every row gets 1.05 s* + ``abs_tol``·weight with s* the smallest uniform
+    residual over the box (an LP). Then the
+    direction sweep; when the original timing (0, 1) is feasible but outside the sweep's inner
+    hull, it joins the vertices (a feasible point: the hull stays inside the feasible set). Then
     the centre (0, 1) — or, when outside, its closest polygon point pulled 5 % toward the
     vertex mean — and its min-Σλ forces. Flight frames (no contact) give a thin polygon around the
     ballistic segment or point. Cost O(F · max_lps) LPs of (3 + nλ) columns.
@@ -325,36 +357,47 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     clam = np.zeros((f, nl_all))
     res = np.zeros(f)
     tol = np.zeros((f, N_ROOT))
-    rho = np.zeros((f, N_ROOT)) if original_residual is None else np.abs(original_residual)
     inside = np.zeros(f, bool)
     n_lps = 0
     highs = new_highs()
     for i in range(f):
         cols = contacts.columns(i)
         N = contacts.basis[i][:, cols]
-        lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs)
+        upper = np.full(len(cols), INF)
+        if contacts.carried:
+            upper[-1] = opts.carried_max
+        lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper)
         x = lp.solve(_lp_cost(len(cols), s=-1.0))
         res[i] = x[2] if x is not None else np.inf
-        tol[i] = rho[i] + opts.abs_tol * weight
+        tol[i] = opts.abs_tol * weight
         lp.set_residual_bound(tol[i])
         v, lv = sweep_polygon(lp, opts)
         if not len(v):
-            tol[i] = max(1.05 * res[i], rho[i].max()) + opts.abs_tol * weight
+            tol[i] = 1.05 * res[i] + opts.abs_tol * weight
             lp.set_residual_bound(tol[i])
             v, lv = sweep_polygon(lp, opts)
-        full = np.zeros((len(v), nl_all))
-        full[:, cols] = lv
         o = np.array([0.0, 1.0])
         cp = closest_point(v, o) if len(v) else o
         inside[i] = bool(len(v) and np.allclose(cp, o))
+        xc = None
+        if not inside[i]:  # the sweep's inner hull may miss the original timing: add it when feasible
+            lp.fix_timing((0.0, 1.0))
+            xc = lp.solve(_lp_cost(len(cols), lam=-1.0))
+            if xc is not None:
+                keep = convex_hull(np.vstack([v, o[None]]))
+                v, lv = np.vstack([v, o[None]])[keep], np.vstack([lv, xc[None, 3:]])[keep]
+                inside[i], cp = True, o
         c = cp if inside[i] else cp + 0.05 * (v.mean(axis=0) - cp)
-        lp.fix_timing((float(c[0]), float(c[1])))
-        xc = lp.solve(_lp_cost(len(cols), lam=-1.0))
+        if xc is None:
+            lp.fix_timing((float(c[0]), float(c[1])))
+            xc = lp.solve(_lp_cost(len(cols), lam=-1.0))
         if xc is None:  # numerically on the boundary: use the nearest vertex
             k = int(np.argmin(((v - c) ** 2).sum(axis=1)))
             c, xl = v[k], lv[k]
         else:
             xl = xc[3:]
+        full = np.zeros((len(v), nl_all))
+        full[:, cols] = lv
         center[i] = c
         clam[i, cols] = xl
         verts.append(v)

@@ -77,6 +77,63 @@ def output_time(res: RetimeResult, src_time: float) -> float:
     return 0.5 * (lo + hi)
 
 
+def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dict[str, Any]:
+    """How well the model explains the clip at its own timing (p̈, ṗ²) = (0, 1) (MPS06 §3.3).
+
+    ``inside_fraction``: source frames whose original timing lies in their polygon; ``outside``:
+    the others, each with why (a joint over its torque limit, or the root force beyond its
+    tolerance). ``unexplained``: frames whose root force the contacts cannot supply within
+    ``unexplained_tol`` of body weight at the original timing (flight: the body model's momentum
+    is not exactly ballistic; stance: the feet cannot push that way) — the polygon allows them that
+    residual (see ``polygons.feasible_polygons``). O(F · nv).
+    """
+    polys, orig, body = plan.polygons, plan.original, plan.body
+    weight = body.total_mass * float(np.linalg.norm(body.default_gravity()))
+    names = body.skeleton.names
+    outside = []
+    for i in np.flatnonzero(~polys.original_inside).tolist():
+        over = np.abs(orig.tau[i, N_ROOT:]) > orig.limits[N_ROOT:] * (1 + 1e-9)
+        if over.any():
+            k = int(np.argmax(np.abs(orig.tau[i, N_ROOT:]) / np.maximum(orig.limits[N_ROOT:], 1e-12)))
+            j = next(j for j in range(1, body.n_bodies) if body.joint_dofs(j).start <= k + N_ROOT < body.joint_dofs(j).stop)
+            why = (f"joint {names[j]} needs {abs(orig.tau[i, N_ROOT + k]):.0f} N·m, over its limit "
+                   f"{orig.limits[N_ROOT + k]:.0f}")
+        else:
+            why = "root force beyond the tolerance of the polygon"
+        outside.append({"frame": i, "why": why})
+    unexplained = []
+    for i in np.flatnonzero(orig.residual > unexplained_tol * weight).tolist():
+        feet = [f.name for f, a in zip(plan.contacts.feet, plan.contacts.active[i], strict=True) if a]
+        share = orig.residual[i] / weight
+        why = (f"flight: the body model's momentum departs from ballistic by {share:.0%} of body weight" if not feet
+               else f"contact ({', '.join(feet)}) cannot supply the root force: {share:.0%} of body weight left")
+        unexplained.append({"frame": i, "why": why})
+    return {"inside_fraction": float(polys.original_inside.mean()) if len(polys.original_inside) else 1.0,
+            "outside": outside, "unexplained_fraction": len(unexplained) / max(len(orig.residual), 1),
+            "unexplained": unexplained}
+
+
+def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str, Any]:
+    """Whether the requested timing was met, with the shortest duration reachable inside the polygons.
+
+    A duration below :func:`shortest_duration` cannot stay inside the feasible polygons; the
+    optimum then leaves them (``outside`` output frames) and the message says so.
+    """
+    bound = shortest_duration(plan.polygons, plan.motion.fps)
+    dur = float(res.t[-1])
+    n = len(res.t)
+    met = dur >= bound and outside <= 0.1 * n
+    if dur < bound:
+        msg = (f"unreachable: {dur:.3f} s is shorter than the shortest duration any timing inside the feasible "
+               f"polygons can reach, {bound:.3f} s; the result leaves its polygons on {outside} of {n} frames")
+    elif not met:
+        msg = (f"not met physically: {outside} of {n} output frames lie outside their feasible polygon "
+               f"(no timing inside them is shorter than {bound:.3f} s)")
+    else:
+        msg = f"met: {n - outside} of {n} output frames inside their polygon (shortest reachable {bound:.3f} s)"
+    return {"met": bool(met), "requested_duration": dur, "shortest_feasible_duration": bound, "message": msg}
+
+
 def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
     """JSON-able report: per output frame timing, torques, contact forces, feasibility; summary.
 
@@ -129,7 +186,11 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "original_timing_outside_polygon": np.flatnonzero(~polys.original_inside).tolist(),
         "infeasible_output_frames": outside,
         "root_residual_source": polys.residual.round(4).tolist(),
-        "torque_limits": plan.original.limits[N_ROOT:].round(4).tolist(),
+        "torque_limits": {n: {"limit": float(plan.original.limits[plan.body.joint_dofs(j).start]),
+                              "source": plan.limit_sources.get(n, "")}
+                          for j, n in enumerate(plan.body.skeleton.names) if j},
+        "original_timing": original_feasibility(plan),
+        "reachable": reachability(plan, res, len(outside)),
         "timings_s": {**plan.timings, "optimize": res.seconds},
         "frames": frames,
     }

@@ -14,7 +14,7 @@ import ctypes
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from motionweb.tasks.retime.errors import RetimeError
@@ -209,38 +209,50 @@ def check_keytimes(src_duration: float, duration: float, keytimes: list[tuple[fl
 
 def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, duration: float,
                     keytimes: list[tuple[float, float]] | None = None, *, samples_per_frame: int = 4,
-                    knots_per_second: float = 12.0, speed_max: float = 6.0, max_iter: int = 2000
-                    ) -> RetimeResult:
+                    knots_per_second: float = 12.0, speed_max: float = 6.0, max_iter: int = 2000,
+                    free_length: bool = False) -> RetimeResult:
     """Minimize MPS06 Eqn. 14 over monotone p(t) with fixed endpoints and keytimes (MPS06 §3.5-3.6).
 
     Samples at midpoints of S equal output intervals with S ≥ ``samples_per_frame`` per source
     frame at the fastest playback; resampled (finer) when the optimum plays faster. Analytic
     gradient through the B-spline design matrices; L-BFGS-B. Cost per evaluation O(S · K).
+
+    ``free_length``: the output length is optimized too (MPS06 Fig. 9, "length free"), starting
+    from ``duration``: p(t) = P(t / k) with P on [0, duration] and k = e^ζ, ζ ∈ [−ln 2, ln 2] an
+    extra parameter (its derivative by central differences); no keytimes then.
     """
     t0 = time.perf_counter()
+    if free_length and keytimes:
+        raise RetimeError("a free output length takes no keytimes (they fix output times)")
     out, src = check_keytimes(src_duration, duration, keytimes or [], speed_max)
     spline = TimingSpline.make(out, src, knots_per_second)
-    z = np.zeros(spline.n_params)
+    z = np.zeros(spline.n_params + int(free_length))
     history: list[float] = []
     n_frames_src = src_duration * fps
     ratio = float((np.diff(src) / np.diff(out)).max())
-    n_s = int(np.ceil(samples_per_frame * n_frames_src * max(ratio, 1.0) * 1.25))
+    n_s = int(np.ceil(samples_per_frame * n_frames_src * max(ratio, 1.0) * 1.25 * (2 if free_length else 1)))
+    bounds = [(None, None)] * spline.n_params + ([(-np.log(2), np.log(2))] if free_length else [])
     res = None
     iters = 0
     with single_threaded_blas():
         for _attempt in range(3):
-            fun = objective_function(obj, spline, fps, duration, n_s)
-            res = minimize(fun, z, jac=True, method="L-BFGS-B",
+            fun = objective_function(obj, spline, fps, duration, n_s, free_length=free_length)
+            res = minimize(fun, z, jac=True, method="L-BFGS-B", bounds=bounds,
                            options={"maxiter": max_iter, "maxcor": 10, "ftol": 1e-10, "gtol": 1e-8})
             z = res.x
             iters += int(res.nit)
             history.append(float(res.fun))
+            k = float(np.exp(z[-1])) if free_length else 1.0
             edges = np.linspace(0.0, duration, n_s + 1)
-            _, pd_s, _ = spline.evaluate(z, 0.5 * (edges[1:] + edges[:-1]))
-            step = pd_s.max() * duration / n_s * fps  # source frames between samples
+            _, pd_s, _ = spline.evaluate(z[:spline.n_params], 0.5 * (edges[1:] + edges[:-1]))
+            step = pd_s.max() * duration / n_s * fps  # source frames between samples (k cancels)
             if step <= 1.0 / samples_per_frame + 1e-9:
                 break
             n_s = int(np.ceil(n_s * step * samples_per_frame * 1.1))
+    if free_length:
+        k = float(np.exp(z[-1]))
+        spline = replace(spline, out=spline.out * k, knots=[kn * k for kn in spline.knots])
+        z, duration = z[:-1], duration * k
     n_out = round(duration * fps) + 1
     t = np.minimum(np.arange(n_out) / fps, duration)
     p, pd, pdd = spline.evaluate(z, t)
@@ -249,23 +261,36 @@ def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, durati
                         message=str(res.message), history=history)
 
 
-def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, duration: float, n_s: int
-                       ) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
+def objective_function(obj: BakedObjective, spline: TimingSpline, fps: float, duration: float, n_s: int,
+                       free_length: bool = False) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
     """J(z) of MPS06 Eqn. 14 on ``n_s`` midpoint samples of [0, duration]: (value, gradient).
 
     One compiled pass over the samples (``objective_kernel``) plus O(n_params) for the
-    softmax/cumsum parameterization; cost O(S · K), no Python per sample.
+    softmax/cumsum parameterization; cost O(S · K), no Python per sample. ``free_length``: the
+    last parameter ζ stretches the output by k = e^ζ (ṗ / k, p̈ / k², dt · k); dJ/dζ by central
+    differences (two more passes).
     """
     edges = np.linspace(0.0, duration, n_s + 1)
     ctrl, w = spline.design(0.5 * (edges[1:] + edges[:-1]))
     dt = duration / n_s
-    args = (obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, obj.alpha, ctrl, w)
+    args = (obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef, obj.alpha, ctrl)
 
     n_ctrl = np.asarray(spline.n_ctrl, np.int64)
+    n = spline.n_params
+
+    def at(c: np.ndarray, k: float) -> tuple[float, np.ndarray]:
+        wk = w if k == 1.0 else w * np.array([1.0, 1.0 / k, 1.0 / (k * k)])[:, None, None]
+        return objective_kernel(*args, wk, c, float(fps), dt * k)
 
     def fun(z: np.ndarray) -> tuple[float, np.ndarray]:
         zz = np.asarray(z, float)
-        val, grad = objective_kernel(*args, _controls(zz, n_ctrl, spline.src), float(fps), dt)
-        return float(val), _chain(zz, grad, n_ctrl, spline.src)
+        c = _controls(zz[:n], n_ctrl, spline.src)
+        if not free_length:
+            val, grad = at(c, 1.0)
+            return float(val), _chain(zz, grad, n_ctrl, spline.src)
+        k, eps = float(np.exp(zz[n])), 1e-6
+        val, grad = at(c, k)
+        d = (at(c, k * np.exp(eps))[0] - at(c, k * np.exp(-eps))[0]) / (2 * eps)
+        return float(val), np.concatenate([_chain(zz[:n], grad, n_ctrl, spline.src), [d]])
 
     return fun

@@ -6,8 +6,17 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from fixtures import G, jumper_skeleton, synthetic_jump
-from motionweb.tasks.retime.contacts import contacts_for, find_feet, pyramid
-from motionweb.tasks.retime.dynamics import body_model_for, build_body_model, dynamics_terms, mass_factors
+from motionweb.tasks.retime.contacts import ContactRule, contacts_for, detect_contacts, find_feet, pyramid
+from motionweb.tasks.retime.dynamics import (
+    SEGMENT_FRACTIONS,
+    body_model_for,
+    build_body_model,
+    configurations,
+    dynamics_terms,
+    mass_factors,
+    path_derivatives,
+    segments,
+)
 
 
 def test_coefficients_reproduce_rnea_with_contacts() -> None:
@@ -85,3 +94,80 @@ def test_unknown_unit_is_a_clear_error() -> None:
     from dataclasses import replace
     with pytest.raises(ValueError, match="length unit"):
         body_model_for(replace(motion, unit=None, scale_to_m=None))
+
+
+def test_path_derivatives_fit_a_quadratic_exactly_and_reduce_to_central_differences() -> None:
+    motion, _ = synthetic_jump(fps=120)
+    t = np.arange(motion.n_frames) / motion.fps
+    root = motion.root_positions.copy()
+    root[:, 1] = 0.9 + 0.3 * t - 2.0 * t * t  # a quadratic path: every window fits it exactly
+    rot = np.repeat(motion.rotations[:1], motion.n_frames, axis=0)
+    from dataclasses import replace
+
+    body = body_model_for(motion)
+    q = configurations(body, replace(motion, root_positions=root, rotations=rot))
+    d1, d2 = path_derivatives(body, q, motion.fps, smoothing_s=0.04)  # ±5 frames
+    np.testing.assert_allclose(d2[:, 1], -4.0, atol=1e-6)
+    np.testing.assert_allclose(d1[:, 1], 0.3 - 4.0 * t, atol=1e-6)
+    # m = 1: the central difference on the manifold
+    q = configurations(body, motion)
+    d1, d2 = path_derivatives(body, q, motion.fps, smoothing_s=0.0)
+    h = 1 / motion.fps
+    for i in (1, 50, motion.n_frames - 2):
+        fwd, bwd = pin.difference(body.model, q[i], q[i + 1]), pin.difference(body.model, q[i], q[i - 1])
+        np.testing.assert_allclose(d1[i], (fwd - bwd) / (2 * h), atol=1e-9)
+        np.testing.assert_allclose(d2[i], (fwd + bwd) / h**2, atol=1e-6)
+
+
+def test_table_body_model_gives_an_adult_its_segment_masses() -> None:
+    motion, _ = synthetic_jump()
+    body = body_model_for(motion, kind="table", total_mass=70.0)
+    seg = dict(zip(motion.skeleton.names, segments(motion.skeleton, 1.0), strict=True))
+    assert seg == {"pelvis": "pelvis", "chest": "head_neck", "l_hip": "thigh", "l_knee": "shank", "l_ankle": "foot",
+                   "r_hip": "thigh", "r_knee": "shank", "r_ankle": "foot"}
+    m = dict(zip(motion.skeleton.names, body.masses, strict=True))
+    assert body.total_mass == pytest.approx(70.0)
+    # no arms or torso in this skeleton: the shares present are renormalized, ratios kept
+    assert m["l_hip"] / m["l_knee"] == pytest.approx(SEGMENT_FRACTIONS["thigh"] / SEGMENT_FRACTIONS["shank"])
+    assert m["l_hip"] == pytest.approx(m["r_hip"]) and m["l_ankle"] == pytest.approx(m["r_ankle"])
+    assert sum(SEGMENT_FRACTIONS[s] * (1 if s in ("pelvis", "torso", "head_neck") else 2)
+               for s in SEGMENT_FRACTIONS) == pytest.approx(1.0)
+
+
+def _foot_track(heights: np.ndarray, fps: float, speed: float = 0.0) -> np.ndarray:
+    """(F, 1, 4, 3) sole corners of one flat foot at ``heights`` moving forward at ``speed``."""
+    f = len(heights)
+    pos = np.zeros((f, 1, 4, 3))
+    pos[..., 1] = heights[:, None, None]
+    pos[..., 0] = np.array([0.2, 0.2, 0.0, 0.0]) + speed * np.arange(f)[:, None, None] / fps
+    pos[..., 2] = np.array([0.05, -0.05, -0.05, 0.05])
+    return pos
+
+
+def test_contacts_use_the_clips_floor_hysteresis_and_minimum_durations() -> None:
+    fps = 120.0
+    rng = np.random.default_rng(0)
+    h = np.full(240, 0.3)
+    h[:100] = 0.0
+    h[140:] = 0.0
+    h[40:42] = 0.06  # a 2-frame marker glitch: between height_on and height_off, so held by hysteresis
+    h[70:72] = 0.2  # a 2-frame lift: a gap shorter than min_gap_s, closed
+    h[:140] += rng.normal(0, 0.004, 140).clip(-0.01, 0.01)
+    h += 0.12  # the floor of this capture is 12 cm up
+    act, corner, floor = detect_contacts(_foot_track(h, fps), fps, rule=ContactRule())
+    assert floor == pytest.approx(0.12, abs=0.012)
+    a = act[:, 0]
+    assert a[:99].all() and not a[100:141].any() and a[141:].all()  # 99, 140: the foot moves fast
+    assert corner[a, 0].all()  # a flat foot: toe and heel
+    # a 3-frame touch is shorter than min_contact_s and is dropped; a fixed floor replaces the clip's
+    h2 = np.full(120, 0.5)
+    h2[60:63] = 0.0
+    act2, _, floor2 = detect_contacts(_foot_track(h2, fps), fps, rule=ContactRule(floor=0.0))
+    assert floor2 == 0.0 and not act2.any()
+    # a foot sliding fast is not in contact; heel up: only the toe corners push
+    act3, _, _ = detect_contacts(_foot_track(np.zeros(60), fps, speed=3.0), fps)
+    assert not act3.any()
+    tilt = _foot_track(np.zeros(60), fps)
+    tilt[:, :, 2:, 1] = 0.1
+    act4, corner4, _ = detect_contacts(tilt, fps, rule=ContactRule(floor=0.0))
+    assert act4.all() and corner4[:, 0, :2].all() and not corner4[:, 0, 2:].any()
