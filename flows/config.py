@@ -62,6 +62,10 @@ class IndexConfig(Params):
     keep_generations: int = Field(3, ge=1)
 
 
+#: the config's path fields, which say where things are, not how they are computed
+LOCATIONS: dict = {"corpus": {"path", "manifest"}, "store": {"path"}, "output": True}
+
+
 class Config(Params):
     corpus: CorpusParams = Field(default_factory=CorpusParams)
     demo: DemoConfig = Field(default_factory=DemoConfig)
@@ -76,8 +80,13 @@ class Config(Params):
     output: str = "motionweb-out"
 
     def digest(self, section: str | None = None) -> str:
-        """SHA-256 of the canonical JSON of the config (or of one section)."""
-        data = self.model_dump(mode="json") if section is None else getattr(self, section).model_dump(mode="json")
+        """SHA-256 of the canonical JSON of the config's parameters (or of one section's).
+
+        Locations are not parameters: the corpus, manifest, store and output paths are left out,
+        so the same config gives the same digest on every machine and from every folder (the
+        inputs themselves are identified by their content hashes in the run records)."""
+        data = self.model_dump(mode="json", exclude=LOCATIONS)
+        data = data if section is None else data[section]
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
 

@@ -263,15 +263,16 @@ def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: M
                   clips: dict[str, dict[str, Any]]) -> Registration:
     """Load the nodes' features at the web rate and register every node to the query."""
     fdig = gen.params["features"]
-    feats, weights = {}, None
-    for clip in {n.segment.clip for n in graph.nodes}:
+    feats, weights = {}, {}
+    for clip in sorted({n.segment.clip for n in graph.nodes}):  # a fixed order, whatever the set's
         try:
-            by_rate, weights = store.read_features(clips[clip]["sha256"], fdig, [graph.rate])
+            by_rate, weights[clip] = store.read_features(clips[clip]["sha256"], fdig, [graph.rate])
         except StoreError as exc:
             raise StoreError(store.url, exc.key, f"(features of {clip}) {exc.reason}; "
                              "run motionweb index to recompute them") from None
         feats[clip] = by_rate[graph.rate]
-    return register(graph, feats, weights, gen_cfg.matchweb)
+    # the query clip's point weights: every registered clip is compared with the query's skeleton
+    return register(graph, feats, weights[graph.nodes[0].segment.clip], gen_cfg.matchweb)
 
 
 @flow(name="query")

@@ -77,3 +77,15 @@ def test_stage_parameters_have_one_definition() -> None:
     for name, model in [("corpus", CorpusParams), ("features", FeatureParams), ("matchweb", MatchWebParams),
                         ("search", SearchParams), ("warp", WarpParams), ("retime", RetimeParams)]:
         assert fields[name].annotation is model, name
+
+
+def test_config_digest_ignores_where_things_are(tmp_path: Path) -> None:
+    """The same parameters give the same digest from any folder; a parameter changes it."""
+    for sub in ("a", "b/c"):
+        (tmp_path / sub).mkdir(parents=True)
+        (tmp_path / sub / "c.yaml").write_text("corpus: {path: clips}\nmatchweb: {valid_a: 0.2}\n")
+    a, b = load_config(tmp_path / "a" / "c.yaml"), load_config(tmp_path / "b" / "c" / "c.yaml")
+    assert a.corpus.path != b.corpus.path and a.digest() == b.digest()
+    assert a.digest("matchweb") == b.digest("matchweb")
+    (tmp_path / "a" / "c.yaml").write_text("corpus: {path: clips}\nmatchweb: {valid_a: 0.25}\n")
+    assert load_config(tmp_path / "a" / "c.yaml").digest() != b.digest()
