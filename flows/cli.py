@@ -119,7 +119,8 @@ def demo(
                         + yaml.safe_dump(data, sort_keys=False))
     cfg = config_or_fail(cfg_path)
     files = write_demo_corpus(cfg.corpus.path, seed=cfg.demo.seed,
-                              variants_per_category=cfg.demo.variants_per_category, fps=cfg.demo.fps)
+                              variants_per_category=cfg.demo.variants_per_category, fps=cfg.demo.fps,
+                              variants=cfg.demo.variants)
     typer.echo(f"demo corpus: {len(files)} clips in {cfg.corpus.path}")
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
     typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")

@@ -19,9 +19,11 @@ from typing import Literal
 import yaml
 from motionweb.store.catalog import CorpusParams
 from motionweb.store.params import Params
+from motionweb.tasks.blend import BlendParams
 from motionweb.tasks.features import FeatureParams
 from motionweb.tasks.guided_warp import WarpParams
 from motionweb.tasks.matchweb import MatchWebParams
+from motionweb.tasks.parameterize import ParameterizeParams
 from motionweb.tasks.retime import RetimeParams
 from motionweb.tasks.search import SearchParams
 from pydantic import Field, ValidationError
@@ -32,6 +34,8 @@ class DemoConfig(Params):
 
     seed: int = 7
     variants_per_category: int = 3
+    #: per-category variant counts overriding variants_per_category (e.g. {reach: 12, walk: 24})
+    variants: dict[str, int] = Field(default_factory=dict)
     fps: float = 60.0
     #: the search `motionweb demo` ends with (clip, seconds, ε as a quantile of the webs' values)
     query_clip: str = "walk/walk_00.bvh"
@@ -77,6 +81,8 @@ class Config(Params):
     search: SearchParams = Field(default_factory=SearchParams)
     warp: WarpParams = Field(default_factory=WarpParams)
     retime: RetimeParams = Field(default_factory=RetimeParams)
+    blend: BlendParams = Field(default_factory=BlendParams)
+    parameterize: ParameterizeParams = Field(default_factory=ParameterizeParams)
     output: str = "motionweb-out"
 
     def digest(self, section: str | None = None) -> str:

@@ -311,3 +311,34 @@ def evaluate_numpy(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[n
     val = (1 - w) * v0 + w * v1
     gx = (1 - w)[:, None] * g0 + w[:, None] * g1
     return val, gx, v1 - v0
+
+
+def ref_blend_frame(local: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Blend of (N, J, 4) local rotations of one sample, joint by joint with
+    ``store.kinematics.quat_average`` (hemisphere of the heaviest example)."""
+    from motionweb.store.kinematics import quat_average
+
+    return np.stack([quat_average(local[:, j], weights) for j in range(local.shape[1])])
+
+
+def ref_leg_ik(motion, chain: tuple[int, int, int], frame: int, target: np.ndarray) -> float:
+    """Smallest ankle-to-target distance reachable by turning the hip and knee of one frame
+    (Nelder-Mead over rotation vectors of both joints): the distance leg IK must reach."""
+    from dataclasses import replace
+
+    from motionweb.store.kinematics import forward_kinematics, quat_exp, quat_mul
+    from scipy.optimize import minimize
+
+    hip, knee, ankle = chain
+    m = replace(motion, root_positions=motion.root_positions[frame:frame + 1],
+                rotations=motion.rotations[frame:frame + 1].copy())
+
+    def miss(x: np.ndarray) -> float:
+        rot = m.rotations.copy()
+        rot[0, hip] = quat_mul(m.rotations[0, hip], quat_exp(x[:3]))
+        rot[0, knee] = quat_mul(m.rotations[0, knee], quat_exp(x[3:]))
+        g, _ = forward_kinematics(replace(m, rotations=rot))
+        return float(np.linalg.norm(g[0, ankle] - target))
+
+    best = minimize(miss, np.zeros(6), method="Nelder-Mead", options={"xatol": 1e-10, "fatol": 1e-12, "maxiter": 20000})
+    return float(best.fun)

@@ -233,13 +233,17 @@ def write_clip(motion: Motion, truth: dict[str, Any], stem: Path) -> Path:
 
 
 def write_demo_corpus(out_dir: str | Path, seed: int = 7, variants_per_category: int = 3,
-                      fps: float = 60.0) -> list[Path]:
+                      fps: float = 60.0, variants: dict[str, int] | None = None) -> list[Path]:
     """Write ``<out_dir>/<category>/<category>_<variant:02d>.bvh`` and ``.json`` ground truth for
-    every category; returns the BVH paths. Same inputs give the same bytes."""
+    every category (``variants[category]`` clips where given, else ``variants_per_category``);
+    returns the BVH paths. Same inputs give the same bytes."""
+    unknown = sorted(set(variants or {}) - set(CATEGORIES))
+    if unknown:
+        raise ValueError(f"demo variants: unknown categories {', '.join(unknown)}; expected {', '.join(CATEGORIES)}")
     out = Path(out_dir)
     paths = []
     for cat in CATEGORIES:
-        for v in range(variants_per_category):
+        for v in range((variants or {}).get(cat, variants_per_category)):
             motion, truth = generate_clip(cat, v, seed, fps)
             paths.append(write_clip(motion, truth, out / cat / f"{cat}_{v:02d}"))
     return paths

@@ -197,3 +197,12 @@ def test_time_warp_clip() -> None:
     assert warped.n_frames == 300 and warped.fps == motion.fps
     assert np.allclose(warped.root_positions[-1], motion.root_positions[-1])
     assert np.allclose(np.linalg.norm(warped.rotations, axis=-1), 1.0)
+
+
+def test_per_category_variant_counts(tmp_path: Path) -> None:
+    files = write_demo_corpus(tmp_path, variants_per_category=1, variants={"reach": 3, "idle": 0})
+    names = sorted(p.stem for p in files)
+    assert [n for n in names if n.startswith("reach")] == ["reach_00", "reach_01", "reach_02"]
+    assert not [n for n in names if n.startswith("idle")] and "walk_00" in names and "walk_01" not in names
+    with pytest.raises(ValueError, match="unknown categories swim"):
+        write_demo_corpus(tmp_path, variants={"swim": 2})

@@ -1,0 +1,488 @@
+"""Blending registered examples (KG04 §4, with Kovar & Gleicher 2003's registration curves
+simplified; design §6).
+
+The examples are the nodes of a query's :class:`~motionweb.tasks.register.Registration`: for every
+query frame u (at the registration's rate) each example i is sampled at its registered frame
+s_i(u) (slerp rotations, lerp root), giving N motions on one common timeline of U samples
+(:func:`registered_examples`, :class:`Examples`). Per example and sample:
+
+* alignment (KG04 §3.1's 2-D rigid transform): the rotation θ_i(u) about the vertical and the
+  horizontal shift that best align the example's joint cloud to the query's (:func:`align_frames`).
+  It gives each example a *reference heading* φ_i(u) = h_q(u) − θ_i(u): the query's heading h_q
+  seen in the example's own coordinates, so all examples share one notion of "forward";
+* the root rotation relative to that heading, Ry(−φ_i)·q_root, the root height, the horizontal
+  root step to the next sample in the heading frame (at the mid heading), the heading change and
+  the frame duration (s_i(u+1) − s_i(u)) / rate.
+
+A blend with weights w (N,) (may be slightly negative, sum 1; :func:`blend_path` and
+:func:`blend_poses` take many weight vectors at once, (S, N)) averages every joint's rotation
+(normalised weighted quaternion average, each example's quaternions put on one hemisphere once),
+the heading-relative root rotation, root height, steps, heading changes and frame durations, and
+integrates the root path from the blended steps: heading Φ(u) = Σ Δφ̄, position
+P(u+1) = P(u) + Ry(Φ̄_mid)·step̄. The blend starts at the origin facing +Z (heading 0): it lives
+in its own start-heading frame, the frame the parameter functions of ``tasks/parameterize.py``
+measure in. Time advances by the blended durations; :func:`blend` resamples to a uniform rate.
+
+Constraint matching (KG03 §5, KG04 §4): foot plants are found in every example
+(:func:`detect_plants`: ankle low and slow), carried through the registration (plant_i(u) =
+plant at the example's frame nearest s_i(u)), and a foot is planted in the blend where the
+examples planted there carry at least half the weight. Each planted run of the blend holds its
+ankle at the run's mean position by analytic two-bone leg IK (:func:`leg_ik`), eased in and out
+over ``BlendParams.ease_s``; the foot keeps its global orientation. :func:`foot_skate` measures
+the mean horizontal ankle speed over planted frames (cm/s).
+
+Units: positions in metres (the examples' file unit times ``scale_to_m``), Y up. Cost of a blend:
+O(S·N·U·J) for S weight vectors (only examples with non-zero weight matter, so a sparse blend of
+d + 1 examples costs the same whatever N is), plus O(F·J) FK and IK for the output motion.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from motionweb.store.kinematics import (
+    forward_kinematics,
+    heading_angle,
+    quat_from_axis_angle,
+    quat_inv,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+    sample_motion,
+)
+from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.params import Params
+from motionweb.tasks.register import Registration
+from pydantic import Field
+
+SIDES = ("left", "right")
+_Y = np.array([0.0, 1.0, 0.0])
+
+
+class BlendParams(Params):
+    """Blending and constraint matching (KG04 §4; design §6)."""
+
+    #: ankle joint of each foot; empty = found by name (LeftFoot / lfoot / left_ankle ...)
+    feet: dict[str, str] = Field(default_factory=dict)
+    #: a foot is planted where its ankle is within this height (m) of its lowest point in the clip
+    plant_height: float = 0.05
+    #: ... and moves horizontally slower than this (m/s)
+    plant_speed: float = 0.25
+    #: shortest plant kept (s)
+    plant_min_s: float = 0.1
+    #: IK corrections ease in and out over this long before and after a plant (s)
+    ease_s: float = 0.15
+    #: shortest blended frame duration, as a fraction of the mean one (very negative weights)
+    min_step: float = 0.1
+
+
+# ----------------------------------------------------------------------------------- skeleton
+_ANKLE = {"left": re.compile(r"^(left_?foot|l_?foot|left_?ankle|l_?ankle)$", re.I),
+          "right": re.compile(r"^(right_?foot|r_?foot|right_?ankle|r_?ankle)$", re.I)}
+
+
+def leg_chains(skeleton: Skeleton, feet: dict[str, str] | None = None) -> dict[str, tuple[int, int, int]]:
+    """(hip, knee, ankle) joint indices of each leg: the ankle by name (``feet`` or the usual
+    names), the knee its parent, the hip the knee's parent. ValueError naming a missing joint."""
+    out = {}
+    for side in SIDES:
+        if feet and side in feet:
+            if feet[side] not in skeleton.names:
+                raise ValueError(f"unknown {side} ankle joint {feet[side]!r}; joints: {', '.join(skeleton.names)}")
+            ankle = skeleton.index(feet[side])
+        else:
+            hits = [j for j, n in enumerate(skeleton.names) if _ANKLE[side].match(n)]
+            if not hits:
+                raise ValueError(f"no {side} ankle joint found by name; set blend.feet.{side} to one of "
+                                 f"{', '.join(skeleton.names)}")
+            ankle = hits[0]
+        knee = int(skeleton.parents[ankle])
+        hip = int(skeleton.parents[knee]) if knee >= 0 else -1
+        if hip < 0:
+            raise ValueError(f"{side} ankle {skeleton.names[ankle]!r} has no knee and hip above it")
+        out[side] = (hip, knee, ankle)
+    return out
+
+
+def metric_skeleton(motion: Motion) -> Skeleton:
+    """The motion's skeleton with offsets in metres."""
+    s = motion.metres()
+    sk = motion.skeleton
+    return replace(sk, offsets=sk.offsets * s, end_sites={k: v * s for k, v in sk.end_sites.items()})
+
+
+# ----------------------------------------------------------------------------------- alignment
+def align_frames(p: np.ndarray, q: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the rotation about +y and horizontal translation taking cloud q onto cloud p
+    (KG04 §3.1's optimal 2-D rigid alignment, vectorised over frames).
+
+    p, q: (U, P, 3) clouds; weights (P,). Returns theta (U,) radians and t (U, 2) (x, z), applied
+    after the rotation — the same transform as ``tasks.distance.rigid_align_2d`` frame by frame.
+    """
+    w = np.asarray(weights, np.float64)
+    w = w / w.sum()
+    cp = np.stack([p[..., 0] @ w, p[..., 2] @ w], -1)
+    cq = np.stack([q[..., 0] @ w, q[..., 2] @ w], -1)
+    x, z = p[..., 0] - cp[:, :1], p[..., 2] - cp[:, 1:]
+    x2, z2 = q[..., 0] - cq[:, :1], q[..., 2] - cq[:, 1:]
+    a = (x * x2 + z * z2) @ w
+    b = (x * z2 - z * x2) @ w
+    theta = np.arctan2(b, a)
+    c, s = np.cos(theta), np.sin(theta)
+    rq = np.stack([c * cq[:, 0] + s * cq[:, 1], -s * cq[:, 0] + c * cq[:, 1]], -1)
+    return theta, cp - rq
+
+
+def yaw_quat(angle: np.ndarray) -> np.ndarray:
+    """Rotations about +y by ``angle`` (...,) radians, (..., 4)."""
+    a = np.asarray(angle, np.float64)
+    return quat_from_axis_angle(np.broadcast_to(_Y, a.shape + (3,)), a)
+
+
+def rotate_xz(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(..., 2) (x, z) vectors turned about +y by ``angle`` (right-handed: +z toward +x)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], -1)
+
+
+# ----------------------------------------------------------------------------------- plants
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Inclusive (start, end) index pairs of the True runs of a 1-D mask."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return [(int(a), int(b) - 1) for a, b in zip(d[::2], d[1::2], strict=True)]
+
+
+def detect_plants(ankles: np.ndarray, fps: float, cfg: BlendParams) -> np.ndarray:
+    """Foot plants from ankle paths: (F, 2, 3) positions (m, y up) -> (F, 2) bool. A foot is
+    planted where its ankle is within ``plant_height`` of its lowest point and its horizontal
+    speed (central differences) is below ``plant_speed``; runs shorter than ``plant_min_s`` drop."""
+    f = len(ankles)
+    if f < 2:
+        return np.zeros((f, 2), bool)
+    vel = np.gradient(ankles[..., [0, 2]], axis=0) * fps
+    speed = np.linalg.norm(vel, axis=-1)
+    low = ankles[..., 1] <= ankles[..., 1].min(axis=0) + cfg.plant_height
+    mask = low & (speed <= cfg.plant_speed)
+    shortest = max(1, math.ceil(cfg.plant_min_s * fps - 1e-9))
+    for k in range(2):
+        for a, b in runs(mask[:, k]):
+            if b - a + 1 < shortest:
+                mask[a:b + 1, k] = False
+    return mask
+
+
+def foot_skate(ankles: np.ndarray, plants: np.ndarray, fps: float) -> float:
+    """Mean horizontal ankle speed over planted frames, cm/s (0 when nothing is planted).
+    ankles (F, 2, 3) in metres, plants (F, 2)."""
+    vel = np.gradient(ankles[..., [0, 2]], axis=0) * fps
+    speed = np.linalg.norm(vel, axis=-1)
+    return float(100.0 * speed[plants].mean()) if plants.any() else 0.0
+
+
+# ----------------------------------------------------------------------------------- examples
+@dataclass
+class Examples:
+    """N examples registered on a common timeline of U samples (KG04 §4.1), ready to blend.
+
+    ``skeleton`` is the query's in metres; ``rate`` the registration rate (samples of u per second
+    of the query). Per example i and sample u: ``local`` (N, U, J, 4) joint rotations with the root
+    rotation relative to the reference heading, all on one hemisphere per (u, j); ``height``
+    (N, U) root height; ``step`` (N, U−1, 2) horizontal root step (x, z) to the next sample in the
+    heading frame; ``turn`` (N, U−1) heading change; ``dt`` (N, U−1) seconds between samples;
+    ``plants`` (N, U, 2) carried foot plants (left, right). ``names`` label the examples,
+    ``scale_to_m`` is the examples' metres per file unit, ``unit`` their unit.
+    """
+
+    skeleton: Skeleton
+    rate: float
+    names: list[str]
+    local: np.ndarray
+    height: np.ndarray
+    step: np.ndarray
+    turn: np.ndarray
+    dt: np.ndarray
+    plants: np.ndarray
+    legs: dict[str, tuple[int, int, int]]
+    scale_to_m: float = 1.0
+    unit: str | None = "m"
+
+    @property
+    def n(self) -> int:
+        return self.local.shape[0]
+
+    @property
+    def n_samples(self) -> int:
+        return self.local.shape[1]
+
+    def subset(self, keep: Sequence[int]) -> Examples:
+        """The examples ``keep`` only (same timeline)."""
+        k = list(keep)
+        return replace(self, names=[self.names[i] for i in k], local=self.local[k], height=self.height[k],
+                       step=self.step[k], turn=self.turn[k], dt=self.dt[k], plants=self.plants[k])
+
+
+def registered_examples(motions: Sequence[Motion], reg: Registration, names: Sequence[str] | None = None,
+                        cfg: BlendParams | None = None) -> Examples:
+    """Sample every registered node at s_i(u) and precompute what a blend needs (see module doc).
+
+    ``motions[c]`` is the clip of ``reg.segments[c]`` (column c; column 0 the query), at its own
+    fps; the registration's frames count at ``reg.rate``. All clips must share the query's joint
+    names. Plants are detected on each example's segment at its own fps and carried through s_i.
+    Cost O(N·U·J) plus the examples' FK over their segments.
+    """
+    cfg = cfg or BlendParams()
+    if len(motions) != len(reg.segments):
+        raise ValueError(f"{len(motions)} motions for {len(reg.segments)} registered nodes")
+    q = motions[0]
+    for c, m in enumerate(motions):
+        if m.skeleton.names != q.skeleton.names:
+            raise ValueError(f"example {c} ({m.name!r}) has other joints than the query; blends need one skeleton")
+    sk = metric_skeleton(q)
+    legs = leg_chains(sk, cfg.feet)
+    frames = reg.frames  # (U, N) at reg.rate
+    u_n, n = frames.shape
+    if u_n < 2:
+        raise ValueError("a blend needs a registration of at least 2 samples")
+    clouds, roots, rots, plants, dts = [], [], [], [], []
+    for c, m in enumerate(motions):
+        s = m.metres()
+        fr = frames[:, c] * m.fps / reg.rate
+        smp = sample_motion(m, fr)
+        smp = replace(smp, skeleton=sk, root_positions=smp.root_positions * s, unit="m", scale_to_m=1.0,
+                      translations={})
+        gpos, _ = forward_kinematics(smp)
+        clouds.append(gpos)
+        roots.append(smp.root_positions)
+        rots.append(smp.rotations)
+        dts.append(np.diff(frames[:, c]) / reg.rate)
+        # plants on the example's own frames over its segment, carried through s_i(u)
+        seg = reg.segments[c]
+        a = max(0, math.floor(seg.start * m.fps / reg.rate))
+        b = min(m.n_frames - 1, math.ceil(seg.end * m.fps / reg.rate))
+        own = replace(m, skeleton=sk, root_positions=m.root_positions[a:b + 1] * s, rotations=m.rotations[a:b + 1],
+                      translations={})
+        gp, _ = forward_kinematics(own)
+        ank = gp[:, [legs["left"][2], legs["right"][2]]]
+        pl = detect_plants(ank, m.fps, cfg)
+        idx = np.clip(np.rint(fr).astype(np.int64) - a, 0, len(pl) - 1)
+        plants.append(pl[idx])
+    clouds_a = np.stack(clouds)  # (N, U, J, 3)
+    w = np.ones(sk.n_joints)
+    h_q = np.unwrap(heading_angle(rots[0][:, 0]))
+    local = np.stack(rots)  # (N, U, J, 4)
+    phi = np.empty((n, u_n))
+    for c in range(n):
+        theta, _ = align_frames(clouds_a[0], clouds_a[c], w)
+        phi[c] = h_q - np.unwrap(theta)
+    root = np.stack(roots)  # (N, U, 3)
+    local[:, :, 0] = quat_mul(yaw_quat(-phi), local[:, :, 0])
+    ref = local[0]
+    local = np.where(np.sum(local * ref[None], axis=-1, keepdims=True) < 0, -local, local)
+    mid = 0.5 * (phi[:, 1:] + phi[:, :-1])
+    step = rotate_xz(np.diff(root[..., [0, 2]], axis=1), -mid)
+    return Examples(skeleton=sk, rate=float(reg.rate), names=list(names or [m.name for m in motions]),
+                    local=local, height=root[..., 1].copy(), step=step, turn=np.diff(phi, axis=1),
+                    dt=np.stack(dts), plants=np.stack(plants), legs=legs,
+                    scale_to_m=float(q.metres()), unit=q.unit)
+
+
+# ----------------------------------------------------------------------------------- blending
+def check_weights(weights: np.ndarray, n: int, tol: float = 1e-6) -> np.ndarray:
+    """(S, N) float weights, each row summing to 1 (ValueError otherwise)."""
+    w = np.atleast_2d(np.asarray(weights, np.float64))
+    if w.shape[-1] != n:
+        raise ValueError(f"{w.shape[-1]} weights for {n} examples")
+    if not np.all(np.isfinite(w)):
+        raise ValueError("weights must be finite")
+    bad = np.abs(w.sum(axis=-1) - 1.0) > tol
+    if bad.any():
+        raise ValueError(f"blend weights must sum to 1, got {w[bad][0].sum():.6g}")
+    return w
+
+
+def blend_path(ex: Examples, weights: np.ndarray, upto: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Blended root path of S weight vectors (S, N): positions (S, V, 3) and headings (S, V) for
+    the first V = ``upto`` + 1 samples (all by default), from the origin facing +Z. O(S·N·V)."""
+    w = check_weights(weights, ex.n)
+    v = ex.n_samples if upto is None else int(upto) + 1
+    turn = w @ ex.turn[:, :v - 1]  # (S, V-1)
+    phi = np.concatenate([np.zeros((len(w), 1)), np.cumsum(turn, axis=1)], axis=1)
+    step = np.einsum("sn,nuc->suc", w, ex.step[:, :v - 1])
+    mid = 0.5 * (phi[:, 1:] + phi[:, :-1])
+    xz = np.concatenate([np.zeros((len(w), 1, 2)), np.cumsum(rotate_xz(step, mid), axis=1)], axis=1)
+    pos = np.stack([xz[..., 0], w @ ex.height[:, :v], xz[..., 1]], -1)
+    return pos, phi
+
+
+def blend_poses(ex: Examples, weights: np.ndarray, samples: np.ndarray | slice | None = None) -> np.ndarray:
+    """(S, V, J, 4) blended local rotations at the samples ``samples`` (all by default): the
+    normalised weighted quaternion average; the root's still relative to the heading. O(S·N·V·J)."""
+    w = check_weights(weights, ex.n)
+    sel = slice(None) if samples is None else samples
+    nz = np.flatnonzero(np.any(w != 0.0, axis=0))
+    q = np.einsum("sn,nvjc->svjc", w[:, nz], ex.local[nz][:, sel])
+    return quat_normalize(q)
+
+
+def blend_durations(ex: Examples, weights: np.ndarray, cfg: BlendParams | None = None) -> np.ndarray:
+    """(S, U−1) blended seconds between samples, floored at ``min_step`` of their mean."""
+    cfg = cfg or BlendParams()
+    w = check_weights(weights, ex.n)
+    dt = w @ ex.dt
+    return np.maximum(dt, cfg.min_step * np.mean(ex.dt))
+
+
+def posed(ex: Examples, root: np.ndarray, heading: np.ndarray, local: np.ndarray, fps: float) -> Motion:
+    """A metric motion from blended root positions (F, 3), headings (F,) and local rotations
+    (F, J, 4) whose root is relative to the heading."""
+    rot = local.copy()
+    rot[:, 0] = quat_mul(yaw_quat(heading), local[:, 0])
+    return Motion(skeleton=ex.skeleton, fps=float(fps), root_positions=root, rotations=rot, unit="m", scale_to_m=1.0)
+
+
+@dataclass
+class BlendResult:
+    """A blended motion (metric, uniform ``fps``) with what it was made of: the weights (N,), the
+    plants it holds (F, 2), its foot skate before and after IK (cm/s), the worst IK miss (m) and
+    the time of every sample u in the output (U,) seconds."""
+
+    motion: Motion
+    weights: np.ndarray
+    plants: np.ndarray
+    skate_raw: float
+    skate: float
+    ik_miss: float
+    times: np.ndarray
+
+
+def blend(ex: Examples, weights: np.ndarray, fps: float | None = None, cfg: BlendParams | None = None,
+          hold_feet: bool = True) -> BlendResult:
+    """Blend the examples with ``weights`` (N,) (sum 1, may be slightly negative) into one motion
+    at ``fps`` (default: the registration rate), with foot plants held by leg IK (KG04 §4).
+    Cost O(N'·U·J) for the N' examples of non-zero weight plus O(F·J) FK/IK."""
+    cfg = cfg or BlendParams()
+    w = check_weights(weights, ex.n)[0]
+    fps = float(fps or ex.rate)
+    pos, phi = blend_path(ex, w[None])
+    local = blend_poses(ex, w[None])[0]
+    times = np.concatenate([[0.0], np.cumsum(blend_durations(ex, w[None], cfg)[0])])
+    on_u = posed(ex, pos[0], phi[0], local, ex.rate)
+    n_out = int(math.floor(times[-1] * fps + 1e-9)) + 1
+    at = np.interp(np.arange(n_out) / fps, times, np.arange(ex.n_samples, dtype=np.float64))
+    motion = replace(sample_motion(on_u, at), fps=fps)
+    vote = np.einsum("n,nuk->uk", w, ex.plants.astype(np.float64))
+    plants = vote[np.clip(np.rint(at).astype(np.int64), 0, ex.n_samples - 1)] >= 0.5
+    gpos, _ = forward_kinematics(motion)
+    ankles = gpos[:, [ex.legs["left"][2], ex.legs["right"][2]]]
+    raw = foot_skate(ankles, plants, fps)
+    miss = 0.0
+    if hold_feet and plants.any():
+        motion, miss = hold_plants(motion, ex.legs, plants, cfg)
+        gpos, _ = forward_kinematics(motion)
+        ankles = gpos[:, [ex.legs["left"][2], ex.legs["right"][2]]]
+    return BlendResult(motion, w, plants, raw, foot_skate(ankles, plants, fps), miss, times)
+
+
+def to_file_unit(motion: Motion, scale_to_m: float, unit: str | None) -> Motion:
+    """A metric motion expressed in a file unit (``scale_to_m`` metres per unit)."""
+    s = 1.0 / scale_to_m
+    sk = motion.skeleton
+    sk = replace(sk, offsets=sk.offsets * s, end_sites={k: v * s for k, v in sk.end_sites.items()})
+    return replace(motion, skeleton=sk, root_positions=motion.root_positions * s, unit=unit, scale_to_m=scale_to_m)
+
+
+# ----------------------------------------------------------------------------------- leg IK
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(F, 4) the shortest rotations taking directions a (F, 3) onto b (F, 3)."""
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    c = np.cross(a, b)
+    d = np.sum(a * b, axis=-1)
+    q = np.concatenate([(1.0 + d)[:, None], c], axis=-1)
+    opposite = d < -1.0 + 1e-12
+    if opposite.any():  # any axis perpendicular to a
+        perp = np.cross(a[opposite], np.array([1.0, 0.0, 0.0]))
+        small = np.linalg.norm(perp, axis=-1) < 1e-6
+        perp[small] = np.cross(a[opposite][small], np.array([0.0, 0.0, 1.0]))
+        q[opposite] = np.concatenate([np.zeros((opposite.sum(), 1)), perp], axis=-1)
+    return quat_normalize(q)
+
+
+def leg_ik(gpos: np.ndarray, grot: np.ndarray, parents: np.ndarray, chain: tuple[int, int, int],
+           target: np.ndarray, fallback_axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Analytic two-bone IK of one leg over F frames: new local rotations of hip, knee and ankle
+    ((F, 4) each) putting the ankle on ``target`` (F, 3), and the miss (F,) when out of reach.
+
+    The knee bends about its current axis (``fallback_axis`` (F, 3) when the leg is straight) to
+    the law-of-cosines angle, then the whole leg turns about the hip by the shortest rotation onto
+    the target; the foot keeps its global rotation. ``gpos``/``grot`` (F, J, 3|4) are global FK.
+    """
+    hip, knee, ankle = chain
+    h, k, a = gpos[:, hip], gpos[:, knee], gpos[:, ankle]
+    l1 = np.linalg.norm(k - h, axis=-1)
+    l2 = np.linalg.norm(a - k, axis=-1)
+    d_t = np.linalg.norm(target - h, axis=-1)
+    dc = np.clip(d_t, np.abs(l1 - l2) + 1e-9, (l1 + l2) * (1.0 - 1e-9))
+    d0 = np.linalg.norm(a - h, axis=-1)
+    beta0 = np.arccos(np.clip((l1 ** 2 + l2 ** 2 - d0 ** 2) / (2 * l1 * l2), -1.0, 1.0))
+    beta = np.arccos(np.clip((l1 ** 2 + l2 ** 2 - dc ** 2) / (2 * l1 * l2), -1.0, 1.0))
+    axis = np.cross(k - h, a - k)
+    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+    axis = np.where(norm > 1e-9 * np.maximum(l1 * l2, 1e-12)[:, None], axis / np.maximum(norm, 1e-300), fallback_axis)
+    bend = quat_from_axis_angle(axis, beta0 - beta)
+    a1 = k + quat_rotate(bend, a - k)
+    swing = rotation_between(a1 - h, target - h)
+    g_hip = quat_mul(swing, grot[:, hip])
+    g_knee = quat_mul(swing, quat_mul(bend, grot[:, knee]))
+    p = parents[hip]
+    g_parent = grot[:, p] if p >= 0 else np.tile([1.0, 0.0, 0.0, 0.0], (len(h), 1))
+    local_hip = quat_mul(quat_inv(g_parent), g_hip)
+    local_knee = quat_mul(quat_inv(g_hip), g_knee)
+    local_ankle = quat_mul(quat_inv(g_knee), grot[:, ankle])
+    return local_hip, local_knee, local_ankle, np.abs(d_t - dc)
+
+
+def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Ankle corrections (F, 3) holding every planted run at its mean position, eased to zero over
+    ``ramp`` frames on either side (smoothstep), and the frames (F,) that need IK."""
+    off = np.zeros((n, 3))
+    wsum = np.zeros(n)
+    for a, b in runs(plants):
+        hold = ankles[a:b + 1].mean(axis=0)
+        off[a:b + 1] += hold - ankles[a:b + 1]
+        wsum[a:b + 1] += 1.0
+        for side_frames, edge in ((np.arange(max(0, a - ramp), a), a), (np.arange(b + 1, min(n, b + 1 + ramp)), b)):
+            if len(side_frames):
+                s = 1.0 - np.abs(side_frames - edge) / (ramp + 1.0)
+                s = s * s * (3.0 - 2.0 * s)
+                off[side_frames] += s[:, None] * (hold - ankles[edge])
+                wsum[side_frames] += 1.0
+    mask = wsum > 0
+    off[mask] /= np.maximum(wsum[mask], 1.0)[:, None]
+    return off, mask
+
+
+def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: np.ndarray,
+                cfg: BlendParams) -> tuple[Motion, float]:
+    """Hold each planted foot still (its run's mean ankle position) by leg IK, corrections eased
+    over ``cfg.ease_s`` (KG03 constraint matching). Returns the motion and the worst miss (m)."""
+    gpos, grot = forward_kinematics(motion)
+    rot = motion.rotations.copy()
+    ramp = max(1, round(cfg.ease_s * motion.fps))
+    lateral = quat_rotate(grot[:, 0], np.array([1.0, 0.0, 0.0]))
+    worst = 0.0
+    for k, side in enumerate(SIDES):
+        hip, knee, ankle = legs[side]
+        off, mask = ease_offsets(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
+        if not mask.any():
+            continue
+        lh, lk, la, miss = leg_ik(gpos[mask], grot[mask], motion.skeleton.parents, legs[side],
+                                  gpos[mask, ankle] + off[mask], lateral[mask])
+        rot[mask, hip], rot[mask, knee], rot[mask, ankle] = lh, lk, la
+        worst = max(worst, float(miss.max(initial=0.0)))
+    return replace(motion, rotations=rot), worst
