@@ -391,5 +391,10 @@ from motionweb.flows import store_cli  # noqa: E402 - commands of their own modu
 app.command()(store_cli.verify)
 app.command()(store_cli.gc)
 
+
+from motionweb.flows.space_cli import add_commands  # noqa: E402  (parameterize, synthesize, blend)
+
+add_commands(app, fail, config_or_fail)
+
 if __name__ == "__main__":
     app()

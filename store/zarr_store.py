@@ -237,6 +237,25 @@ class MotionStore:
         keys = names if names is not None else sorted(g.array_keys())
         return {k: np.asarray(g[k][...]) for k in keys}, dict(g.attrs)
 
+    # motion spaces (KG04 §4): content-addressed, outside generations (gc keeps them)
+    def write_space(self, digest: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> str:
+        """Store a motion space's arrays and attributes under ``spaces/<digest>``; returns the key."""
+        key = f"spaces/{digest}"
+        self._write_group(key, arrays, attrs)
+        return key
+
+    def read_space(self, space_id: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """A stored motion space by its digest (or a unique prefix of it); KeyError naming it."""
+        ids = [i for i in self.space_ids() if i.startswith(space_id)] if space_id else []
+        if len(ids) != 1:
+            what = "is ambiguous" if ids else "is not stored"
+            raise KeyError(f"motion space {space_id!r} {what} in {self.url} ({len(self.space_ids())} stored)")
+        return self._read_group(f"spaces/{ids[0]}")
+
+    def space_ids(self) -> list[str]:
+        """Digests of the completely written motion spaces."""
+        return sorted(k.split("/", 1)[1] for k in self._leaf_keys("spaces", 1) if self.has(k))
+
     # features
     def has_features(self, sha: str, fdigest: str, rates: list[float]) -> bool:
         z = self._open(feature_key(sha, fdigest))

@@ -1,0 +1,116 @@
+"""``motionweb parameterize`` / ``synthesize`` / ``blend``: thin commands over ``flows/space.py``
+(KG04 §4). Registered on the main app by ``flows/cli.py``; every input is checked before a flow
+starts and a bad one ends in one line (exit 2)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from motionweb.store.errors import MotionFormatError
+
+ERRORS = (ValueError, KeyError, FileNotFoundError, MotionFormatError)
+
+
+def parse_target(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--target {text!r}: expected numbers separated by commas, e.g. 0.3,1.2,0.5") from None
+
+
+def parse_weights(items: list[str]) -> dict[str, float]:
+    out = {}
+    for text in items:
+        clip, eq, value = text.rpartition("=")
+        try:
+            if not eq or not clip:
+                raise ValueError
+            out[clip] = float(value)
+        except ValueError:
+            raise ValueError(f"--weights {text!r}: expected CLIP=WEIGHT, e.g. walk_01=0.6") from None
+    return out
+
+
+def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: Callable) -> None:
+    """Register the motion-space commands on ``app`` (``fail`` prints one line and exits 2)."""
+
+    @app.command()
+    def parameterize(
+        config: Annotated[Path, typer.Argument(help="Config file (store, search, blend, parameterize).")],
+        clip: Annotated[str, typer.Option(help="Query clip: corpus path or file stem.")],
+        start: Annotated[float, typer.Option(help="Query start, seconds.")],
+        end: Annotated[float, typer.Option(help="Query end, seconds.")],
+        param: Annotated[str, typer.Option(help="KIND[:JOINT[@SECONDS]]: position:JOINT@S, final_root, lowest_hip, "
+                                                "max_speed:JOINT, custom:module.function (runs that code).")],
+        threshold: Annotated[float | None, typer.Option(help="Absolute threshold ε.")] = None,
+        quantile: Annotated[float | None, typer.Option(help="ε as this quantile (0-1) of the webs' values.")] = None,
+        samples: Annotated[int | None, typer.Option(help="Random weight samples (default: config, 1000).")] = None,
+        out: Annotated[Path | None, typer.Option(help="Folder for the plot (default: the config's output).")] = None,
+    ) -> None:
+        """Build a parameterized motion space from the matches of a query (KG04 §4) and store it."""
+        from motionweb.flows.space import SpaceRequest, plan_space
+        from motionweb.flows.space import parameterize as run
+
+        cfg = config_or_fail(config)
+        try:
+            request = SpaceRequest(clip=clip, start=start, end=end, param=param, threshold=threshold,
+                                   quantile=quantile, samples=samples, out=str(out) if out else None)
+            request.query()  # threshold / quantile / range
+            plan_space(cfg, request)
+            res = run(cfg, request)
+        except ERRORS as exc:
+            fail(str(exc).strip("'\""))
+        typer.echo(f"space {res['id']}: {len(res['examples'])} examples, {res['samples']} samples of {res['param']} "
+                   f"(ε = {res['epsilon']:.4g}) in {res['timings']['total_s']:.1f} s; plot {res['files'][0]}")
+
+    @app.command()
+    def synthesize(
+        space: Annotated[str, typer.Argument(help="Space id (or a unique prefix) from `motionweb parameterize`.")],
+        target: Annotated[str, typer.Option(help="Target parameter, comma separated (metres), e.g. 0.3,1.2,0.5.")],
+        out: Annotated[Path, typer.Option(help="Output BVH.")],
+        config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
+    ) -> None:
+        """Make a motion that hits a target parameter (KG04 §4.3); a target outside is projected."""
+        import numpy as np
+        from motionweb.flows.space import load_space, space_info
+        from motionweb.store.bvh import write_bvh
+
+        cfg = config_or_fail(config)
+        try:
+            t = parse_target(target)
+            _, info, _ = space_info(cfg, space)
+            if len(t) != info["dim"]:
+                raise ValueError(f"--target has {len(t)} values; space parameter {info['param']} has {info['dim']}")
+            motion, syn = load_space(cfg, space).synthesize(np.array(t))
+            write_bvh(motion, out)
+        except ERRORS as exc:
+            fail(str(exc).strip("'\""))
+        got = ",".join(f"{v:.4f}" for v in syn.achieved)
+        note = " (outside the accessible region: projected)" if syn.outside else ""
+        typer.echo(f"wrote {out}: {motion.n_frames} frames; achieved {got}, {100 * syn.error:.2f} cm from the "
+                   f"target{note}")
+
+    @app.command("blend")
+    def blend_cmd(
+        space: Annotated[str, typer.Argument(help="Space id (or a unique prefix).")],
+        weights: Annotated[list[str], typer.Option(help="CLIP=WEIGHT, repeated; weights sum to 1.")],
+        out: Annotated[Path, typer.Option(help="Output BVH.")],
+        config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
+    ) -> None:
+        """Blend a space's examples with explicit weights (KG04 §4, foot plants held)."""
+        from motionweb.flows.space import load_space, space_info, weight_vector
+        from motionweb.store.bvh import write_bvh
+
+        cfg = config_or_fail(config)
+        try:
+            w = parse_weights(weights)
+            _, info, _ = space_info(cfg, space)
+            weight_vector(info["names"], w)  # names and sum, before loading clips
+            motion = load_space(cfg, space).blend(w)
+            write_bvh(motion, out)
+        except ERRORS as exc:
+            fail(str(exc).strip("'\""))
+        typer.echo(f"wrote {out}: {motion.n_frames} frames at {motion.fps:g} fps")
