@@ -56,6 +56,7 @@ from motionweb.store.kinematics import (
 )
 from motionweb.store.motion import Motion, Skeleton
 from motionweb.store.params import Params
+from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.register import Registration
 from pydantic import Field
 
@@ -185,6 +186,24 @@ def foot_skate(ankles: np.ndarray, plants: np.ndarray, fps: float) -> float:
 
 
 # ----------------------------------------------------------------------------------- examples
+def keytime_registration(motions: Sequence[Motion], keys: Sequence[np.ndarray], rate: float = 30.0) -> Registration:
+    """A :class:`Registration` from corresponding key times (seconds; e.g. a demo clip's known
+    action times or foot touchdowns): column c maps the query's (clip 0's) keys ``keys[0]`` onto
+    ``keys[c]``, linear between keys, at every query frame at ``rate`` — a ground truth to test
+    blending against, or a manual registration where the match graph has none."""
+    k0 = np.asarray(keys[0], np.float64)
+    if len(k0) < 2 or any(len(k) != len(k0) or np.any(np.diff(k) <= 0) for k in keys):
+        raise ValueError("key times: the same number (≥ 2) per clip, strictly increasing")
+    u = np.arange(round(k0[0] * rate), round(k0[-1] * rate) + 1, dtype=np.float64)
+    fr = np.stack([np.interp(u / rate, k0, np.asarray(k, np.float64)) * rate for k in keys], 1)
+    fr[:, 0] = u
+    segs = [Segment(m.name, int(np.ceil(fr[0, c] - 1e-9)), int(np.floor(fr[-1, c] + 1e-9)))
+            for c, m in enumerate(motions)]
+    fr = np.clip(fr, [s.start for s in segs], [s.end for s in segs])
+    n = len(motions)
+    return Registration(rate, list(range(n)), segs, [-1] + [0] * (n - 1), np.zeros(n), fr, [])
+
+
 @dataclass
 class Examples:
     """N examples registered on a common timeline of U samples (KG04 §4.1), ready to blend.

@@ -251,24 +251,6 @@ lower 0
 """
 
 
-def keytime_registration(motions: list[Motion], keys: list[np.ndarray], rate: float = 30.0):
-    """A ground-truth :class:`Registration` of demo clips from corresponding key times (s):
-    column c maps the query's (clip 0's) key times ``keys[0]`` onto ``keys[c]``, linear between
-    keys, sampled at every query frame at ``rate``."""
-    from motionweb.tasks.matchgraph import Segment
-    from motionweb.tasks.register import Registration
-
-    k0 = np.asarray(keys[0], np.float64)
-    u = np.arange(round(k0[0] * rate), round(k0[-1] * rate) + 1, dtype=np.float64)
-    fr = np.stack([np.interp(u / rate, k0, np.asarray(k, np.float64)) * rate for k in keys], 1)
-    fr[:, 0] = u
-    segs = [Segment(m.name, int(np.ceil(fr[0, c] - 1e-9)), int(np.floor(fr[-1, c] + 1e-9)))
-            for c, m in enumerate(motions)]
-    fr = np.clip(fr, [s.start for s in segs], [s.end for s in segs])
-    n = len(motions)
-    return Registration(rate, list(range(n)), segs, [-1] + [0] * (n - 1), np.zeros(n), fr, [])
-
-
 def lowest_root(examples, weights: np.ndarray) -> np.ndarray:
     """A custom parameter function (imported by path in the tests): the blend's lowest root height."""
     from motionweb.tasks.blend import blend_path

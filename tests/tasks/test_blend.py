@@ -7,7 +7,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from fixtures import keytime_registration
 from motionweb.store.demo.corpus import generate_clip
 from motionweb.store.demo.perturb import random_warp, time_warp_clip
 from motionweb.store.kinematics import forward_kinematics, heading_angle, quat_from_axis_angle, quat_mul
@@ -19,6 +18,7 @@ from motionweb.tasks.blend import (
     check_weights,
     detect_plants,
     foot_skate,
+    keytime_registration,
     leg_chains,
     leg_ik,
     metric_skeleton,

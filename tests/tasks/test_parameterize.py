@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fixtures import keytime_registration
 from motionweb.store.demo.corpus import generate_clip
-from motionweb.tasks.blend import registered_examples
+from motionweb.tasks.blend import keytime_registration, registered_examples
 from motionweb.tasks.parameterize import (
     FinalRoot,
     ParameterizeParams,
