@@ -396,12 +396,12 @@ def blend(ex: Examples, weights: np.ndarray, fps: float | None = None, cfg: Blen
     motion = replace(sample_motion(on_u, at), fps=fps)
     vote = np.einsum("n,nuk->uk", w, ex.plants.astype(np.float64))
     plants = vote[np.clip(np.rint(at).astype(np.int64), 0, ex.n_samples - 1)] >= 0.5
-    gpos, _ = forward_kinematics(motion)
-    ankles = gpos[:, [ex.legs["left"][2], ex.legs["right"][2]]]
+    fk = forward_kinematics(motion)
+    ankles = fk[0][:, [ex.legs["left"][2], ex.legs["right"][2]]]
     raw = foot_skate(ankles, plants, fps)
     miss = 0.0
     if hold_feet and plants.any():
-        motion, miss = hold_plants(motion, ex.legs, plants, cfg)
+        motion, miss = hold_plants(motion, ex.legs, plants, cfg, fk)
         gpos, _ = forward_kinematics(motion)
         ankles = gpos[:, [ex.legs["left"][2], ex.legs["right"][2]]]
     return BlendResult(motion, w, plants, raw, foot_skate(ankles, plants, fps), miss, times)
@@ -487,10 +487,11 @@ def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> t
 
 
 def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: np.ndarray,
-                cfg: BlendParams) -> tuple[Motion, float]:
+                cfg: BlendParams, fk: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Motion, float]:
     """Hold each planted foot still (its run's mean ankle position) by leg IK, corrections eased
-    over ``cfg.ease_s`` (KG03 constraint matching). Returns the motion and the worst miss (m)."""
-    gpos, grot = forward_kinematics(motion)
+    over ``cfg.ease_s`` (KG03 constraint matching); ``fk`` = the motion's global (positions,
+    rotations) when already computed. Returns the motion and the worst miss (m)."""
+    gpos, grot = fk if fk is not None else forward_kinematics(motion)
     rot = motion.rotations.copy()
     ramp = max(1, round(cfg.ease_s * motion.fps))
     lateral = quat_rotate(grot[:, 0], np.array([1.0, 0.0, 0.0]))
