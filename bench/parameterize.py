@@ -20,8 +20,8 @@ import tempfile
 from dataclasses import replace
 
 import numpy as np
-from motionweb.store.cache import MotionStore
 from motionweb.store.demo.corpus import generate_clip
+from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.blend import blend, blend_path, blend_poses, keytime_registration, registered_examples
 from motionweb.tasks.parameterize import FinalRoot, ParameterizeParams, build_space, parse_param
 

@@ -41,8 +41,9 @@ from motionweb.flows.query import (
     register_task,
     search_task,
 )
-from motionweb.store.cache import MotionStore, now_iso, package_versions
+from motionweb.store.generations import load_generation, package_versions
 from motionweb.store.motion import Motion
+from motionweb.store.zarr_store import MotionStore, now_iso
 from motionweb.tasks.blend import BlendParams, blend, registered_examples, to_file_unit
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.parameterize import (
@@ -289,7 +290,7 @@ def load_space(cfg: Config, space_id: str) -> StoredSpace:
     what is missing."""
     digest, attrs, arrays = space_info(cfg, space_id)
     store, _ = committed_generation(cfg.store.path)
-    gen = store.generation(attrs["generation"])
+    gen = load_generation(store, attrs["generation"])
     if gen is None:
         raise ValueError(f"space {digest[:12]}: its generation {attrs['generation']} is no longer in the store")
     gen_cfg = indexed_config(gen)

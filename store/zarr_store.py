@@ -254,7 +254,7 @@ class MotionStore:
 
     def space_ids(self) -> list[str]:
         """Digests of the completely written motion spaces."""
-        return sorted(k.split("/", 1)[1] for k in self._leaf_keys("spaces", 1) if self.has(k))
+        return sorted(k.split("/", 1)[1] for k in self.leaf_keys("spaces", 1) if self.has(k))
 
     # features
     def has_features(self, sha: str, fdigest: str, rates: list[float]) -> bool:
