@@ -234,7 +234,8 @@ class StoredSpace:
     def motion(self, weights: np.ndarray, hold_feet: bool = True) -> Motion:
         """The blend of ``weights`` (N,) at the query clip's fps, in the examples' file unit."""
         ex = self.space.examples
-        r = blend(ex, weights, fps=self.fps, cfg=BlendParams.model_validate(self.info["blend"]), hold_feet=hold_feet)
+        r = blend(ex, weights, fps=self.fps, cfg=BlendParams.model_validate(self.info["blend"]), hold_feet=hold_feet,
+                  measure=False)
         m = to_file_unit(r.motion, ex.scale_to_m, ex.unit)
         return Motion(skeleton=m.skeleton, fps=m.fps, root_positions=m.root_positions, rotations=m.rotations,
                       name=f"space_{self.id[:12]}", unit=m.unit, scale_to_m=m.scale_to_m)

@@ -11,7 +11,8 @@ from typing import Annotated
 import typer
 from motionweb.store.errors import MotionFormatError
 
-ERRORS = (ValueError, KeyError, FileNotFoundError, MotionFormatError)
+#: RuntimeError: e.g. Prefect's local API server not starting in time on a busy machine
+ERRORS = (ValueError, KeyError, FileNotFoundError, MotionFormatError, RuntimeError)
 
 
 def parse_target(text: str) -> list[float]:

@@ -380,10 +380,11 @@ class BlendResult:
 
 
 def blend(ex: Examples, weights: np.ndarray, fps: float | None = None, cfg: BlendParams | None = None,
-          hold_feet: bool = True) -> BlendResult:
+          hold_feet: bool = True, measure: bool = True) -> BlendResult:
     """Blend the examples with ``weights`` (N,) (sum 1, may be slightly negative) into one motion
     at ``fps`` (default: the registration rate), with foot plants held by leg IK (KG04 §4).
-    Cost O(N'·U·J) for the N' examples of non-zero weight plus O(F·J) FK/IK."""
+    ``measure=False`` skips the foot-skate figures (NaN) and the FK they need. Cost O(N'·U·J) for
+    the N' examples of non-zero weight plus O(F·J) FK/IK."""
     cfg = cfg or BlendParams()
     w = check_weights(weights, ex.n)[0]
     fps = float(fps or ex.rate)
@@ -396,15 +397,17 @@ def blend(ex: Examples, weights: np.ndarray, fps: float | None = None, cfg: Blen
     motion = replace(sample_motion(on_u, at), fps=fps)
     vote = np.einsum("n,nuk->uk", w, ex.plants.astype(np.float64))
     plants = vote[np.clip(np.rint(at).astype(np.int64), 0, ex.n_samples - 1)] >= 0.5
+    feet = [ex.legs["left"][2], ex.legs["right"][2]]
+    hold = hold_feet and bool(plants.any())
+    if not (hold or measure):
+        return BlendResult(motion, w, plants, float("nan"), float("nan"), 0.0, times)
     fk = forward_kinematics(motion)
-    ankles = fk[0][:, [ex.legs["left"][2], ex.legs["right"][2]]]
-    raw = foot_skate(ankles, plants, fps)
-    miss = 0.0
-    if hold_feet and plants.any():
+    raw = foot_skate(fk[0][:, feet], plants, fps) if measure else float("nan")
+    miss, skate = 0.0, raw
+    if hold:
         motion, miss = hold_plants(motion, ex.legs, plants, cfg, fk)
-        gpos, _ = forward_kinematics(motion)
-        ankles = gpos[:, [ex.legs["left"][2], ex.legs["right"][2]]]
-    return BlendResult(motion, w, plants, raw, foot_skate(ankles, plants, fps), miss, times)
+        skate = foot_skate(forward_kinematics(motion)[0][:, feet], plants, fps) if measure else float("nan")
+    return BlendResult(motion, w, plants, raw, skate, miss, times)
 
 
 def to_file_unit(motion: Motion, scale_to_m: float, unit: str | None) -> Motion:

@@ -208,3 +208,12 @@ def test_quaternion_sign_flips_do_not_change_a_blend(warped_pair) -> None:
                      root_positions=b.root_positions * np.array([-1.0, 1.0, -1.0]))
     r3 = blend(registered_examples([a, turned], reg), w, hold_feet=False)
     np.testing.assert_allclose(start_frame(r3.motion), start_frame(r1.motion), atol=1e-6)
+
+
+def test_unmeasured_blend_is_the_same_motion(walks) -> None:
+    motions, reg = walks
+    ex = registered_examples(motions, reg)
+    w = np.array([0.2, 0.5, 0.3])
+    a, b = blend(ex, w, fps=60.0), blend(ex, w, fps=60.0, measure=False)
+    np.testing.assert_array_equal(a.motion.rotations, b.motion.rotations)
+    assert np.isnan(b.skate) and np.isfinite(a.skate)
