@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from motionweb.flows.config import Config, ConfigError, load_config, packaged_config
 from motionweb.store.errors import MotionFormatError
+
+if TYPE_CHECKING:  # the config imports every stage: loaded on use, so a forwarded search starts fast
+    from motionweb.flows.config import Config
 
 app = typer.Typer(
     name="motionweb",
@@ -33,6 +35,8 @@ def fail(message: str, code: int = 2) -> None:
 
 def config_or_fail(path: Path | None) -> Config:
     """Load a config (the default one when ``path`` is None), turning errors into ``fail``."""
+    from motionweb.flows.config import ConfigError, load_config
+
     try:
         return load_config(path)
     except ConfigError as exc:
@@ -107,6 +111,7 @@ def demo(
     command can be pointed at the same corpus and store: ``motionweb index WORKDIR/config.yaml``.
     """
     import yaml
+    from motionweb.flows.config import packaged_config
     from motionweb.store.catalog import scan_corpus
     from motionweb.store.demo.corpus import write_demo_corpus
 
@@ -329,6 +334,12 @@ def run_query(cfg: Config, request) -> dict:
         res = query(cfg, request)
     except (ValueError, KeyError, FileNotFoundError, MotionFormatError) as exc:
         fail(str(exc).strip("'\""))
+    print_query(res)
+    return res
+
+
+def print_query(res: dict) -> None:
+    """The query line, the matches table and where the outputs are."""
     q = res["query"]
     typer.echo(f"query {q['clip']} frames {q['start_frame']}-{q['end_frame']} at {q['rate']:g} Hz, "
                f"ε = {res['epsilon']:.4g}, generation {res['generation']}")
@@ -336,8 +347,8 @@ def run_query(cfg: Config, request) -> dict:
         typer.echo("no matches: raise --threshold / --quantile, or search --all-categories")
     else:
         typer.echo(matches_table(res["matches"]))
-    typer.echo(f"{len(res['matches'])} matches in {res['timings']['search_s']:.2f} s; outputs in {res['out']}")
-    return res
+    via = f" (by the service at {res['service']})" if res.get("service") else ""
+    typer.echo(f"{len(res['matches'])} matches in {res['timings']['search_s']:.2f} s{via}; outputs in {res['out']}")
 
 
 @app.command()
@@ -354,7 +365,21 @@ def search(
     export: Annotated[Path | None, typer.Option(help="Write every match as BVH into this folder.")] = None,
     out: Annotated[Path | None, typer.Option(help="Output folder (default: the config's output).")] = None,
 ) -> None:
-    """Search the index for motions like CLIP[START, END] (KG04 §3.3); print the matches."""
+    """Search the index for motions like CLIP[START, END] (KG04 §3.3); print the matches.
+
+    With a `motionweb app` running for the config's store, the service answers (same outputs)."""
+    from motionweb.flows.app.client import ServiceError, forward_search
+
+    try:
+        res = forward_search(config, {
+            "clip": clip, "start": start, "end": end, "threshold": threshold, "quantile": quantile, "tiers": tiers,
+            "all_categories": all_categories or None, "register": register,
+            "export": str(export) if export else None, "out": str(out) if out else None})
+    except ServiceError as exc:
+        fail(str(exc))
+    if res is not None:
+        print_query(res)
+        return
     from motionweb.flows.query import QueryRequest
 
     cfg = config_or_fail(config)
@@ -365,6 +390,24 @@ def search(
     except ValueError as exc:
         fail(str(exc))
     run_query(cfg, request)
+
+
+@app.command("app")
+def app_command(
+    config: Annotated[Path, typer.Argument(help="Config file (store, search).")],
+    host: Annotated[str, typer.Option(help="Address to listen on (loopback unless --token is given).")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="Port (0: any free one).")] = 8765,
+    token: Annotated[str | None, typer.Option(help="Secret every request must carry (required off loopback).")] = None,
+    record: Annotated[bool, typer.Option(help="Record every query as a Prefect flow run.")] = True,
+) -> None:
+    """Serve the web page and JSON API for on-demand queries of the config's store (blocks)."""
+    cfg = config_or_fail(config)
+    from motionweb.flows.app.server import serve
+
+    try:
+        serve(cfg, host, port, token, record, on_ready=lambda url: typer.echo(f"motionweb app: {url}"))
+    except ValueError as exc:
+        fail(str(exc))
 
 
 @app.command("plot-web")

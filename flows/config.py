@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
+from motionweb.flows.paths import resolve_path
 from motionweb.store.catalog import CorpusParams
 from motionweb.store.params import Params
 from motionweb.tasks.blend import BlendParams
@@ -136,14 +137,8 @@ def load_config(path: str | Path | None = None) -> Config:
 
 def resolve_paths(cfg: Config, base: Path) -> Config:
     """Make relative local paths absolute against ``base`` (fsspec URLs are left alone)."""
-
-    def fix(p: str | None) -> str | None:
-        if p is None or "://" in p or Path(p).is_absolute():
-            return p
-        return str((base / p).resolve())
-
-    cfg.corpus.path = fix(cfg.corpus.path)
-    cfg.corpus.manifest = fix(cfg.corpus.manifest)
-    cfg.store.path = fix(cfg.store.path)
-    cfg.output = fix(cfg.output)
+    cfg.corpus.path = resolve_path(cfg.corpus.path, base)
+    cfg.corpus.manifest = resolve_path(cfg.corpus.manifest, base)
+    cfg.store.path = resolve_path(cfg.store.path, base)
+    cfg.output = resolve_path(cfg.output, base)
     return cfg

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -258,9 +259,8 @@ def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[M
     return search(q.segment, eps, q.webs, scfg, q.gen_cfg.matchweb), eps
 
 
-@task(name="register", cache_policy=NO_CACHE)
-def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: MatchGraph,
-                  clips: dict[str, dict[str, Any]]) -> Registration:
+def register_graph(store: MotionStore, gen: Generation, gen_cfg: Config, graph: MatchGraph,
+                   clips: dict[str, dict[str, Any]]) -> Registration:
     """Load the nodes' features at the web rate and register every node to the query."""
     fdig = gen.params["features"]
     feats, weights = {}, {}
@@ -275,6 +275,13 @@ def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: M
     return register(graph, feats, weights[graph.nodes[0].segment.clip], gen_cfg.matchweb)
 
 
+@task(name="register", cache_policy=NO_CACHE)
+def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: MatchGraph,
+                  clips: dict[str, dict[str, Any]]) -> Registration:
+    """:func:`register_graph` as a task of the query flow."""
+    return register_graph(store, gen, gen_cfg, graph, clips)
+
+
 @flow(name="query")
 def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     """Search the committed index for ``request`` (KG04 §3.3), optionally register (§4.1) and
@@ -285,12 +292,24 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     logger = get_run_logger()
     t0 = time.perf_counter()
     q = prepare_query(cfg, request)
-    store, gen, gen_cfg = q.store, q.gen, q.gen_cfg
     graph, eps = search_task(q, cfg, request)
+    logger.info("query %s [%d, %d]: ε = %.4g, %d matches", q.segment.clip, q.segment.start, q.segment.end,
+                eps, len(graph.nodes) - 1)
+    return write_outputs(cfg, request, q, graph, eps, Path(request.out or cfg.output),
+                         Path(request.export) if request.export else None, t0, register_task)
+
+
+def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: MatchGraph, eps: float, out: Path,
+                  export: Path | None, t0: float, register_fn: Callable[..., Registration] = register_graph
+                  ) -> dict[str, Any]:
+    """Write a searched query's outputs (the module docstring's list) into ``out`` (and the
+    exported matches into ``export``), registering with ``register_fn`` when the request asks;
+    the :class:`QueryResult` as a dict. ``request`` is only recorded: its ``out`` and ``export``
+    are not read here (the running service writes into its own folders, see flows/app)."""
+    store, gen, gen_cfg = q.store, q.gen, q.gen_cfg
     timings = {"search_s": time.perf_counter() - t0}
     clips = {c["path"]: c for c in gen.clips}
     rows = match_rows(graph, clips)
-    out = Path(request.out or cfg.output)
     out.mkdir(parents=True, exist_ok=True)
     meta = {"generation": gen.id, "store": cfg.store.path, "epsilon": eps, "request": asdict(request),
             "config_digest": cfg.digest(), "versions": package_versions()}
@@ -298,8 +317,6 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     files[0].write_text(json.dumps({**meta, "matches": rows}, indent=1))
     files[1].write_text(json.dumps({**meta, **graph_dict(graph)}))
     plot_graph(graph, rows, files[2])
-    logger.info("query %s [%d, %d]: ε = %.4g, %d matches", q.segment.clip, q.segment.start, q.segment.end,
-                eps, len(graph.nodes) - 1)
 
     motions: dict[str, Motion] = {}
 
@@ -308,17 +325,16 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
             motions[clip] = load_indexed_clip(gen_cfg, clips[clip])
         return motions[clip]
 
-    if request.export:
-        exp = Path(request.export)
-        exp.mkdir(parents=True, exist_ok=True)
+    if export is not None:
+        export.mkdir(parents=True, exist_ok=True)
         for row, node in zip(rows, graph.nodes, strict=True):
             s = node.segment
-            p = exp / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.bvh"
+            p = export / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.bvh"
             write_bvh(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p)
             files.append(p)
     if request.register and len(graph.nodes) > 1:
         t = time.perf_counter()
-        reg = register_task(store, gen, gen_cfg, graph, clips)
+        reg = register_fn(store, gen, gen_cfg, graph, clips)
         timings["register_s"] = time.perf_counter() - t
         files += write_warps(reg, rows, out)
         common = reg.resample()

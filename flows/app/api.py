@@ -1,0 +1,250 @@
+"""The service's JSON API and page (FastAPI) over an :class:`~motionweb.flows.app.engine.Engine`.
+
+Routes (every one answers JSON errors ``{"error": message}`` with the CLI's messages, never a
+traceback: 400 bad request, 401 bad token, 404 unknown clip or result, 409 store not indexed,
+413 request too large):
+
+    GET  /                                       the page (static/index.html)
+    GET  /api/status                             generation, clip and web counts, categories
+    GET  /api/catalog?category=&name=&min_s=&max_s=&offset=&limit=
+    GET  /api/clips/{id}/pose?rate=              joint positions (metres) for drawing
+    GET  /api/clips/{id}/bvh                     the clip as a BVH download
+    POST /api/search                             a search (KG04 §3.3): rows by graph distance, graph
+    GET  /api/results/{rid}                      a search's rows and graph again
+    GET  /api/results/{rid}/registration         the time-warp curves s_i(u) (KG04 §4.1)
+    GET  /api/results/{rid}/nodes/{rank}/pose?registered=   a match's positions, optionally registered
+    GET  /api/results/{rid}/nodes/{rank}/bvh?registered=    a match as a BVH download
+    POST /api/query                              what `motionweb search` writes, as a zip
+                                                 (result.json, out/..., export/...)
+
+Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
+the cookie the page sets after ``/?token=``; compared in constant time); no request names a
+filesystem path (clips by index id or corpus name looked up in the generation, downloads built in
+memory); bodies are at most :data:`MAX_BODY` bytes, query strings :data:`MAX_QUERY_STRING`.
+"""
+
+from __future__ import annotations
+
+import hmac
+import logging
+import math
+from importlib import resources
+from typing import Any
+
+import anyio
+from fastapi import FastAPI, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+from motionweb.flows.app.engine import Engine, NotFound, NotIndexed
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+MAX_BODY = 64 * 1024
+MAX_QUERY_STRING = 2048
+TOKEN_COOKIE = "motionweb_token"
+log = logging.getLogger("motionweb.app")
+
+
+def static_dir() -> str:
+    """The page's files (package data of motionweb.flows.app)."""
+    with resources.as_file(resources.files("motionweb.flows.app") / "static") as path:
+        return str(path)
+
+
+class SearchBody(BaseModel):
+    """A search: the CLI's options (``motionweb search``), the clip by id or corpus name."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    clip: str = Field(min_length=1, max_length=300)
+    start: float
+    end: float
+    threshold: float | None = None
+    quantile: float | None = None
+    tiers: int | None = None
+    all_categories: bool | None = None
+    register_: bool = Field(default=False, alias="register")
+    #: overrides of the config's search section (the CLI sends its config's)
+    search: dict[str, Any] | None = Field(default=None, max_length=16)
+
+    def fields(self) -> dict[str, Any]:
+        for name in ("start", "end", "threshold", "quantile"):
+            v = getattr(self, name)
+            if v is not None and not math.isfinite(v):
+                raise ValueError(f"{name} must be a finite number, got {v}")
+        return self.model_dump(exclude={"search"}, by_alias=True)
+
+
+class QueryBody(SearchBody):
+    """``motionweb search`` forwarded: ``out`` and ``export`` are the client's folders, only
+    recorded in matches.json (the service writes nothing where a request says)."""
+
+    out: str | None = Field(default=None, max_length=1000)
+    export: str | None = Field(default=None, max_length=1000)
+
+
+def error(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status)
+
+
+class Guard:
+    """ASGI middleware: the token on every request (when set), bounded bodies and query strings."""
+
+    def __init__(self, app, token: str | None):
+        self.app, self.token = app, token
+
+    def authorized(self, scope) -> bool:
+        if not self.token:
+            return True
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        given = ""
+        auth = headers.get("authorization", "")
+        if auth.lower().startswith("bearer "):
+            given = auth[7:].strip()
+        if not given:
+            for part in headers.get("cookie", "").split(";"):
+                k, _, v = part.strip().partition("=")
+                if k == TOKEN_COOKIE:
+                    given = v
+        if not given and scope.get("path") == "/":
+            from urllib.parse import parse_qs
+
+            given = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [""])[0]
+        return hmac.compare_digest(given.encode(), self.token.encode())
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        if len(scope.get("query_string", b"")) > MAX_QUERY_STRING or len(scope.get("path", "")) > 512:
+            return await error(414, "request line too long")(scope, receive, send)
+        if not self.authorized(scope):
+            return await error(401, "missing or wrong token (Authorization: Bearer TOKEN, or open /?token=TOKEN)")(
+                scope, receive, send)
+        length = dict(scope.get("headers", [])).get(b"content-length")
+        if length is not None and (not length.isdigit() or int(length) > MAX_BODY):
+            return await error(413, f"request body larger than {MAX_BODY} bytes")(scope, receive, send)
+        seen = 0
+
+        async def bounded():
+            nonlocal seen
+            msg = await receive()
+            if msg["type"] == "http.request":
+                seen += len(msg.get("body", b""))
+                if seen > MAX_BODY:
+                    raise TooLarge
+            return msg
+
+        try:
+            await self.app(scope, bounded, send)
+        except TooLarge:
+            await error(413, f"request body larger than {MAX_BODY} bytes")(scope, receive, send)
+
+
+class TooLarge(Exception):
+    pass
+
+
+def create_app(engine: Engine, token: str | None = None) -> Guard:
+    """The FastAPI app of ``engine`` behind its :class:`Guard` (``token``, if any, is required
+    on every request)."""
+    app = FastAPI(title="motionweb", docs_url=None, redoc_url=None, openapi_url=None)
+
+    @app.exception_handler(NotFound)
+    async def not_found(_: Request, exc: NotFound) -> JSONResponse:
+        return error(404, str(exc))
+
+    @app.exception_handler(NotIndexed)
+    async def not_indexed(_: Request, exc: NotIndexed) -> JSONResponse:
+        return error(409, str(exc))
+
+    @app.exception_handler(ValidationError)
+    async def invalid_model(_: Request, exc: ValidationError) -> JSONResponse:
+        return error(400, "; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()))
+
+    @app.exception_handler(ValueError)
+    async def bad_request(_: Request, exc: ValueError) -> JSONResponse:
+        return error(400, str(exc).strip("'\""))
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+        parts = []
+        for e in exc.errors():
+            where = list(e["loc"])
+            loc = ".".join(str(p) for p in (where[1:] if where and where[0] in ("body", "query", "path") else where))
+            parts.append(f"{loc}: {e['msg']}" if loc else e["msg"])
+        return error(400, "; ".join(parts))
+
+    @app.exception_handler(Exception)
+    async def internal(_: Request, exc: Exception) -> JSONResponse:
+        log.exception("request failed")
+        return error(500, f"internal error ({type(exc).__name__}); see the service's log")
+
+    async def run(fn, *args):
+        """A blocking engine call in the thread pool (the event loop keeps serving)."""
+        return await anyio.to_thread.run_sync(lambda: fn(*args))
+
+    @app.get("/api/status")
+    async def status() -> dict:
+        return await run(engine.status)
+
+    @app.get("/api/catalog")
+    async def catalog(category: str | None = Query(None, max_length=200), name: str | None = Query(None, max_length=200),
+                      min_s: float | None = None, max_s: float | None = None,
+                      offset: int = Query(0, ge=0), limit: int = Query(500, ge=1, le=5000)) -> dict:
+        return await run(engine.catalog, category, name, min_s, max_s, offset, limit)
+
+    @app.get("/api/clips/{cid}/pose")
+    async def clip_pose(cid: str, rate: float = Query(30.0, gt=0, le=120)) -> dict:
+        return await run(engine.clip_pose, cid, rate)
+
+    def download(name_text: tuple[str, str]) -> Response:
+        name, text = name_text
+        return Response(text, media_type="application/octet-stream",
+                        headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+    @app.get("/api/clips/{cid}/bvh")
+    async def clip_bvh(cid: str) -> Response:
+        return download(await run(engine.clip_bvh, cid))
+
+    @app.post("/api/search")
+    async def search(body: SearchBody, request: Request) -> dict:
+        if await request.is_disconnected():
+            return error(499, "client went away")
+        res = await run(engine.search, body.fields(), body.search)
+        return res.summary()
+
+    @app.get("/api/results/{rid}")
+    async def result(rid: str) -> dict:
+        return engine.result(rid).summary()
+
+    @app.get("/api/results/{rid}/registration")
+    async def registration(rid: str) -> dict:
+        return await run(engine.register, rid)
+
+    @app.get("/api/results/{rid}/nodes/{rank}/pose")
+    async def node_pose(rid: str, rank: int, registered: bool = False) -> dict:
+        return await run(engine.node_pose, rid, rank, registered)
+
+    @app.get("/api/results/{rid}/nodes/{rank}/bvh")
+    async def node_bvh(rid: str, rank: int, registered: bool = False) -> Response:
+        return download(await run(engine.node_bvh, rid, rank, registered))
+
+    @app.post("/api/query")
+    async def query(body: QueryBody, request: Request) -> Response:
+        if await request.is_disconnected():
+            return error(499, "client went away")
+        fields = body.fields()
+        data = await run(engine.query_bundle, fields, body.search, body.export is not None)
+        return Response(data, media_type="application/zip")
+
+    static = static_dir()
+
+    @app.get("/")
+    async def page(request: Request) -> Response:
+        resp = FileResponse(f"{static}/index.html", headers={"Cache-Control": "no-store"})
+        t = request.query_params.get("token")
+        if token and t:
+            resp.set_cookie(TOKEN_COOKIE, t, httponly=True, samesite="strict")
+        return resp
+
+    app.mount("/static", StaticFiles(directory=static), name="static")
+    return Guard(app, token)

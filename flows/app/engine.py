@@ -1,0 +1,464 @@
+"""The service's in-memory side: one committed generation's webs kept in memory, queries on it.
+
+A :class:`Snapshot` is one committed generation of the store opened once: its clip records (each
+with an opaque id, the first 12 hex digits of the SHA-256 of its corpus path, so no request names
+a path), and per search scope (a category, or all of them) a :class:`~motionweb.store.webs.StoreWebs`
+and a :class:`~motionweb.tasks.search.MatchSearch` that keep the webs read and packed (KG04 §3.3:
+the web is searched in memory). :class:`Engine` holds the current snapshot and, between requests,
+notices a newly committed generation (the store's pointer moved), opens it and reads its webs in
+the background, then swaps it in: a request works on the snapshot it started with from first to
+last, so it never mixes two generations (design §9), and a killed index run, which never moves the
+pointer, changes nothing. Results keep their snapshot, so registering or exporting an older result
+reads its own generation.
+
+Cost: opening a generation reads its manifest, O(clips + webs); warming reads every web once and
+packs each clip's webs into one walk graph, O(web cells) time and memory; a warm search costs what
+:meth:`MatchSearch.search` costs (linear in the cells of the webs it walks, per tier).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import shutil
+import tempfile
+import threading
+import time
+import uuid
+import zipfile
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from motionweb.flows.config import Config
+from motionweb.flows.query import (
+    PreparedQuery,
+    QueryRequest,
+    graph_dict,
+    indexed_config,
+    load_indexed_clip,
+    match_rows,
+    query_segment,
+    register_graph,
+    resolve_clip,
+    segment_motion,
+    write_outputs,
+)
+from motionweb.store.bvh import format_bvh
+from motionweb.store.cache import Generation, MotionStore
+from motionweb.store.motion import Motion
+from motionweb.store.webs import StoreWebs
+from motionweb.tasks.features import joint_positions_m
+from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.register import Registration
+from motionweb.tasks.search import MatchSearch, SearchParams, epsilon_from_quantile
+from pydantic import ValidationError
+
+#: bounds on what one request may ask for (design §10: requests are bounded)
+MAX_QUERY_S = 60.0
+MAX_TIERS = 20
+MAX_DRAW_FRAMES = 6000
+KEEP_RESULTS = 128
+KEEP_MOTIONS = 64
+
+
+class NotFound(KeyError):
+    """An unknown clip or result id (the API answers 404)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else "not found"
+
+
+class NotIndexed(ValueError):
+    """The store has no committed generation yet (the API answers 409)."""
+
+
+def clip_id(path: str) -> str:
+    """The opaque id of a clip: the first 12 hex digits of the SHA-256 of its corpus path."""
+    return hashlib.sha256(path.encode()).hexdigest()[:12]
+
+
+class LRU:
+    """A small thread-safe least-recently-used map."""
+
+    def __init__(self, size: int):
+        self.size, self._items, self._lock = size, OrderedDict(), threading.Lock()
+
+    def get(self, key: Any) -> Any:
+        with self._lock:
+            if key not in self._items:
+                return None
+            self._items.move_to_end(key)
+            return self._items[key]
+
+    def put(self, key: Any, value: Any) -> None:
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+
+@dataclass
+class Scope:
+    """The webs one kind of query searches (a category, or every chunk) and their search; the
+    lock serializes searches (a :class:`MatchSearch` shares work buffers) and web reads."""
+
+    webs: StoreWebs
+    search: MatchSearch
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    quantiles: dict[float, float] = field(default_factory=dict)
+
+    def epsilon(self, q: float) -> float:
+        """ε as the ``q`` quantile of the scope's web values (cached per q; call under the lock)."""
+        if q not in self.quantiles:
+            self.quantiles[q] = epsilon_from_quantile(self.webs.all_webs(), q)
+        return self.quantiles[q]
+
+
+class Snapshot:
+    """One committed generation, opened once (see the module docstring)."""
+
+    def __init__(self, store_url: str, gen: Generation):
+        self.url, self.gen = store_url, gen
+        self.gen_cfg = indexed_config(gen)
+        self.rate = max(float(r) for r in self.gen_cfg.features.rates)
+        self.by_path = {c["path"]: c for c in gen.clips}
+        self.by_id = {clip_id(c["path"]): c for c in gen.clips}
+        self._scopes: dict[str | None, Scope] = {}
+        self._scopes_lock = threading.Lock()
+        self.motions = LRU(KEEP_MOTIONS)
+
+    def clip(self, key: str) -> dict[str, Any]:
+        """A clip record by id, corpus path or unique stem (only looked up in the generation's
+        list, never opened as a path)."""
+        rec = self.by_id.get(key)
+        if rec is not None:
+            return rec
+        try:
+            return resolve_clip(self.gen, key)
+        except ValueError as exc:
+            raise NotFound(str(exc)) from None
+
+    def scope(self, category: str | None) -> Scope:
+        with self._scopes_lock:
+            sc = self._scopes.get(category)
+            if sc is None:
+                # each scope its own store object: scopes are searched from different threads
+                webs = StoreWebs(MotionStore(self.url, read_only=True), self.gen, category)
+                sc = self._scopes[category] = Scope(webs, MatchSearch(webs, SearchParams(), self.gen_cfg.matchweb))
+            return sc
+
+    def warm(self) -> None:
+        """Read every category's webs and pack every clip's walk graph (KG04 §3.4: in memory)."""
+        for cat in sorted({c.get("category", "") for c in self.gen.clips}):
+            sc = self.scope(cat)
+            with sc.lock:
+                for clip in list(sc.webs):
+                    sc.search.graph(clip)
+
+    def motion(self, rec: dict[str, Any]) -> Motion:
+        """The clip's motion (read once, LRU), refused when the file changed since indexing."""
+        m = self.motions.get(rec["path"])
+        if m is None:
+            m = load_indexed_clip(self.gen_cfg, rec)
+            self.motions.put(rec["path"], m)
+        return m
+
+    def positions(self, motion: Motion) -> np.ndarray:
+        """(F, J, 3) joint positions in metres, vertical axis in column 1."""
+        return joint_positions_m(motion, self.gen_cfg.corpus.up_axis)
+
+    def clip_row(self, rec: dict[str, Any]) -> dict[str, Any]:
+        return {"id": clip_id(rec["path"]), "path": rec["path"], "category": rec.get("category", ""),
+                "frames": rec.get("frames"), "fps": rec.get("fps"), "duration": rec["duration"],
+                "joints": rec.get("n_joints", rec.get("joints"))}
+
+
+@dataclass
+class Result:
+    """A search answered on ``snap``: the graph, its rows, ε and, once asked, the registration."""
+
+    id: str
+    snap: Snapshot
+    request: QueryRequest
+    params: SearchParams
+    graph: MatchGraph
+    epsilon: float
+    rows: list[dict[str, Any]]
+    timings: dict[str, float]
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    registration: Registration | None = None
+
+    def summary(self) -> dict[str, Any]:
+        g = graph_dict(self.graph)
+        for e in g["edges"]:
+            e.pop("cells")  # the page draws the graph, not the paths (they can be long)
+        rows = [{**r, "id": clip_id(r["clip"])} for r in self.rows]
+        return {"result": self.id, "generation": self.snap.gen.id, "epsilon": self.epsilon, "query": rows[0],
+                "matches": rows[1:], "graph": g, "timings": self.timings, "request": asdict(self.request)}
+
+
+def draw_frames(frames: np.ndarray) -> np.ndarray:
+    """At most :data:`MAX_DRAW_FRAMES` of ``frames`` (evenly subsampled, last kept)."""
+    if len(frames) <= MAX_DRAW_FRAMES:
+        return frames
+    return frames[np.unique(np.linspace(0, len(frames) - 1, MAX_DRAW_FRAMES).round().astype(int))]
+
+
+def pose_payload(snap: Snapshot, motion: Motion, frames: np.ndarray, rate: float) -> dict[str, Any]:
+    """Joint positions for drawing: ``frames`` (at ``rate`` Hz, fractional allowed) as a flat
+    list of metres (F·J·3, millimetre precision), with the bones."""
+    m = segment_motion(motion, draw_frames(np.asarray(frames, np.float64)), rate)
+    pos = snap.positions(m)
+    return {"rate": rate, "frames": int(pos.shape[0]), "joints": list(motion.skeleton.names),
+            "parents": [int(p) for p in motion.skeleton.parents],
+            "positions": np.round(pos.reshape(-1), 3).tolist()}
+
+
+class Engine:
+    """The current snapshot of one store and the queries on it (see the module docstring).
+
+    ``on_query(kind, parameters, summary)`` is called after every answered query (the recorder
+    makes a Prefect flow run of it); ``warm`` reads all webs of a generation before serving it.
+    """
+
+    def __init__(self, cfg: Config, on_query: Callable[[str, dict, dict], None] | None = None, warm: bool = True):
+        self.cfg, self.on_query, self.warm = cfg, on_query, warm
+        self.url = cfg.store.path
+        self._snap: Snapshot | None = None
+        self._lock = threading.Lock()
+        self._loading: threading.Thread | None = None
+        self.results = LRU(KEEP_RESULTS)
+        self._plot_lock = threading.Lock()  # matplotlib's pyplot is not thread-safe
+        self.switches = 0
+
+    # ------------------------------------------------------------------ generations
+    def pointer(self) -> str | None:
+        return MotionStore(self.url, read_only=True).current_id()
+
+    def _open(self, gen_id: str) -> Snapshot:
+        gen = MotionStore(self.url, read_only=True).generation(gen_id)
+        return Snapshot(self.url, gen)
+
+    def _swap_after_warm(self, snap: Snapshot) -> None:
+        try:
+            if self.warm:
+                snap.warm()
+        finally:
+            with self._lock:
+                if self._snap is None or snap.gen.id > self._snap.gen.id:
+                    self._snap = snap
+                    self.switches += 1
+                self._loading = None
+
+    def current(self, wait: bool = False) -> Snapshot:
+        """The snapshot requests use now. A newly committed generation is opened and warmed in a
+        background thread while the previous one keeps serving (``wait``: block until it is in).
+        Raises :class:`NotIndexed` while the store has no generation."""
+        gen_id = self.pointer()
+        with self._lock:
+            snap, loading = self._snap, self._loading
+            if gen_id is not None and (snap is None or snap.gen.id != gen_id) and loading is None:
+                new = self._open(gen_id)
+                if snap is None:  # nothing to serve meanwhile: serve it now, warm it behind
+                    self._snap, snap = new, new
+                    self.switches += 1
+                    if self.warm:
+                        threading.Thread(target=new.warm, name="warm", daemon=True).start()
+                else:
+                    loading = self._loading = threading.Thread(target=self._swap_after_warm, args=(new,),
+                                                               name="warm", daemon=True)
+                    loading.start()
+        if wait and loading is not None:
+            loading.join()
+            snap = self._snap
+        if snap is None:
+            raise NotIndexed(f"store {self.url} was never indexed: run `motionweb index CONFIG` first")
+        return snap
+
+    def status(self) -> dict[str, Any]:
+        try:
+            snap = self.current()
+        except NotIndexed as exc:
+            return {"generation": None, "message": str(exc)}
+        cats: dict[str, int] = {}
+        for c in snap.gen.clips:
+            cats[c.get("category", "")] = cats.get(c.get("category", ""), 0) + 1
+        return {"generation": snap.gen.id, "committed": snap.gen.completed, "clips": len(snap.gen.clips),
+                "webs": len(snap.gen.webs), "rate": snap.rate, "categories": cats,
+                "loading": self._loading is not None, "max_query_s": MAX_QUERY_S, "max_tiers": MAX_TIERS}
+
+    # ------------------------------------------------------------------ catalog and clips
+    def catalog(self, category: str | None = None, name: str | None = None, min_s: float | None = None,
+                max_s: float | None = None, offset: int = 0, limit: int = 500) -> dict[str, Any]:
+        """Clips filtered by category (exact), name (case-insensitive substring of the path) and
+        duration (seconds), sorted by path; one page of them."""
+        snap = self.current()
+        rows = []
+        for rec in sorted(snap.gen.clips, key=lambda c: c["path"]):
+            if category is not None and rec.get("category", "") != category:
+                continue
+            if name and name.lower() not in rec["path"].lower():
+                continue
+            if (min_s is not None and rec["duration"] < min_s) or (max_s is not None and rec["duration"] > max_s):
+                continue
+            rows.append(snap.clip_row(rec))
+        return {"generation": snap.gen.id, "total": len(rows), "offset": offset,
+                "clips": rows[offset:offset + limit]}
+
+    def clip_pose(self, key: str, rate: float) -> dict[str, Any]:
+        """A whole clip's joint positions at ``rate`` Hz for drawing."""
+        snap = self.current()
+        rec = snap.clip(key)
+        m = snap.motion(rec)
+        frames = np.arange(0.0, rec["duration"] * rate + 1e-9)
+        return {**snap.clip_row(rec), "generation": snap.gen.id, **pose_payload(snap, m, frames, rate)}
+
+    def clip_bvh(self, key: str) -> tuple[str, str]:
+        """(file name, BVH text) of a clip as indexed."""
+        snap = self.current()
+        rec = snap.clip(key)
+        return Path(rec["path"]).name if rec["path"].endswith(".bvh") else Path(rec["path"]).stem + ".bvh", \
+            format_bvh(snap.motion(rec))
+
+    # ------------------------------------------------------------------ search
+    @staticmethod
+    def check_bounds(req: QueryRequest) -> None:
+        """The service's bounds on a request the CLI would accept (after the CLI's own checks)."""
+        if req.end - req.start > MAX_QUERY_S:
+            raise ValueError(f"the query spans {req.end - req.start:g} s; the service searches at most "
+                             f"{MAX_QUERY_S:g} s")
+        if req.tiers is not None and req.tiers > MAX_TIERS:
+            raise ValueError(f"tiers must be ≤ {MAX_TIERS}, got {req.tiers}")
+
+    def search(self, fields: dict[str, Any], search: dict[str, Any] | None = None) -> Result:
+        """Search the current snapshot (KG04 §3.3) for the request ``fields`` (those of
+        :class:`QueryRequest` but out/export), with ``search`` overriding the config's search
+        section (the CLI sends its own). ValueError with the CLI's messages for bad requests."""
+        t0 = time.perf_counter()
+        request = QueryRequest(**fields)  # ValueError with the CLI's messages
+        snap = self.current()
+        rec = snap.clip(request.clip)
+        seg = query_segment(rec, request.start, request.end, snap.rate)
+        self.check_bounds(request)
+        try:
+            params = SearchParams.model_validate({**self.cfg.search.model_dump(), **(search or {})})
+        except ValidationError as exc:
+            raise ValueError("; ".join(f"search.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"
+                                       for e in exc.errors())) from None
+        if request.tiers is not None:
+            params = params.model_copy(update={"max_tiers": request.tiers})
+        all_cats = params.all_categories if request.all_categories is None else request.all_categories
+        scope = snap.scope(None if all_cats else rec.get("category", ""))
+        with scope.lock:
+            scope.search.cfg = params
+            scope.search.check(seg)
+            eps = request.threshold if request.threshold is not None else scope.epsilon(request.quantile)
+            graph = scope.search.search(seg, eps)
+        res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, float(eps),
+                     match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})
+        self.results.put(res.id, res)
+        if self.on_query:
+            self.on_query("search", asdict(request), {"result": res.id, "generation": snap.gen.id, "epsilon": eps,
+                                                      "matches": len(res.rows) - 1, **res.timings})
+        return res
+
+    def result(self, rid: str) -> Result:
+        res = self.results.get(rid)
+        if res is None:
+            raise NotFound(f"unknown or expired result {rid!r}: search again")
+        return res
+
+    def register(self, rid: str) -> dict[str, Any]:
+        """The result's registration (KG04 §4.1): for each node (by rank) its frames s_i(u) at
+        every query frame u, and its parent in the shortest-path tree."""
+        res = self.result(rid)
+        with res.lock:
+            if res.registration is None and len(res.graph.nodes) > 1:
+                t = time.perf_counter()
+                snap = res.snap
+                res.registration = register_graph(MotionStore(snap.url, read_only=True), snap.gen, snap.gen_cfg,
+                                                  res.graph, snap.by_path)
+                res.timings["register_s"] = time.perf_counter() - t
+                if self.on_query:
+                    self.on_query("register", {"result": rid}, {"nodes": len(res.graph.nodes),
+                                                                "register_s": res.timings["register_s"]})
+        reg = res.registration
+        q = res.graph.nodes[0].segment
+        if reg is None:
+            return {"result": rid, "rate": res.graph.rate, "u": [q.start, q.end], "nodes": [
+                {"rank": 0, "parent": -1, "start": q.start, "end": q.end, "frames": [q.start, q.end]}]}
+        u = reg.u
+        nodes = [{"rank": int(reg.nodes[c]), "parent": int(reg.nodes[reg.parents[c]]) if reg.parents[c] >= 0 else -1,
+                  "start": s.start, "end": s.end, "frames": np.round(reg.frames[:, c], 3).tolist()}
+                 for c, s in enumerate(reg.segments)]
+        nodes.sort(key=lambda n: n["rank"])
+        return {"result": rid, "rate": reg.rate, "u": [float(u[0]), float(u[-1])], "nodes": nodes,
+                "register_s": res.timings.get("register_s")}
+
+    def node(self, rid: str, rank: int) -> tuple[Result, Segment]:
+        res = self.result(rid)
+        if not 0 <= rank < len(res.graph.nodes):
+            raise NotFound(f"result {rid} has no rank {rank} (ranks 0..{len(res.graph.nodes) - 1})")
+        return res, res.graph.nodes[rank].segment
+
+    def node_frames(self, rid: str, rank: int, registered: bool) -> np.ndarray:
+        """Frames (at the web rate) of a node: its segment, or registered to the query's timing
+        (its s_i(u) at the query's frames, KG04 §4.1)."""
+        res, seg = self.node(rid, rank)
+        if not registered:
+            return np.arange(seg.start, seg.end + 1, dtype=np.float64)
+        self.register(rid)
+        if res.registration is None:
+            return np.arange(seg.start, seg.end + 1, dtype=np.float64)
+        col = res.registration.nodes.index(rank)
+        return res.registration.resample()[:, col]
+
+    def node_pose(self, rid: str, rank: int, registered: bool) -> dict[str, Any]:
+        res, seg = self.node(rid, rank)
+        frames = self.node_frames(rid, rank, registered)
+        rec = res.snap.by_path[seg.clip]
+        return {**res.snap.clip_row(rec), "rank": rank, "start_frame": seg.start, "end_frame": seg.end,
+                "registered": registered, **pose_payload(res.snap, res.snap.motion(rec), frames, res.graph.rate)}
+
+    def node_bvh(self, rid: str, rank: int, registered: bool) -> tuple[str, str]:
+        """(file name, BVH text) of a node's segment, as the query flow's export names it."""
+        res, seg = self.node(rid, rank)
+        frames = self.node_frames(rid, rank, registered)
+        m = segment_motion(res.snap.motion(res.snap.by_path[seg.clip]), frames, res.graph.rate)
+        tag = "registered" if registered else f"{seg.start}-{seg.end}"
+        return f"{rank:03d}_{Path(seg.clip).stem}_{tag}.bvh", format_bvh(m)
+
+    # ------------------------------------------------------------------ the CLI's query
+    def query_bundle(self, fields: dict[str, Any], search: dict[str, Any] | None, export: bool) -> bytes:
+        """What ``motionweb search`` writes, made here: a zip of ``result.json`` (the query
+        flow's result, file names relative to the zip: ``out/...``, ``export/...``) and those
+        files. They are written into a folder of the service's own, never one a request names."""
+        t0 = time.perf_counter()
+        res = self.search({k: v for k, v in fields.items() if k not in ("out", "export")}, search)
+        snap = res.snap
+        request = QueryRequest(**{**asdict(res.request), "out": fields.get("out"), "export": fields.get("export")})
+        cfg = self.cfg.model_copy(update={"search": res.params})
+        rec = snap.clip(request.clip)
+        q = PreparedQuery(MotionStore(snap.url, read_only=True), snap.gen, snap.gen_cfg, rec,
+                          res.graph.nodes[0].segment, snap.scope(rec.get("category", "")).webs)
+        tmp = Path(tempfile.mkdtemp(prefix="motionweb-app-"))
+        try:
+            with self._plot_lock:
+                out = write_outputs(cfg, request, q, res.graph, res.epsilon, tmp / "out",
+                                    tmp / "export" if export else None, t0, register_graph)
+            out["files"] = [Path(f).relative_to(tmp).as_posix() for f in out["files"]]
+            out["out"], out["result"] = "out", res.id
+            buf = io.BytesIO()
+            with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+                z.writestr("result.json", json.dumps(out))
+                for f in out["files"]:
+                    z.write(tmp / f, f)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return buf.getvalue()

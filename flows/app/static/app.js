@@ -1,0 +1,390 @@
+// motionweb page: catalog, clip player, segment search, registered matches, graph and warps.
+// Plain JS and canvas; every request goes to this service's JSON API (flows/app/api.py).
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const COLORS = ["#1565c0", "#c62828", "#2e7d32", "#6a1b9a", "#ef6c00", "#00838f", "#5d4037", "#ad1457", "#546e7a"];
+const MAX_COMPARE = 8;
+
+function say(text) { $("message").textContent = text || ""; }
+
+async function api(path, options) {
+  const resp = await fetch(path, Object.assign({ credentials: "same-origin" }, options || {}));
+  const data = await resp.json();
+  if (!resp.ok) throw new Error(data.error || ("HTTP " + resp.status));
+  return data;
+}
+
+// ------------------------------------------------------------------ 3D stick figure on a canvas
+class Figure {
+  // pose: {rate, frames, parents, positions: flat F*J*3 metres, y up}
+  constructor(canvas, color) {
+    this.canvas = canvas;
+    this.ctx = canvas.getContext("2d");
+    this.color = color || COLORS[0];
+    this.pose = null;
+    this.yaw = 0.6; this.pitch = 0.25; this.dist = 4.0;
+    this.frame = 0;
+    let drag = null;
+    canvas.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
+    window.addEventListener("mouseup", () => { drag = null; });
+    window.addEventListener("mousemove", (e) => {
+      if (!drag) return;
+      this.yaw -= (e.clientX - drag[0]) * 0.01;
+      this.pitch = Math.max(-0.2, Math.min(1.4, this.pitch + (e.clientY - drag[1]) * 0.01));
+      drag = [e.clientX, e.clientY];
+      this.draw(this.frame);
+    });
+    canvas.addEventListener("wheel", (e) => {
+      e.preventDefault();
+      this.dist = Math.max(0.8, Math.min(30, this.dist * Math.exp(e.deltaY * 0.001)));
+      this.draw(this.frame);
+    }, { passive: false });
+  }
+
+  setPose(pose) {
+    this.pose = pose;
+    this.nJ = pose.parents.length;
+    // height of the figure sets the initial zoom
+    const p = pose.positions; let lo = Infinity, hi = -Infinity;
+    for (let i = 1; i < p.length; i += 3) { lo = Math.min(lo, p[i]); hi = Math.max(hi, p[i]); }
+    this.height = Math.max(0.3, hi - Math.min(lo, 0));
+    this.dist = 2.6 * this.height;
+    this.draw(0);
+  }
+
+  joint(f, j) {
+    const k = (f * this.nJ + j) * 3, p = this.pose.positions;
+    return [p[k], p[k + 1], p[k + 2]];
+  }
+
+  camera(target) {
+    const cp = Math.cos(this.pitch);
+    const eye = [target[0] + this.dist * cp * Math.sin(this.yaw), target[1] + this.dist * Math.sin(this.pitch),
+      target[2] + this.dist * cp * Math.cos(this.yaw)];
+    const f = norm(sub(target, eye)), r = norm(cross(f, [0, 1, 0])), u = cross(r, f);
+    const focal = this.canvas.height / (2 * Math.tan(0.5 * 0.8));
+    const w = this.canvas.width, h = this.canvas.height;
+    return (p) => {
+      const d = sub(p, eye), z = dot(d, f);
+      if (z < 0.05) return null;
+      return [w / 2 + focal * dot(d, r) / z, h / 2 - focal * dot(d, u) / z];
+    };
+  }
+
+  draw(frame) {
+    const ctx = this.ctx, w = this.canvas.width, h = this.canvas.height;
+    ctx.fillStyle = "#fafafa"; ctx.fillRect(0, 0, w, h);
+    if (!this.pose || !this.pose.frames) return;
+    const f = Math.max(0, Math.min(this.pose.frames - 1, frame | 0));
+    this.frame = f;
+    const root = this.joint(f, 0);
+    const target = [root[0], this.height * 0.5, root[2]];
+    const proj = this.camera(target);
+    // floor grid, 0.5 m cells, following the root
+    ctx.strokeStyle = "#ddd"; ctx.lineWidth = 1;
+    const gx = Math.round(root[0] / 0.5) * 0.5, gz = Math.round(root[2] / 0.5) * 0.5;
+    for (let i = -6; i <= 6; i++) {
+      line(ctx, proj([gx + i * 0.5, 0, gz - 3]), proj([gx + i * 0.5, 0, gz + 3]));
+      line(ctx, proj([gx - 3, 0, gz + i * 0.5]), proj([gx + 3, 0, gz + i * 0.5]));
+    }
+    // shadow and bones
+    const par = this.pose.parents;
+    ctx.strokeStyle = "rgba(0,0,0,0.12)"; ctx.lineWidth = 3;
+    for (let j = 1; j < this.nJ; j++) {
+      const a = this.joint(f, j), b = this.joint(f, par[j]);
+      line(ctx, proj([a[0], 0, a[2]]), proj([b[0], 0, b[2]]));
+    }
+    ctx.strokeStyle = this.color; ctx.lineWidth = 3; ctx.lineCap = "round";
+    for (let j = 1; j < this.nJ; j++) line(ctx, proj(this.joint(f, j)), proj(this.joint(f, par[j])));
+    ctx.fillStyle = this.color;
+    for (let j = 0; j < this.nJ; j++) {
+      const s = proj(this.joint(f, j));
+      if (s) { ctx.beginPath(); ctx.arc(s[0], s[1], 2.5, 0, 2 * Math.PI); ctx.fill(); }
+    }
+  }
+}
+
+function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
+function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
+function norm(a) { const n = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / n, a[1] / n, a[2] / n]; }
+function line(ctx, a, b) { if (!a || !b) return; ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke(); }
+
+// ------------------------------------------------------------------ state
+const state = {
+  clip: null, pose: null, time: 0, playing: false, speed: 1, sel: null,
+  result: null, compare: [], compareTime: 0, comparePlaying: true, epsRange: null,
+};
+const view = new Figure($("view"));
+
+// ------------------------------------------------------------------ catalog
+async function loadStatus() {
+  const s = await api("/api/status");
+  if (!s.generation) { $("status").textContent = s.message; return s; }
+  $("status").textContent = `generation ${s.generation} · ${s.clips} clips · ${s.webs} webs · ${s.rate} Hz`;
+  const sel = $("f-category");
+  const keep = sel.value;
+  sel.length = 1;
+  for (const c of Object.keys(s.categories).sort()) sel.add(new Option(`${c} (${s.categories[c]})`, c));
+  sel.value = keep;
+  return s;
+}
+
+let catalogTimer = null;
+function catalogSoon() { clearTimeout(catalogTimer); catalogTimer = setTimeout(loadCatalog, 200); }
+
+async function loadCatalog() {
+  const q = new URLSearchParams();
+  if ($("f-category").value) q.set("category", $("f-category").value);
+  if ($("f-name").value) q.set("name", $("f-name").value);
+  if ($("f-min").value) q.set("min_s", $("f-min").value);
+  if ($("f-max").value) q.set("max_s", $("f-max").value);
+  const c = await api("/api/catalog?" + q.toString());
+  const body = $("catalog").tBodies[0];
+  body.textContent = "";
+  for (const clip of c.clips) {
+    const tr = body.insertRow();
+    tr.dataset.id = clip.id;
+    for (const v of [clip.path, clip.category, clip.duration.toFixed(2), clip.frames ?? ""]) tr.insertCell().textContent = v;
+    tr.addEventListener("click", () => openClip(clip.id).catch((e) => say(e.message)));
+  }
+  $("catalog-count").textContent = `${c.clips.length} of ${c.total} clips`;
+}
+
+// ------------------------------------------------------------------ player
+async function openClip(id) {
+  say("loading clip…");
+  const pose = await api(`/api/clips/${id}/pose?rate=30`);
+  state.clip = pose; state.pose = pose; state.time = 0;
+  for (const tr of $("catalog").tBodies[0].rows) tr.classList.toggle("selected", tr.dataset.id === id);
+  $("clip-title").textContent = `${pose.path} · ${pose.duration.toFixed(2)} s · ${pose.category}`;
+  view.setPose(pose);
+  const d = pose.duration;
+  state.sel = [Math.min(d * 0.25, Math.max(0, d - 1)), Math.min(d, Math.max(d * 0.25, 0) + Math.min(1.5, d))];
+  syncSegmentInputs();
+  $("play").disabled = false; $("search").disabled = false;
+  $("clip-bvh").href = `/api/clips/${id}/bvh`; $("clip-bvh").classList.remove("hidden");
+  state.playing = true; $("play").textContent = "pause";
+  drawTimeline();
+  say("");
+}
+
+function clipDuration() { return state.pose ? (state.pose.frames - 1) / state.pose.rate : 0; }
+
+function syncSegmentInputs() {
+  if (!state.sel) return;
+  $("seg-start").value = state.sel[0].toFixed(2);
+  $("seg-end").value = state.sel[1].toFixed(2);
+}
+
+function drawTimeline() {
+  const c = $("timeline"), ctx = c.getContext("2d"), w = c.width, h = c.height;
+  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
+  const d = clipDuration();
+  if (!d) return;
+  const x = (t) => 8 + (w - 16) * t / d;
+  ctx.fillStyle = "#eceff1"; ctx.fillRect(8, 4, w - 16, 20);
+  ctx.fillStyle = "#cfd8dc"; ctx.fillRect(8, 30, w - 16, 20);
+  if (state.sel) {
+    ctx.fillStyle = "rgba(21,101,192,0.35)";
+    ctx.fillRect(x(state.sel[0]), 30, x(state.sel[1]) - x(state.sel[0]), 20);
+  }
+  ctx.fillStyle = "#555"; ctx.font = "10px sans-serif";
+  for (let t = 0; t <= d + 1e-9; t += d > 20 ? 5 : 1) { ctx.fillRect(x(t), 20, 1, 4); ctx.fillText(t.toFixed(0), x(t) + 2, 19); }
+  ctx.fillStyle = "#c62828"; ctx.fillRect(x(state.time) - 1, 2, 2, h - 4);
+  ctx.fillStyle = "#37474f"; ctx.fillText("drag to select a segment", 12, 44);
+}
+
+function timelineTime(e) {
+  const c = $("timeline"), r = c.getBoundingClientRect();
+  const px = (e.clientX - r.left) * c.width / r.width;
+  return Math.max(0, Math.min(clipDuration(), (px - 8) / (c.width - 16) * clipDuration()));
+}
+
+function setupTimeline() {
+  const c = $("timeline");
+  let mode = null, anchor = 0;
+  c.addEventListener("mousedown", (e) => {
+    if (!state.pose) return;
+    const r = c.getBoundingClientRect(), y = (e.clientY - r.top) * c.height / r.height;
+    const t = timelineTime(e);
+    if (y < 27) { mode = "scrub"; state.time = t; } else { mode = "select"; anchor = t; state.sel = [t, t]; }
+    drawTimeline();
+  });
+  window.addEventListener("mousemove", (e) => {
+    if (!mode) return;
+    const t = timelineTime(e);
+    if (mode === "scrub") state.time = t; else state.sel = [Math.min(anchor, t), Math.max(anchor, t)];
+    syncSegmentInputs(); drawTimeline();
+  });
+  window.addEventListener("mouseup", () => { mode = null; });
+  for (const id of ["seg-start", "seg-end"]) {
+    $(id).addEventListener("change", () => {
+      state.sel = [parseFloat($("seg-start").value) || 0, parseFloat($("seg-end").value) || 0];
+      drawTimeline();
+    });
+  }
+}
+
+// ------------------------------------------------------------------ search and results
+function epsLabel() {
+  const v = parseFloat($("eps").value);
+  $("eps-value").textContent = $("eps-mode").value === "quantile" ? v.toFixed(2) : v.toPrecision(3);
+}
+
+function setEpsMode() {
+  const s = $("eps");
+  if ($("eps-mode").value === "quantile") { s.min = 0.05; s.max = 0.99; s.step = 0.01; s.value = 0.8; }
+  else {
+    const top = state.result ? Math.max(state.result.epsilon * 2, 1e-3) : 1.0;
+    s.min = 0; s.max = top; s.step = top / 200; s.value = state.result ? state.result.epsilon : top / 2;
+  }
+  epsLabel();
+}
+
+async function runSearch() {
+  if (!state.clip || !state.sel) return;
+  const body = { clip: state.clip.id, start: +state.sel[0].toFixed(3), end: +state.sel[1].toFixed(3),
+    tiers: parseInt($("tiers").value, 10) || 1, all_categories: $("all-cats").checked };
+  body[$("eps-mode").value] = parseFloat($("eps").value);
+  say("searching…");
+  const t0 = performance.now();
+  const res = await api("/api/search", { method: "POST", headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body) });
+  state.result = res;
+  $("result-info").textContent = `· ${res.matches.length} matches · ε = ${res.epsilon.toPrecision(4)} · ` +
+    `${(performance.now() - t0).toFixed(0)} ms`;
+  showRows(res);
+  drawGraph(res);
+  say("registering…");
+  const reg = await api(`/api/results/${res.result}/registration`);
+  drawWarps(reg, res);
+  await loadCompare(res);
+  say("");
+}
+
+function showRows(res) {
+  const body = $("results").tBodies[0];
+  body.textContent = "";
+  for (const r of [res.query, ...res.matches]) {
+    const tr = body.insertRow();
+    const cells = [r.rank, r.clip, r.category, `${r.start_s.toFixed(2)}–${r.end_s.toFixed(2)}`, r.cost.toPrecision(3),
+      r.tier, r.distance.toPrecision(3)];
+    for (const v of cells) tr.insertCell().textContent = v;
+    const dl = tr.insertCell();
+    for (const [label, reg] of [["seg", false], ["reg", true]]) {
+      const a = document.createElement("a");
+      a.href = `/api/results/${res.result}/nodes/${r.rank}/bvh?registered=${reg}`;
+      a.textContent = label; a.download = ""; a.title = reg ? "registered to the query's timing" : "the matched segment";
+      a.addEventListener("click", (e) => e.stopPropagation());
+      dl.append(a, " ");
+    }
+    tr.style.color = COLORS[r.rank % COLORS.length];
+    tr.addEventListener("click", () => openClip(r.id).then(() => {
+      state.sel = [r.start_s, r.end_s]; state.time = r.start_s; syncSegmentInputs(); drawTimeline();
+    }).catch((e) => say(e.message)));
+  }
+}
+
+async function loadCompare(res) {
+  const box = $("compare");
+  box.textContent = "";
+  state.compare = [];
+  const ranks = [res.query, ...res.matches].slice(0, MAX_COMPARE + 1).map((r) => r.rank);
+  const poses = await Promise.all(ranks.map((k) => api(`/api/results/${res.result}/nodes/${k}/pose?registered=true`)));
+  poses.forEach((pose, i) => {
+    const fig = document.createElement("figure");
+    const c = document.createElement("canvas");
+    c.width = 200; c.height = 180;
+    const cap = document.createElement("figcaption");
+    cap.textContent = `${pose.rank}: ${pose.path}`;
+    cap.style.maxWidth = "200px";
+    fig.append(c, cap);
+    box.append(fig);
+    const f = new Figure(c, COLORS[pose.rank % COLORS.length]);
+    f.setPose(pose);
+    state.compare.push(f);
+  });
+  state.compareTime = 0;
+}
+
+function drawGraph(res) {
+  const c = $("graph"), ctx = c.getContext("2d"), w = c.width, h = c.height;
+  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
+  const nodes = res.graph.nodes;
+  const maxD = Math.max(1e-9, ...nodes.map((n) => n.distance)), maxT = Math.max(1, ...nodes.map((n) => n.tier));
+  const pos = nodes.map((n, i) => [20 + (w - 40) * n.distance / maxD,
+    h - 20 - (h - 40) * (n.tier + (n.tier ? 0.25 * Math.sin(i * 2.3) : 0)) / (maxT + 0.5)]);
+  ctx.strokeStyle = "#ccc"; ctx.lineWidth = 1;
+  for (const e of res.graph.edges) line(ctx, pos[e.u], pos[e.v]);
+  nodes.forEach((n, i) => {
+    ctx.fillStyle = COLORS[i % COLORS.length];
+    ctx.beginPath(); ctx.arc(pos[i][0], pos[i][1], i ? 4 : 6, 0, 2 * Math.PI); ctx.fill();
+  });
+  ctx.fillStyle = "#555"; ctx.font = "10px sans-serif";
+  ctx.fillText(`distance 0 … ${maxD.toPrecision(3)}`, 20, h - 5);
+}
+
+function drawWarps(reg, res) {
+  const c = $("warps"), ctx = c.getContext("2d"), w = c.width, h = c.height;
+  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
+  const n = reg.nodes[0].frames.length;
+  let top = 1e-9;
+  for (const nd of reg.nodes) top = Math.max(top, (nd.end - nd.start) / reg.rate);
+  const X = (i) => 30 + (w - 40) * i / Math.max(1, n - 1), Y = (s) => h - 20 - (h - 30) * s / top;
+  ctx.strokeStyle = "#999"; line(ctx, [30, h - 20], [w - 10, h - 20]); line(ctx, [30, 10], [30, h - 20]);
+  for (const nd of reg.nodes) {
+    ctx.strokeStyle = COLORS[nd.rank % COLORS.length]; ctx.lineWidth = nd.rank ? 1.2 : 2.5;
+    ctx.beginPath();
+    nd.frames.forEach((f, i) => { const p = [X(i), Y((f - nd.start) / reg.rate)]; if (i) ctx.lineTo(p[0], p[1]); else ctx.moveTo(p[0], p[1]); });
+    ctx.stroke();
+  }
+  ctx.fillStyle = "#555"; ctx.font = "10px sans-serif";
+  ctx.fillText("query frame u →", w - 100, h - 6); ctx.fillText(`${top.toFixed(2)} s`, 2, 14);
+}
+
+// ------------------------------------------------------------------ animation
+let last = performance.now();
+function tick(now) {
+  const dt = Math.min(0.1, (now - last) / 1000);
+  last = now;
+  if (state.pose) {
+    if (state.playing) {
+      state.time += dt * state.speed;
+      if (state.time > clipDuration()) state.time = 0;
+    }
+    view.draw(Math.round(state.time * state.pose.rate));
+    $("time").textContent = `${state.time.toFixed(2)} s`;
+    drawTimeline();
+  }
+  if (state.compare.length) {
+    if (state.comparePlaying) state.compareTime += dt * state.speed;
+    for (const f of state.compare) {
+      const n = f.pose.frames;
+      f.draw(Math.floor(state.compareTime * f.pose.rate) % n);
+    }
+  }
+  requestAnimationFrame(tick);
+}
+
+// ------------------------------------------------------------------ wiring
+function setup() {
+  setupTimeline();
+  $("play").addEventListener("click", () => { state.playing = !state.playing; $("play").textContent = state.playing ? "pause" : "play"; });
+  $("speed").addEventListener("change", () => { state.speed = parseFloat($("speed").value); });
+  $("play-all").addEventListener("click", () => {
+    state.comparePlaying = !state.comparePlaying; $("play-all").textContent = state.comparePlaying ? "pause" : "play";
+  });
+  $("eps").addEventListener("input", epsLabel);
+  $("eps-mode").addEventListener("change", setEpsMode);
+  $("search").addEventListener("click", () => runSearch().catch((e) => say(e.message)));
+  for (const id of ["f-category", "f-name", "f-min", "f-max"]) $(id).addEventListener("input", catalogSoon);
+  epsLabel();
+  loadStatus().then(loadCatalog).catch((e) => say(e.message));
+  // a newly committed generation shows up between requests; refresh the header now and then
+  setInterval(() => loadStatus().catch(() => {}), 10000);
+  requestAnimationFrame(tick);
+}
+
+setup();

@@ -1,0 +1,113 @@
+"""The page of `motionweb app` in a real headless Chromium (Debian's chromium + chromium-driver,
+driven by selenium): load it, open a clip, search a segment, see the result rows, and check that
+the canvases animate, with no console errors. Skips with the reason where Chromium cannot run."""
+
+from __future__ import annotations
+
+import shutil
+import threading
+import time
+
+import pytest
+from motionweb.flows.app.server import Service
+from motionweb.flows.config import load_config
+
+selenium = pytest.importorskip("selenium", reason="selenium is not installed (pip install -e '.[dev]')")
+from selenium import webdriver  # noqa: E402
+from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.support import expected_conditions as ec  # noqa: E402
+from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1700,1100"]
+
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver_bin = shutil.which("chromedriver")
+    if not chromium or not driver_bin:
+        pytest.skip("Chromium or chromedriver not found (apt-get install chromium chromium-driver)")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    for f in FLAGS:
+        opts.add_argument(f)
+    opts.add_argument(f"--user-data-dir={tmp_path_factory.mktemp('chromium-profile')}")
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    try:
+        drv = webdriver.Chrome(options=opts, service=webdriver.ChromeService(executable_path=driver_bin))
+    except Exception as exc:  # no display libraries, a broken install, ...
+        pytest.skip(f"Chromium could not start: {str(exc).splitlines()[0]}")
+    drv.set_page_load_timeout(60)
+    yield drv
+    drv.quit()
+
+
+@pytest.fixture(scope="module")
+def service(app_store, tmp_path_factory, monkeypatch_module):
+    monkeypatch_module.setenv("MOTIONWEB_APP_DIR", str(tmp_path_factory.mktemp("disc")))
+    svc = Service(load_config(app_store), port=0, record=False)
+    t = threading.Thread(target=svc.run, daemon=True)
+    t.start()
+    deadline = time.monotonic() + 30
+    while not svc.server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    yield svc
+    svc.stop()
+    t.join(10)
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module():
+    mp = pytest.MonkeyPatch()
+    yield mp
+    mp.undo()
+
+
+def canvas_data(drv, cid: str) -> str:
+    return drv.execute_script(f"return document.getElementById('{cid}').toDataURL();")
+
+
+def test_page_opens_a_clip_searches_and_animates(browser, service) -> None:
+    drv = browser
+    wait = WebDriverWait(drv, 60)
+    drv.get(service.url + "/")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 6)
+    assert "generation" in drv.find_element(By.ID, "status").text
+    # filter the catalog by name
+    drv.find_element(By.ID, "f-name").send_keys("walk")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 3)
+    row = next(r for r in drv.find_elements(By.CSS_SELECTOR, "#catalog tbody tr") if "walk_00" in r.text)
+    row.click()
+    wait.until(ec.element_to_be_clickable((By.ID, "search")))
+    assert "walk/walk_00.bvh" in drv.find_element(By.ID, "clip-title").text
+    # the player animates: the canvas changes between two moments
+    first = canvas_data(drv, "view")
+    time.sleep(0.5)
+    assert canvas_data(drv, "view") != first
+    # a segment and a search
+    for fid, value in (("seg-start", "1"), ("seg-end", "2.5")):
+        el = drv.find_element(By.ID, fid)
+        el.clear()
+        el.send_keys(value)
+        drv.execute_script(f"document.getElementById('{fid}').dispatchEvent(new Event('change'));")
+    drv.find_element(By.ID, "search").click()
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#results tbody tr")) > 2)
+    rows = drv.find_elements(By.CSS_SELECTOR, "#results tbody tr")
+    assert "walk/walk_00.bvh" in rows[0].text and all("walk/" in r.text for r in rows)
+    links = rows[1].find_elements(By.TAG_NAME, "a")
+    assert [a.text for a in links] == ["seg", "reg"] and "/bvh" in links[0].get_attribute("href")
+    # registered matches play side by side
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#compare canvas")) == len(rows))
+    time.sleep(0.3)
+    a = drv.execute_script("return [...document.querySelectorAll('#compare canvas')].map(c => c.toDataURL());")
+    time.sleep(0.5)
+    b = drv.execute_script("return [...document.querySelectorAll('#compare canvas')].map(c => c.toDataURL());")
+    assert all(x != y for x, y in zip(a, b, strict=True))
+    blank = drv.execute_script("const c = document.createElement('canvas'); c.width = 420; c.height = 240;"
+                               "const x = c.getContext('2d'); x.fillStyle = '#fff'; x.fillRect(0, 0, 420, 240);"
+                               "return c.toDataURL();")
+    assert canvas_data(drv, "graph") != blank and canvas_data(drv, "warps") != blank
+    errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    assert drv.find_element(By.ID, "message").text == ""
