@@ -132,6 +132,7 @@ class Snapshot:
         self._scopes: dict[str | None, Scope] = {}
         self._scopes_lock = threading.Lock()
         self.motions = LRU(KEEP_MOTIONS)
+        self.warmed = threading.Event()
 
     def clip(self, key: str) -> dict[str, Any]:
         """A clip record by id, corpus path or unique stem (only looked up in the generation's
@@ -155,11 +156,14 @@ class Snapshot:
 
     def warm(self) -> None:
         """Read every category's webs and pack every clip's walk graph (KG04 §3.4: in memory)."""
-        for cat in sorted({c.get("category", "") for c in self.gen.clips}):
-            sc = self.scope(cat)
-            with sc.lock:
-                for clip in list(sc.webs):
-                    sc.search.graph(clip)
+        try:
+            for cat in sorted({c.get("category", "") for c in self.gen.clips}):
+                sc = self.scope(cat)
+                with sc.lock:
+                    for clip in list(sc.webs):
+                        sc.search.graph(clip)
+        finally:
+            self.warmed.set()
 
     def motion(self, rec: dict[str, Any]) -> Motion:
         """The clip's motion (read once, LRU), refused when the file changed since indexing."""
@@ -291,7 +295,8 @@ class Engine:
             cats[c.get("category", "")] = cats.get(c.get("category", ""), 0) + 1
         return {"generation": snap.gen.id, "committed": snap.gen.completed, "clips": len(snap.gen.clips),
                 "webs": len(snap.gen.webs), "rate": snap.rate, "categories": cats,
-                "loading": self._loading is not None, "max_query_s": MAX_QUERY_S, "max_tiers": MAX_TIERS}
+                "loading": self._loading is not None, "warm": snap.warmed.is_set(), "max_query_s": MAX_QUERY_S,
+                "max_tiers": MAX_TIERS}
 
     # ------------------------------------------------------------------ catalog and clips
     def catalog(self, category: str | None = None, name: str | None = None, min_s: float | None = None,

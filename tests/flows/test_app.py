@@ -284,3 +284,26 @@ def test_a_new_generation_is_switched_to_between_requests(cfg, tmp_path: Path) -
     reg = c.get(f"/api/results/{before['result']}/registration").json()
     assert len(reg["nodes"]) == 1 + len(before["matches"])
     assert c.get(f"/api/results/{before['result']}").json()["generation"] == before["generation"]
+
+
+def test_answered_queries_are_recorded_as_prefect_flow_runs(prefect_harness, cfg) -> None:
+    from motionweb.flows.app.recorder import PrefectServer, Recorder
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import FlowFilter, FlowFilterName
+    from prefect.settings import PREFECT_API_URL
+
+    server = PrefectServer()
+    server.url = PREFECT_API_URL.value()
+    server.ready.set()
+    rec = Recorder(server)
+    engine = Engine(cfg, on_query=rec.record, warm=False)
+    res = engine.search(dict(QUERY))
+    rec.queue.join()
+    assert rec.recorded == 1 and rec.failed == rec.dropped == 0
+    rec.close()
+    with get_client(sync_client=True) as pc:
+        runs = pc.read_flow_runs(flow_filter=FlowFilter(name=FlowFilterName(any_=["app-query"])))
+        mine = [r for r in runs if r.parameters.get("outcome", {}).get("result") == res.id]
+        assert len(mine) == 1 and mine[0].state.is_completed()
+        assert mine[0].parameters["kind"] == "search" and mine[0].parameters["parameters"]["clip"] == "walk_00"
+

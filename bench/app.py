@@ -1,0 +1,376 @@
+"""Benchmark: `motionweb app` on the ~37,000-frame benchmark corpus — latency, load and faults.
+
+Printed, in one run (targets from the issue):
+  * today's cold CLI search (`motionweb search`, no service: Prefect's temporary server, imports,
+    reading the webs) — the baseline;
+  * the same search from the CLI with the service up (forwarded; same files written), ≤ 1 s;
+  * searches through the JSON API, warm (webs in memory), median and p90 over random 1.5 s
+    queries of the webs' working rate and over one repeated query, ≤ 100 ms median;
+  * load: 16 concurrent clients × 50 mixed requests (catalog, clip pose, search, registration,
+    a registered match's pose, a BVH download): failures (target 0), p50 / p99 per kind;
+  * faults: 20 clients that send a search and hang up at once (then the service's thread count
+    and a search's latency again); an index run that commits a new generation while requests
+    flow (none fails, the service switches); an index run SIGKILLed mid-way (none fails, the
+    generation stays).
+
+The corpus and its index (by category, 30 Hz) come from bench/corpus.py and are kept in --keep
+(the layout bench/search.py uses: corpus/, store-category-30/), reused when present. The fault
+runs index a copy of the corpus's demo categories only (a few seconds per run).
+
+    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50]
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.client
+import json
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "300")
+os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
+
+import numpy as np
+import psutil
+import yaml
+from motionweb.store.cache import MotionStore
+from motionweb.store.datasets import mocap_root
+
+from bench.corpus import build_corpus, run_index
+
+QUERY_S = 1.5
+RATE = 30.0
+
+
+def motionweb(*args: str, env: dict | None = None, **kw) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / "motionweb"
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, env=env, **kw)
+
+
+class Api:
+    """A keep-alive HTTP client of the service (one per thread)."""
+
+    def __init__(self, url: str):
+        host, port = url.removeprefix("http://").rsplit(":", 1)
+        self.conn = http.client.HTTPConnection(host, int(port), timeout=120)
+
+    def call(self, method: str, path: str, body: dict | None = None) -> tuple[int, bytes]:
+        data = None if body is None else json.dumps(body).encode()
+        self.conn.request(method, path, body=data, headers={"Content-Type": "application/json"} if data else {})
+        r = self.conn.getresponse()
+        return r.status, r.read()
+
+    def json(self, method: str, path: str, body: dict | None = None) -> dict:
+        status, data = self.call(method, path, body)
+        if status != 200:
+            raise RuntimeError(f"{method} {path}: {status} {data[:200]!r}")
+        return json.loads(data)
+
+
+def start_service(cfg_path: Path, env: dict) -> tuple[subprocess.Popen, str]:
+    exe = Path(sys.executable).parent / "motionweb"
+    proc = subprocess.Popen([str(exe), "app", str(cfg_path), "--port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
+    line = proc.stdout.readline()
+    if "motionweb app:" not in line:
+        raise RuntimeError(f"the service did not start: {line}{proc.stdout.read()}")
+    url = line.split("motionweb app:")[1].split()[0].rstrip("/")
+    threading.Thread(target=proc.stdout.read, daemon=True).start()  # keep its pipe drained
+    return proc, url
+
+
+def wait_warm(api: Api, timeout: float = 1200) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        s = api.json("GET", "/api/status")
+        if s.get("warm"):
+            return s
+        time.sleep(0.5)
+    raise RuntimeError("the service did not warm up in time")
+
+
+def random_queries(gen, n: int, rng: np.random.Generator) -> list[dict]:
+    clips = [c for c in gen.clips if c["duration"] > QUERY_S + 0.2]
+    out = []
+    for k in rng.choice(len(clips), n):
+        c = clips[k]
+        s = float(rng.uniform(0, c["duration"] - QUERY_S - 0.1))
+        out.append({"clip": c["path"], "start": round(s, 3), "end": round(s + QUERY_S, 3), "quantile": 0.05,
+                    "tiers": 3})
+    return out
+
+
+def pct(xs: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(xs) * 1000, q)) if xs else float("nan")
+
+
+def load_test(url: str, queries: list[dict], clients: int, per_client: int) -> dict:
+    """``clients`` threads × ``per_client`` mixed requests; per kind latencies, failures."""
+    times: dict[str, list[float]] = {}
+    failures: list[str] = []
+    lock = threading.Lock()
+    clip_ids = [c["id"] for c in Api(url).json("GET", "/api/catalog?limit=5000")["clips"]]
+
+    def client(k: int) -> None:
+        rnd = random.Random(k)
+        api = Api(url)
+        result = None
+        for i in range(per_client):
+            kind = ["catalog", "pose", "search", "search", "registration", "match pose", "bvh"][i % 7]
+            if kind in ("registration", "match pose", "bvh") and result is None:
+                kind = "search"
+            t = time.perf_counter()
+            try:
+                if kind == "catalog":
+                    status, _ = api.call("GET", f"/api/catalog?name={rnd.choice('abcdeiklmnoprstuvw')}")
+                elif kind == "pose":
+                    status, _ = api.call("GET", f"/api/clips/{rnd.choice(clip_ids)}/pose?rate=30")
+                elif kind == "search":
+                    status, data = api.call("POST", "/api/search", rnd.choice(queries))
+                    if status == 200:
+                        result = json.loads(data)
+                elif kind == "registration":
+                    status, _ = api.call("GET", f"/api/results/{result['result']}/registration")
+                elif kind == "match pose":
+                    rank = rnd.randrange(1 + len(result["matches"]))
+                    status, _ = api.call("GET", f"/api/results/{result['result']}/nodes/{rank}/pose?registered=true")
+                else:
+                    rank = rnd.randrange(1 + len(result["matches"]))
+                    status, _ = api.call("GET", f"/api/results/{result['result']}/nodes/{rank}/bvh")
+                ok = status == 200
+            except Exception as exc:  # a failure to count, not to stop the test
+                ok, status = False, repr(exc)
+                api = Api(url)
+            dt = time.perf_counter() - t
+            with lock:
+                times.setdefault(kind, []).append(dt)
+                if not ok:
+                    failures.append(f"{kind}: {status}")
+
+    t0 = time.perf_counter()
+    threads = [threading.Thread(target=client, args=(k,)) for k in range(clients)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return {"times": times, "failures": failures, "wall": time.perf_counter() - t0}
+
+
+def hang_ups(url: str, body: dict, n: int) -> None:
+    """``n`` clients that send a search and close the socket without reading the answer."""
+    host, port = url.removeprefix("http://").rsplit(":", 1)
+    data = json.dumps(body).encode()
+    for _ in range(n):
+        s = socket.create_connection((host, int(port)))
+        s.sendall(b"POST /api/search HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                  + f"Content-Length: {len(data)}\r\n\r\n".encode() + data)
+        s.close()
+
+
+def hammer(url: str, body: dict, stop: threading.Event, out: dict) -> None:
+    """Searches back to back until ``stop``; counts answers, failures and generations seen."""
+    api = Api(url)
+    while not stop.is_set():
+        try:
+            status, data = api.call("POST", "/api/search", body)
+            if status == 200:
+                out["ok"] += 1
+                out["generations"].add(json.loads(data)["generation"])
+            else:
+                out["failed"].append(status)
+        except Exception as exc:
+            out["failed"].append(repr(exc))
+            api = Api(url)
+
+
+def faults(work: Path, env: dict) -> None:
+    """A small store (the demo categories of the corpus) served while index runs commit / die."""
+    small = work / "faults"
+    shutil.rmtree(small, ignore_errors=True)
+    corpus = small / "corpus"
+    for cat in ("walk", "run", "kick"):
+        shutil.copytree(work / "corpus" / cat, corpus / cat)
+    cfg_path = small / "config.yaml"
+    cfg_path.write_text(yaml.safe_dump({"corpus": {"path": "corpus", "length_unit": "m"},
+                                        "features": {"rates": [10.0, 20.0, 30.0]}, "store": {"path": "store"},
+                                        "dask": {"processes": False}}))
+    r = motionweb("index", str(cfg_path), "--no-progress", env=env)
+    if r.returncode:
+        print(f"  faults: index failed: {r.stderr[-300:]}")
+        return
+    proc, url = start_service(cfg_path, env)
+    try:
+        api = Api(url)
+        first = api.json("GET", "/api/status")["generation"]
+        clip = sorted(p.relative_to(corpus).as_posix() for p in (corpus / "walk").glob("*.bvh"))[0]
+        body = {"clip": clip, "start": 0.5, "end": 2.0, "quantile": 0.5}
+        api.json("POST", "/api/search", body)
+        # hang-ups
+        me = psutil.Process(proc.pid)
+        threads0 = me.num_threads()
+        t = time.perf_counter()
+        api.json("POST", "/api/search", body)
+        before = time.perf_counter() - t
+        hang_ups(url, body, 20)
+        time.sleep(2.0)
+        t = time.perf_counter()
+        api.json("POST", "/api/search", body)
+        after = time.perf_counter() - t
+        print(f"  20 clients hung up mid-search: service threads {threads0} -> {me.num_threads()}, "
+              f"a search {before * 1000:.0f} ms before, {after * 1000:.0f} ms after; status "
+              f"{Api(url).call('GET', '/api/status')[0]}")
+        # a killed index run
+        out = {"ok": 0, "failed": [], "generations": set()}
+        stop = threading.Event()
+        th = threading.Thread(target=hammer, args=(url, body, stop, out))
+        th.start()
+        victim = sorted((corpus / "run").glob("*.bvh"))[0]
+        victim.write_text(victim.read_text() + "\n")
+        exe = Path(sys.executable).parent / "motionweb"
+        idx = subprocess.Popen([str(exe), "index", str(cfg_path), "--no-progress"], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL, env=env, start_new_session=True)
+        objects = small / "store" / "webs"
+        seen = {p for p in objects.rglob("*") if p.is_file()}
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and idx.poll() is None and not ({p for p in objects.rglob("*")
+                                                                             if p.is_file()} - seen):
+            time.sleep(0.05)
+        os.killpg(idx.pid, signal.SIGKILL)
+        idx.wait()
+        time.sleep(1.0)
+        kept = api.json("GET", "/api/status")["generation"]
+        print(f"  index run SIGKILLed mid-way: {out['ok']} searches answered meanwhile, {len(out['failed'])} failed; "
+              f"generation {'unchanged' if kept == first else 'CHANGED'}")
+        # a run that commits
+        n0 = out["ok"]
+        r = motionweb("index", str(cfg_path), "--no-progress", env=env)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and api.json("GET", "/api/status")["generation"] == first:
+            time.sleep(0.2)
+        time.sleep(1.0)
+        stop.set()
+        th.join()
+        now = api.json("GET", "/api/status")["generation"]
+        print(f"  index run committed while serving (exit {r.returncode}): {out['ok'] - n0} searches answered "
+              f"meanwhile, {len(out['failed'])} failed in all; switched to the new generation: {now != first}; "
+              f"generations seen by searches: {len(out['generations'])}")
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(30)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--keep", default=None, help="work folder (corpus/, store-category-30/), reused when present")
+    ap.add_argument("--frames", type=int, default=37000)
+    ap.add_argument("--clients", type=int, default=16)
+    ap.add_argument("--requests", type=int, default=50)
+    ap.add_argument("--queries", type=int, default=40)
+    args = ap.parse_args()
+    if not mocap_root().is_dir():
+        print(f"real motion capture not found at {mocap_root()}: the bench corpus needs it (set MOTIONWEB_MOCAP)")
+        return
+    work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-app-"))
+    work.mkdir(parents=True, exist_ok=True)
+    if not (work / "corpus").is_dir():
+        info = build_corpus(work / "corpus", args.frames)
+        print(f"corpus: {info['clips']} clips, {info['frames60']} frames at 60 Hz")
+    store_path = work / f"store-category-{RATE:g}"
+    if MotionStore(str(store_path)).generation() is None:
+        from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
+
+        with temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+            s = run_index(work / "corpus", store_path, RATE, "category", 2)
+        print(f"index: {s['pairs']} webs in {s['wall_s']:.1f} s")
+    gen = MotionStore(str(store_path), read_only=True).generation()
+    frames = sum(c["frames"] for c in gen.clips)
+    cfg_path = work / "app.yaml"
+    cfg_path.write_text(yaml.safe_dump({"corpus": {"path": str(work / "corpus"), "length_unit": "m"},
+                                        "store": {"path": str(store_path)}, "output": str(work / "out")}))
+    load = os.getloadavg()
+    print(f"{len(gen.clips)} clips, {frames} frames, {len(gen.webs)} webs at {RATE:g} Hz (by category); "
+          f"{os.cpu_count()} cores, load average {load[0]:.1f} at the start (shared machine: timings are noisy)")
+    rng = np.random.default_rng(3)
+    queries = random_queries(gen, args.queries, rng)
+    q0 = queries[0]
+    cli_args = ["search", str(cfg_path), "--clip", q0["clip"], "--start", str(q0["start"]), "--end", str(q0["end"]),
+                "--quantile", "0.05", "--tiers", "3"]
+    env = {**os.environ, "MOTIONWEB_APP_DIR": str(work / "discovery")}
+    shutil.rmtree(work / "discovery", ignore_errors=True)
+
+    t = time.perf_counter()
+    r = motionweb(*cli_args, "--out", str(work / "cold"), env=env)
+    cold = time.perf_counter() - t
+    print(f"\ncold CLI search, no service (today): {cold:.1f} s (exit {r.returncode}; "
+          f"{r.stdout.strip().splitlines()[-1] if r.stdout.strip() else r.stderr[-200:]})")
+
+    t = time.perf_counter()
+    proc, url = start_service(cfg_path, env)
+    try:
+        api = Api(url)
+        s = wait_warm(api)
+        print(f"service {url}: listening, then all {s['webs']} webs read and packed in {time.perf_counter() - t:.1f} s")
+        for q in queries:  # each clip's first search (its ε quantile) once
+            api.json("POST", "/api/search", q)
+        same, rand = [], []
+        for _ in range(30):
+            t = time.perf_counter()
+            api.json("POST", "/api/search", q0)
+            same.append(time.perf_counter() - t)
+        for q in queries:
+            t = time.perf_counter()
+            api.json("POST", "/api/search", q)
+            rand.append(time.perf_counter() - t)
+        print(f"API search, warm, through HTTP: one query repeated x30 median {pct(same, 50):.1f} ms, "
+              f"p90 {pct(same, 90):.1f} ms; {len(queries)} random {QUERY_S:g} s queries (3 tiers) median "
+              f"{pct(rand, 50):.1f} ms, p90 {pct(rand, 90):.1f} ms   target: median <= 100 ms")
+        fwd = []
+        for k in range(5):
+            t = time.perf_counter()
+            r = motionweb(*cli_args, "--out", str(work / f"fwd{k}"), env=env)
+            fwd.append(time.perf_counter() - t)
+            assert r.returncode == 0 and "by the service" in r.stdout, r.stdout + r.stderr
+        same_rows = (json.loads((work / "fwd0" / "matches.json").read_text())["matches"]
+                     == json.loads((work / "cold" / "matches.json").read_text())["matches"])
+        print(f"CLI search with the service up: median {np.median(fwd):.2f} s, best {min(fwd):.2f} s of 5 "
+              f"(same matches.json rows as the cold run: {same_rows})   target: <= 1 s; cold was {cold:.1f} s")
+        imp = subprocess.run([sys.executable, "-X", "importtime", "-c", "import motionweb.flows.cli"],
+                             capture_output=True, text=True)
+        total_us = max(int(line.split("|")[1]) for line in imp.stderr.splitlines() if line.startswith("import time:")
+                       and line.split("|")[1].strip().isdigit())
+        print(f"  of which importing the CLI: {total_us / 1e6:.2f} s")
+
+        res = load_test(url, queries, args.clients, args.requests)
+        allt = [x for v in res["times"].values() for x in v]
+        print(f"\nload: {args.clients} clients x {args.requests} mixed requests = {len(allt)} in {res['wall']:.1f} s, "
+              f"{len(res['failures'])} failures   target: 0")
+        print(f"  {'kind':14s} {'n':>4s} {'p50 ms':>8s} {'p99 ms':>8s}")
+        for kind, v in sorted(res["times"].items()):
+            print(f"  {kind:14s} {len(v):4d} {pct(v, 50):8.1f} {pct(v, 99):8.1f}")
+        print(f"  {'all':14s} {len(allt):4d} {pct(allt, 50):8.1f} {pct(allt, 99):8.1f}")
+        if res["failures"]:
+            print(f"  failures: {res['failures'][:5]}")
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(60)
+    print("\nfaults (a store of the corpus's walk, run and kick clips):")
+    faults(work, env)
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
+    if not args.keep:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
