@@ -17,7 +17,7 @@ The corpus and its index (by category, 30 Hz) come from bench/corpus.py and are 
 (the layout bench/search.py uses: corpus/, store-category-30/), reused when present. The fault
 runs index a copy of the corpus's demo categories only (a few seconds per run).
 
-    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50]
+    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50] [--faults-only]
 """
 
 from __future__ import annotations
@@ -45,8 +45,9 @@ os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "error")
 import numpy as np
 import psutil
 import yaml
-from motionweb.store.cache import MotionStore
 from motionweb.store.datasets import mocap_root
+from motionweb.store.generations import load_generation
+from motionweb.store.zarr_store import MotionStore
 
 from bench.corpus import build_corpus, run_index
 
@@ -65,12 +66,17 @@ class Api:
     def __init__(self, url: str):
         host, port = url.removeprefix("http://").rsplit(":", 1)
         self.conn = http.client.HTTPConnection(host, int(port), timeout=120)
+        self.last = 0.0
 
     def call(self, method: str, path: str, body: dict | None = None) -> tuple[int, bytes]:
         data = None if body is None else json.dumps(body).encode()
+        if time.monotonic() - self.last > 4.0:  # uvicorn closes idle keep-alive connections after 5 s
+            self.conn.close()
         self.conn.request(method, path, body=data, headers={"Content-Type": "application/json"} if data else {})
         r = self.conn.getresponse()
-        return r.status, r.read()
+        out = r.status, r.read()
+        self.last = time.monotonic()
+        return out
 
     def json(self, method: str, path: str, body: dict | None = None) -> dict:
         status, data = self.call(method, path, body)
@@ -278,7 +284,13 @@ def main() -> None:
     ap.add_argument("--clients", type=int, default=16)
     ap.add_argument("--requests", type=int, default=50)
     ap.add_argument("--queries", type=int, default=40)
+    ap.add_argument("--faults-only", action="store_true", help="only the fault runs (needs --keep with a corpus)")
     args = ap.parse_args()
+    if args.faults_only:
+        work = Path(args.keep)
+        print("faults (a store of the corpus's walk, run and kick clips):")
+        faults(work, {**os.environ, "MOTIONWEB_APP_DIR": str(work / "discovery")})
+        return
     if not mocap_root().is_dir():
         print(f"real motion capture not found at {mocap_root()}: the bench corpus needs it (set MOTIONWEB_MOCAP)")
         return
@@ -288,13 +300,13 @@ def main() -> None:
         info = build_corpus(work / "corpus", args.frames)
         print(f"corpus: {info['clips']} clips, {info['frames60']} frames at 60 Hz")
     store_path = work / f"store-category-{RATE:g}"
-    if MotionStore(str(store_path)).generation() is None:
+    if load_generation(MotionStore(str(store_path))) is None:
         from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
 
         with temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
             s = run_index(work / "corpus", store_path, RATE, "category", 2)
         print(f"index: {s['pairs']} webs in {s['wall_s']:.1f} s")
-    gen = MotionStore(str(store_path), read_only=True).generation()
+    gen = load_generation(MotionStore(str(store_path), read_only=True))
     frames = sum(c["frames"] for c in gen.clips)
     cfg_path = work / "app.yaml"
     cfg_path.write_text(yaml.safe_dump({"corpus": {"path": str(work / "corpus"), "length_unit": "m"},

@@ -49,9 +49,10 @@ from motionweb.flows.query import (
     write_outputs,
 )
 from motionweb.store.bvh import format_bvh
-from motionweb.store.cache import Generation, MotionStore
+from motionweb.store.generations import Generation, current_id, load_generation
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
+from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.register import Registration
@@ -243,10 +244,10 @@ class Engine:
 
     # ------------------------------------------------------------------ generations
     def pointer(self) -> str | None:
-        return MotionStore(self.url, read_only=True).current_id()
+        return current_id(MotionStore(self.url, read_only=True))
 
     def _open(self, gen_id: str) -> Snapshot:
-        gen = MotionStore(self.url, read_only=True).generation(gen_id)
+        gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
         return Snapshot(self.url, gen)
 
     def _swap_after_warm(self, snap: Snapshot) -> None:

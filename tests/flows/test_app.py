@@ -22,9 +22,10 @@ from motionweb.flows.config import load_config
 from motionweb.flows.index import index_library
 from motionweb.flows.query import match_rows, register_graph, segment_motion
 from motionweb.store.bvh import parse_bvh
-from motionweb.store.cache import MotionStore
 from motionweb.store.formats import read_motion
+from motionweb.store.generations import load_generation
 from motionweb.store.webs import StoreWebs
+from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.search import epsilon_from_quantile, search
@@ -46,7 +47,7 @@ def client(cfg):
 def expected_search(cfg, clip: str, start: float, end: float, quantile: float, tiers: int | None = None):
     """What the query flow computes, from a fresh web source: (ε, rows)."""
     store = MotionStore(cfg.store.path, read_only=True)
-    gen = store.generation()
+    gen = load_generation(store)
     rec = next(c for c in gen.clips if Path(c["path"]).stem == clip)
     webs = StoreWebs.for_query(store, rec["path"], generation=gen)
     eps = epsilon_from_quantile(webs.all_webs(), quantile)
@@ -57,7 +58,7 @@ def expected_search(cfg, clip: str, start: float, end: float, quantile: float, t
 
 
 def test_status_and_catalog_filters(client, cfg) -> None:
-    gen = MotionStore(cfg.store.path, read_only=True).generation()
+    gen = load_generation(MotionStore(cfg.store.path, read_only=True))
     s = client.get("/api/status").json()
     assert s["generation"] == gen.id and s["clips"] == len(gen.clips) == 6 and s["categories"] == {"walk": 3, "run": 3}
     all_rows = client.get("/api/catalog").json()
@@ -107,7 +108,7 @@ def test_registration_and_registered_downloads(client, cfg) -> None:
     rid, n = res["result"], 1 + len(res["matches"])
     reg = client.get(f"/api/results/{rid}/registration").json()
     _, _, graph = expected_search(cfg, **QUERY)
-    gen = MotionStore(cfg.store.path, read_only=True).generation()
+    gen = load_generation(MotionStore(cfg.store.path, read_only=True))
     want = register_graph(MotionStore(cfg.store.path, read_only=True), gen, load_config_of(gen), graph,
                           {c["path"]: c for c in gen.clips})
     assert sorted(nd["rank"] for nd in reg["nodes"]) == list(range(n))
