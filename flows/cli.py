@@ -403,7 +403,9 @@ def app_command(
     """Serve the web page and JSON API for on-demand queries of the config's store (blocks)."""
     cfg = config_or_fail(config)
     from motionweb.flows.app.server import serve
+    from motionweb.flows.reaper import start_reaper
 
+    start_reaper()  # a Prefect server the service starts dies with it, even when it is killed
     try:
         serve(cfg, host, port, token, record, on_ready=lambda url: typer.echo(f"motionweb app: {url}"))
     except ValueError as exc:

@@ -10,11 +10,14 @@ a Prefect server of our own.
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import logging
 import os
+import signal
 import socket
 import tempfile
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -80,25 +83,45 @@ class Service:
             self.engine.current()  # open the generation now (the warm-up runs behind)
         except ValueError as exc:
             logging.getLogger("motionweb.app").warning("%s; serving anyway, waiting for a commit", exc)
-        self.server = uvicorn.Server(uvicorn.Config(create_app(self.engine, token), log_level="warning",
+        self.server = _quiet_server()(uvicorn.Config(create_app(self.engine, token), log_level="warning",
                                                     timeout_graceful_shutdown=5, limit_concurrency=256))
         self.info = {"url": self.url, "host": host, "port": self.port, "token": token, "pid": os.getpid(),
                      "prefect": self.prefect.url if self.prefect else None}
 
     def run(self) -> None:
+        """Serve until :meth:`stop`, SIGINT or SIGTERM; then remove the discovery file and stop a
+        Prefect server of our own."""
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: self.stop())
         write_discovery(self.cfg.store.path, self.info)
         try:
             self.server.run(sockets=[self.sock])
         finally:
-            remove_discovery(self.cfg.store.path, os.getpid())
-            if self.recorder:
-                self.recorder.close()
-            if self.prefect:
-                self.prefect.stop()
-            self.sock.close()
+            try:
+                remove_discovery(self.cfg.store.path, os.getpid())
+                if self.recorder:
+                    self.recorder.close()
+            finally:
+                if self.prefect:
+                    self.prefect.stop()
+                self.sock.close()
 
     def stop(self) -> None:
         self.server.should_exit = True
+
+
+def _quiet_server():
+    """A uvicorn server that leaves signals to :class:`Service` (uvicorn re-raises SIGTERM after
+    its shutdown, which would skip the service's own cleanup)."""
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        @contextlib.contextmanager
+        def capture_signals(self):
+            yield
+
+    return Server
 
 
 def serve(cfg: Config, host: str = "127.0.0.1", port: int = 8765, token: str | None = None, record: bool = True,
