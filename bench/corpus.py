@@ -203,7 +203,7 @@ def serial_compute_s(store: Path, every: int) -> float:
     process, scaled to all its pairs: the web computation alone (operands read and prepared
     beforehand, compiled kernels warmed up), the baseline the flow's wall time is compared with."""
     from motionweb.flows.workers import clip_operands
-    from motionweb.tasks.matchweb import build_web_operands
+    from motionweb.tasks.matchweb.build import build_web_operands
 
     gen = load_generation(MotionStore(str(store)))
     cfg = Config.model_validate(gen.config)

@@ -24,7 +24,8 @@ from motionweb.store.kinematics import quat_from_euler, sample_motion
 from motionweb.store.motion import Motion, Skeleton
 from motionweb.tasks.distance import distance_grid, prepare_pair, rigid_align_2d
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
-from motionweb.tasks.matchweb import MatchWebParams, build_web, build_web_full
+from motionweb.tasks.matchweb.build import build_web, build_web_full
+from motionweb.tasks.matchweb.params import MatchWebParams
 
 from bench.timing import best_of
 

@@ -36,7 +36,8 @@ from motionweb.store.motion import Motion
 from motionweb.tasks.distance import distance_grid
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from motionweb.tasks.matchweb import MatchWebParams, optimal_path
+from motionweb.tasks.matchweb.band import optimal_path
+from motionweb.tasks.matchweb.params import MatchWebParams
 from motionweb.tasks.register import register
 
 from bench.timing import best_of

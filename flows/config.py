@@ -23,7 +23,7 @@ from motionweb.store.params import Params
 from motionweb.tasks.blend import BlendParams
 from motionweb.tasks.features import FeatureParams
 from motionweb.tasks.guided_warp import WarpParams
-from motionweb.tasks.matchweb import MatchWebParams
+from motionweb.tasks.matchweb.params import MatchWebParams
 from motionweb.tasks.parameterize import ParameterizeParams
 from motionweb.tasks.retime import RetimeParams
 from motionweb.tasks.search import SearchParams

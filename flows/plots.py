@@ -73,7 +73,9 @@ def plot_web(cfg: Config, clip_a: str, clip_b: str, out: str | Path) -> WebPlot:
     """Compute the web of two catalogued clips (path, stem or file) and draw it to ``out``."""
     from motionweb.store.catalog import load_clip, scan_corpus
     from motionweb.tasks.features import clip_features, point_weights
-    from motionweb.tasks.matchweb import build_web, local_minima, mask_self_band, self_band, valid_region
+    from motionweb.tasks.matchweb.build import build_web
+    from motionweb.tasks.matchweb.minima import local_minima, mask_self_band, valid_region
+    from motionweb.tasks.matchweb.params import self_band
 
     catalog = scan_corpus(cfg.corpus.path, cfg.corpus)
     ea, eb = catalog.find(clip_a), catalog.find(clip_b)

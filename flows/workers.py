@@ -24,7 +24,7 @@ from motionweb.store.keys import feature_digest
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.distance import ClipOperands
 from motionweb.tasks.features import clip_features, point_weights
-from motionweb.tasks.matchweb import build_web_operands
+from motionweb.tasks.matchweb.build import build_web_operands
 from threadpoolctl import threadpool_limits
 
 if TYPE_CHECKING:

@@ -17,7 +17,7 @@ KG04 §4.1, step by step:
    all N coordinates increase strictly with u and no further reparameterisation is needed.
 
 Valid region on a segment grid. KG04 defines it on the full grid of two clips (1-D minima
-extended while below ``(1 + a)`` times the minimum, :func:`tasks.matchweb.valid_region`). Here
+extended while below ``(1 + a)`` times the minimum, :func:`tasks.matchweb.minima.valid_region`). Here
 only the DP's search region is evaluated — a band of Chebyshev radius ``ceil(band_s · rate)``
 around the edge's web path (``MatchEdge.cells``) joined to the rectangle's corners, or the whole
 segment rectangle when that band would cover half of it — and the valid region is computed on that region, its border
@@ -51,17 +51,9 @@ from motionweb.tasks.distance import (
     vertical_shift,
 )
 from motionweb.tasks.matchgraph import MatchGraph, Segment
-from motionweb.tasks.matchweb import (
-    INF,
-    MatchWebParams,
-    band_backtrack,
-    band_buffers,
-    band_dp,
-    band_index,
-    best_state_total,
-    max_run,
-    upsample_band,
-)
+from motionweb.tasks.matchweb.band import band_backtrack, band_buffers, band_dp, band_index, best_state_total
+from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run
+from motionweb.tasks.matchweb.refine import upsample_band
 from numba import njit
 from scipy.interpolate import PchipInterpolator
 
@@ -73,7 +65,7 @@ from scipy.interpolate import PchipInterpolator
 @dataclass(frozen=True)
 class Band:
     """Cells of an n×m segment grid, row ``t`` holding columns ``lo[t]..hi[t]`` (flat index
-    ``off[t] + j − lo[t]``), the layout of ``tasks.matchweb``'s band DP. Rows are frames of the
+    ``off[t] + j − lo[t]``), the layout of ``tasks.matchweb.band``'s DP. Rows are frames of the
     parent segment, columns frames of the child, both counted from the segment start."""
 
     lo: np.ndarray
@@ -180,7 +172,7 @@ def _band_valid(lo, hi, off, vals, a):
 def band_valid_region(band: Band, vals: np.ndarray, a: float) -> np.ndarray:
     """The valid region (KG04 §3.1, Fig. 5) of a band: bool (n_cells,).
 
-    Same rule as :func:`tasks.matchweb.valid_region` (and the same result on the rectangle), with
+    Same rule as :func:`tasks.matchweb.minima.valid_region` (and the same result on the rectangle), with
     the band's border as the grid border. O(cells · extension).
     """
     return _band_valid(band.lo, band.hi, band.off, np.ascontiguousarray(vals, dtype=np.float64), float(a))
@@ -190,7 +182,7 @@ def band_alignment(band: Band, vals: np.ndarray, slope_k: int) -> np.ndarray | N
     """Least-total-cost slope-ruled monotone path from (0, 0) to (n − 1, m − 1) through the finite
     cells of ``vals`` (flat band values, inf = blocked): cells (K, 2) relative, or None.
 
-    The time alignment of KG04 §3.1 by dynamic programming (``tasks.matchweb.band_dp``): at most
+    The time alignment of KG04 §3.1 by dynamic programming (``tasks.matchweb.band.band_dp``): at most
     ``slope_k`` cells in one row or column in a row. O(cells · k) time and memory.
     """
     v = np.ascontiguousarray(vals, dtype=np.float64)

@@ -20,7 +20,7 @@ decreasing (a few passes). Cost of one query on one clip: O(P) to find the paths
 (P paths in all its webs) plus, per start, O(R log R) for the R states reachable in the band of
 rows a..b, and O(R) per refinement pass of a kept match — linear in the size of the webs searched,
 as KG04 §3.4 reports. The trivial identity match of a self web cannot occur: self webs mask the
-band |i − j| ≤ ``self_band_s`` (``tasks.matchweb.mask_self_band``), and a match overlapping the
+band |i − j| ≤ ``self_band_s`` (``tasks.matchweb.minima.mask_self_band``), and a match overlapping the
 query anyway is absorbed by the query node (dedup below).
 
 Matches shorter than the minimum chain length or with an overall slope outside [1/k, k] are not
@@ -53,7 +53,7 @@ from motionweb.store.params import Params
 from motionweb.store.web import MatchWeb
 from motionweb.store.webs import WebSource
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from motionweb.tasks.matchweb import MatchWebParams, min_chain_extent
+from motionweb.tasks.matchweb.params import MatchWebParams, min_chain_extent
 from numba import njit
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra

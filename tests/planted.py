@@ -24,7 +24,8 @@ from motionweb.store.motion import Motion
 from motionweb.store.web import MatchWeb, transpose
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
 from motionweb.tasks.matchgraph import Segment
-from motionweb.tasks.matchweb import MatchWebParams, build_web
+from motionweb.tasks.matchweb.build import build_web
+from motionweb.tasks.matchweb.params import MatchWebParams
 
 RATE = 30.0
 DISTRACTORS = ("walk", "run", "jump", "punch", "reach", "hop", "sit", "idle")

@@ -69,7 +69,7 @@ def test_stage_parameters_have_one_definition() -> None:
     from motionweb.store.catalog import CorpusParams
     from motionweb.tasks.features import FeatureParams
     from motionweb.tasks.guided_warp import WarpParams
-    from motionweb.tasks.matchweb import MatchWebParams
+    from motionweb.tasks.matchweb.params import MatchWebParams
     from motionweb.tasks.retime import RetimeParams
     from motionweb.tasks.search import SearchParams
 

@@ -10,19 +10,14 @@ import numpy as np
 import pytest
 from fixtures import wiggle
 from motionweb.store.kinematics import sample_motion
+from motionweb.store.web import MatchWeb
 from motionweb.tasks.distance import distance_cells, distance_grid, prepare_pair
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
-from motionweb.tasks.matchweb import (
-    MatchWeb,
-    MatchWebParams,
-    build_web,
-    build_web_full,
-    find_bridges,
-    find_chains,
-    local_minima,
-    optimal_path,
-    valid_region,
-)
+from motionweb.tasks.matchweb.band import optimal_path
+from motionweb.tasks.matchweb.bridges import find_bridges
+from motionweb.tasks.matchweb.build import build_web, build_web_full
+from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
+from motionweb.tasks.matchweb.params import MatchWebParams
 from naive import all_paths, ref_bridges, ref_chains, ref_minima, ref_valid, slope_ok
 from scipy.spatial import cKDTree
 

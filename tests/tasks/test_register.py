@@ -10,7 +10,9 @@ from motionweb.store.demo.perturb import pose_noise, random_warp, time_warp_clip
 from motionweb.tasks.distance import distance_grid, distance_prepared, prepare_pair
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from motionweb.tasks.matchweb import MatchWebParams, local_minima, optimal_path, valid_region
+from motionweb.tasks.matchweb.band import optimal_path
+from motionweb.tasks.matchweb.minima import local_minima, valid_region
+from motionweb.tasks.matchweb.params import MatchWebParams
 from motionweb.tasks.register import (
     Band,
     align_segments,

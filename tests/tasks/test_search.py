@@ -14,7 +14,8 @@ from motionweb.store.web import MatchWeb, transpose
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore, new_id, now_iso
 from motionweb.tasks.matchgraph import Segment
-from motionweb.tasks.matchweb import MatchWebParams, build_web_full, self_band
+from motionweb.tasks.matchweb.build import build_web_full
+from motionweb.tasks.matchweb.params import MatchWebParams, self_band
 from motionweb.tasks.search import (
     MatchSearch,
     SearchParams,

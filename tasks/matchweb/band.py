@@ -1,0 +1,182 @@
+"""Slope-ruled dynamic programming on a band: rows with one column interval each (KG04 §3.1-3.2).
+
+Shared by the match webs (bridges, coarse-to-fine refinement) and by registration
+(:mod:`motionweb.tasks.register`). Band row ``t`` covers columns ``lo[t]..hi[t]``; cell (t, j) is
+flat index ``off[t] + j − lo[t]``. Paths are monotone (up, right, diagonal) with at most
+``mrun = k − 1`` consecutive steps along one axis (:func:`motionweb.tasks.matchweb.params.max_run`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from motionweb.tasks.matchweb.params import INF, max_run
+from numba import njit
+
+
+@njit(cache=True)
+def band_index(lo: np.ndarray, hi: np.ndarray, off: np.ndarray, t: int, j: int) -> int:
+    """Flat index of band cell (t, j), or −1 when it lies outside the band."""
+    if t < 0 or t >= lo.shape[0] or j < lo[t] or j > hi[t]:
+        return -1
+    return off[t] + j - lo[t]
+
+
+@njit(cache=True)
+def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
+    """Least-total-cost monotone paths under the slope rule, on a band.
+
+    Band row ``t`` covers columns ``lo[t]..hi[t]``; cell (t, j) is flat index
+    ``off[t] + j − lo[t]``. ``vals``: cell costs (inf = blocked); ``init``: start cost of source
+    cells (inf elsewhere); ``flags``: 1 blocked, 2 terminal (may be entered, not left).
+    State ``s = r + mrun`` with r > 0 a run of up steps, r < 0 of right steps, 0 after a diagonal
+    or at a source. Outputs per (cell, state): total cost, cell count, predecessor state
+    (−1 at a source, −2 unreached). O(cells · k) with the predecessors' flat indices carried
+    along the rows (no per-cell index search).
+    """
+    ns = 2 * mrun + 1
+    c0 = mrun
+    for t in range(lo.shape[0]):
+        # previous row's interval (empty for the first row)
+        plo = lo[t - 1] if t > 0 else 0
+        phi = hi[t - 1] if t > 0 else -1
+        pbase = off[t - 1] - plo if t > 0 else 0
+        base = off[t] - lo[t]
+        for j in range(lo[t], hi[t] + 1):
+            k = base + j
+            for s in range(ns):
+                cost[k, s] = INF
+                length[k, s] = 0
+                ptr[k, s] = -2
+            v = vals[k]
+            if not v < INF or flags[k] == 1:
+                continue
+            if init[k] < INF:
+                cost[k, c0] = init[k]
+                length[k, c0] = 1
+                ptr[k, c0] = -1
+            if plo <= j - 1 <= phi and flags[pbase + j - 1] != 2:
+                kd = pbase + j - 1
+                for s in range(ns):
+                    c = cost[kd, s] + v
+                    if c < cost[k, c0]:
+                        cost[k, c0] = c
+                        length[k, c0] = length[kd, s] + 1
+                        ptr[k, c0] = s
+            if mrun > 0:
+                if plo <= j <= phi and flags[pbase + j] != 2:
+                    kv = pbase + j
+                    # up: any state but a full run of up steps enters state r + 1 (r > 0) or 1
+                    for s in range(ns):
+                        r = s - c0
+                        nr = r + 1 if r > 0 else 1
+                        if nr > mrun:
+                            continue
+                        c = cost[kv, s] + v
+                        if c < cost[k, c0 + nr]:
+                            cost[k, c0 + nr] = c
+                            length[k, c0 + nr] = length[kv, s] + 1
+                            ptr[k, c0 + nr] = s
+                if j > lo[t] and flags[k - 1] != 2:
+                    kh = k - 1
+                    for s in range(ns):
+                        r = s - c0
+                        nr = r - 1 if r < 0 else -1
+                        if -nr > mrun:
+                            continue
+                        c = cost[kh, s] + v
+                        if c < cost[k, c0 + nr]:
+                            cost[k, c0 + nr] = c
+                            length[k, c0 + nr] = length[kh, s] + 1
+                            ptr[k, c0 + nr] = s
+
+
+@njit(cache=True)
+def band_backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
+    """Cells (n, 2) (absolute rows) of the path ending at band cell (t, j) in state s."""
+    c0 = mrun
+    n = 0
+    ti = np.empty(lo.shape[0] + (hi.max() - lo.min()) + 2, dtype=np.int64)
+    tj = np.empty_like(ti)
+    while True:
+        ti[n] = t
+        tj[n] = j
+        n += 1
+        k = off[t] + j - lo[t]
+        p = ptr[k, s]
+        if p < 0:
+            break
+        r = s - c0
+        if r == 0:
+            t -= 1
+            j -= 1
+        elif r > 0:
+            t -= 1
+        else:
+            j -= 1
+        s = p
+    out = np.empty((n, 2), dtype=np.int32)
+    for q in range(n):
+        out[q, 0] = row0 + ti[n - 1 - q]
+        out[q, 1] = tj[n - 1 - q]
+    return out
+
+
+@njit(cache=True)
+def best_state_total(cost, k) -> int:
+    """State of least total cost at flat cell ``k`` (``cost``: (cells, 2·mrun + 1))."""
+    best = 0
+    for s in range(cost.shape[1]):
+        if cost[k, s] < cost[k, best]:
+            best = s
+    return best
+
+
+@njit(cache=True)
+def best_state_avg(cost, length, k) -> tuple[int, float]:
+    """(state, average cost) of least average cost at flat cell ``k``; (−1, inf) when unreached."""
+    best = -1
+    bv = INF
+    for s in range(cost.shape[1]):
+        if length[k, s] > 0:
+            a = cost[k, s] / length[k, s]
+            if a < bv:
+                bv = a
+                best = s
+    return best, bv
+
+
+def band_buffers(ncells: int, mrun: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Output buffers of :func:`band_dp` for ``ncells`` cells: cost, length, predecessor state."""
+    ns = 2 * mrun + 1
+    return (np.empty((ncells, ns), np.float64), np.empty((ncells, ns), np.int32),
+            np.empty((ncells, ns), np.int8))
+
+
+def optimal_path(grid: np.ndarray, start: tuple[int, int], end: tuple[int, int], slope_k: int,
+                 mask: np.ndarray | None = None) -> np.ndarray | None:
+    """Least-total-cost slope-ruled path from ``start`` to ``end`` (cells (n, 2)), or None.
+
+    The time alignment of KG04 §3.1 by dynamic programming, optionally restricted to ``mask``
+    (e.g. the valid region). O(cells of the rectangle · k).
+    """
+    (i0, j0), (i1, j1) = start, end
+    if i1 < i0 or j1 < j0:
+        return None
+    sub = np.asarray(grid[i0:i1 + 1, j0:j1 + 1], dtype=np.float64)
+    if mask is not None:
+        sub = np.where(mask[i0:i1 + 1, j0:j1 + 1], sub, np.inf)
+    nr, nc = sub.shape
+    lo = np.full(nr, j0, np.int64)
+    hi = np.full(nr, j1, np.int64)
+    off = np.arange(nr + 1, dtype=np.int64) * nc
+    vals = np.ascontiguousarray(sub.reshape(-1))
+    init = np.full(len(vals), np.inf)
+    init[0] = vals[0]
+    mrun = max_run(slope_k)
+    cost, length, ptr = band_buffers(len(vals), mrun)
+    band_dp(lo, hi, off, vals, init, np.zeros(len(vals), np.uint8), mrun, cost, length, ptr)
+    k = len(vals) - 1
+    s = best_state_total(cost, k)
+    if not cost[k, s] < np.inf:
+        return None
+    return band_backtrack(i0, lo, hi, off, ptr, nr - 1, j1, s, mrun)

@@ -1,0 +1,50 @@
+"""Match-web parameters and the sizes derived from them (design §4, KG04 §3.1-3.2).
+
+Slope rule (KG04 §3.1 "at most k frames of one motion can be mapped to a single frame of the
+other"): a path holds at most ``k`` cells in one row or column in a row, i.e. at most ``k − 1``
+consecutive steps along one axis (``max_run = k − 1``), which keeps its slope in [1/k, k].
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from motionweb.store.params import Params
+
+
+class MatchWebParams(Params):
+    """Match webs (design §4, KG04 §3.1-3.2)."""
+
+    valid_a: float = 0.15
+    slope_k: int = 3
+    min_chain_s: float = 0.25
+    bridge_max_s: float = 2.0
+    self_band_s: float = 0.25
+    keep_grids: bool = False
+
+
+#: value of a blocked cell (the ignored self band, cells outside the valid region)
+INF = np.inf
+
+
+def max_run(slope_k: int) -> int:
+    """Consecutive steps allowed along one axis: ``k − 1`` (k cells per row/column, KG04 §3.1)."""
+    if slope_k < 1:
+        raise ValueError(f"slope_k must be >= 1, got {slope_k}")
+    return int(slope_k) - 1
+
+
+def min_chain_extent(cfg: MatchWebParams, rate: float) -> int:
+    """Frames a chain must span (max of its row and column extents) to be kept (KG04: 0.25 s)."""
+    return math.ceil(cfg.min_chain_s * rate - 1e-9)
+
+
+def bridge_cells(cfg: MatchWebParams, rate: float) -> int:
+    """Bridge Manhattan length bound L in cells: bridges satisfy Δi + Δj < L (KG04: 2 s)."""
+    return max(1, math.ceil(cfg.bridge_max_s * rate - 1e-9))
+
+
+def self_band(cfg: MatchWebParams, rate: float) -> int:
+    """Half-width in cells of the ignored diagonal band of a self pair (|i − j| ≤ band)."""
+    return math.floor(cfg.self_band_s * rate + 1e-9)

@@ -1,0 +1,349 @@
+"""Coarse-to-fine refinement of a match web (KG04 §3.2, Fig. 8; design §4).
+
+Each chain is padded by one coarse cell and upsampled into a band (:func:`upsample_band`), its
+endpoints move to the smallest cells near the old ones, and an optimal (least total cost,
+slope-ruled) path joins them inside the band; each bridge likewise, with endpoints on the refined
+chains it joins. Only the cells of the bands are evaluated at the finer rates (cell by cell,
+``tasks.distance.cell_distance``, once per cell however many bands overlap it), so a fine level
+costs linearly in the cells of its search regions rather than Fa·Fb.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from motionweb.store.web import MatchWeb, empty_cells
+from motionweb.tasks.distance import PreparedFeatures, cell_distance
+from motionweb.tasks.matchweb.band import band_backtrack, band_dp, band_index
+from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run, self_band
+from numba import njit
+
+
+@njit(cache=True)
+def upsample_band(cells, s, h, fa, fb):
+    """Band of fine cells covering each coarse cell dilated by ``h − 0.5`` coarse cells.
+
+    Coarse cell c covers fine indices [(c − h)·s, (c + h)·s]; returns (row0, lo, hi, off).
+    """
+    n = cells.shape[0]
+    r_min = fa
+    r_max = -1
+    for q in range(n):
+        a = max(0, math.floor((cells[q, 0] - h) * s))
+        b = min(fa - 1, math.ceil((cells[q, 0] + h) * s))
+        r_min = min(r_min, a)
+        r_max = max(r_max, b)
+    nr = r_max - r_min + 1
+    lo = np.full(nr, fb, np.int64)
+    hi = np.full(nr, -1, np.int64)
+    for q in range(n):
+        a = max(0, math.floor((cells[q, 0] - h) * s))
+        b = min(fa - 1, math.ceil((cells[q, 0] + h) * s))
+        c1 = max(0, math.floor((cells[q, 1] - h) * s))
+        c2 = min(fb - 1, math.ceil((cells[q, 1] + h) * s))
+        for r in range(a, b + 1):
+            t = r - r_min
+            lo[t] = min(lo[t], c1)
+            hi[t] = max(hi[t], c2)
+    off = np.zeros(nr + 1, np.int64)
+    for t in range(nr):
+        off[t + 1] = off[t] + hi[t] - lo[t] + 1
+    return r_min, lo, hi, off
+
+
+#: side of the square tiles of the lazily evaluated fine grid of one refinement level
+TILE = 32
+
+
+@njit(cache=True)
+def _mark_tiles(cells, offsets, s, h, fa, fb, index) -> None:
+    """Mark (``index[ti, tj] = 0``) the TILE×TILE tiles that the bands of ragged paths touch."""
+    for p in range(offsets.shape[0] - 1):
+        row0, lo, hi, _ = upsample_band(cells[offsets[p]:offsets[p + 1]], s, h, fa, fb)
+        for t in range(lo.shape[0]):
+            ti = (row0 + t) // TILE
+            for tj in range(lo[t] // TILE, hi[t] // TILE + 1):
+                index[ti, tj] = 0
+
+
+@njit(cache=True)
+def _alloc_tiles(index):
+    """Number the marked tiles; returns their value pool, NaN (not evaluated yet) everywhere."""
+    n = 0
+    for ti in range(index.shape[0]):
+        for tj in range(index.shape[1]):
+            if index[ti, tj] >= 0:
+                index[ti, tj] = n
+                n += 1
+    return np.full((n, TILE, TILE), np.nan)
+
+
+@njit(cache=True)
+def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, out) -> None:
+    """Distance values on a band's cells (inf inside the ignored self band |i − j| ≤ band).
+
+    Each cell is evaluated once per level: its value is kept in the tile ``pool`` and the bands
+    of chains and bridges that overlap read it from there.
+    """
+    for t in range(lo.shape[0]):
+        i = row0 + t
+        ti = i // TILE
+        ri = i - ti * TILE
+        for j in range(lo[t], hi[t] + 1):
+            tile = pool[index[ti, j // TILE]]
+            v = tile[ri, j % TILE]
+            if math.isnan(v):
+                if band >= 0 and abs(i - j) <= band:
+                    v = INF
+                else:
+                    v = cell_distance(left, left_y, na, right, right_y, nb, i, j)
+                tile[ri, j % TILE] = v
+            out[off[t] + j - lo[t]] = v
+
+
+@njit(cache=True)
+def _near_cells(row0, lo, hi, off, ci, cj, radius):
+    """Flat indices of band cells within Chebyshev distance ``radius`` of (ci, cj)."""
+    nr = lo.shape[0]
+    t_lo = max(0, math.floor(ci - radius) - row0)
+    t_hi = min(nr - 1, math.ceil(ci + radius) - row0)
+    j_lo = math.floor(cj - radius)
+    j_hi = math.ceil(cj + radius)
+    n = 0
+    for t in range(t_lo, t_hi + 1):
+        n += max(0, min(hi[t], j_hi) - max(lo[t], j_lo) + 1)
+    out = np.empty(n, np.int64)
+    n = 0
+    for t in range(t_lo, t_hi + 1):
+        for j in range(max(lo[t], j_lo), min(hi[t], j_hi) + 1):
+            out[n] = off[t] + j - lo[t]
+            n += 1
+    return out
+
+
+@njit(cache=True)
+def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
+    """Best slope-ruled path in a band from any source to any target, by total or average cost.
+
+    Returns its cells (n, 2) (absolute), or an empty array when no target is reachable.
+    """
+    n = off[-1]
+    ns = 2 * mrun + 1
+    init = np.full(n, INF)
+    for k in sources:
+        init[k] = vals[k]
+    cost = np.empty((n, ns), np.float64)
+    length = np.empty((n, ns), np.int32)
+    ptr = np.empty((n, ns), np.int8)
+    band_dp(lo, hi, off, vals, init, np.zeros(n, np.uint8), mrun, cost, length, ptr)
+    best = INF
+    bk = -1
+    bs = 0
+    for k in targets:
+        for s in range(ns):
+            if length[k, s] == 0:
+                continue
+            v = cost[k, s] / length[k, s] if by_average else cost[k, s]
+            if v < best:
+                best = v
+                bk = k
+                bs = s
+    if bk < 0:
+        return np.zeros((0, 2), np.int32)
+    t = 0
+    while off[t + 1] <= bk:
+        t += 1
+    return band_backtrack(row0, lo, hi, off, ptr, t, lo[t] + bk - off[t], bs, mrun)
+
+
+@njit(cache=True)
+def _argmin_of(vals, idx):
+    best = INF
+    out = np.zeros(0, np.int64)
+    for k in idx:
+        if vals[k] < best:
+            best = vals[k]
+            out = np.array([k], np.int64)
+    return out
+
+
+@njit(cache=True)
+def _flat_index(row0, lo, hi, off, i, j) -> int:
+    return band_index(lo, hi, off, i - row0, j)
+
+
+@njit(cache=True)
+def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left_y, na, right, right_y, nb, band,
+                   mrun):
+    """Refine every chain (KG04 Fig. 8); returns (cells, values, offsets, new id of each chain)."""
+    nch = offsets.shape[0] - 1
+    new_id = np.full(nch, -1, np.int64)
+    out_c = []
+    out_v = []
+    n_out = 0
+    for p in range(nch):
+        cc = cells[offsets[p]:offsets[p + 1]]
+        row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
+        vals = np.empty(off[-1], np.float64)
+        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
+        i0 = cc[0, 0] * s
+        j0 = cc[0, 1] * s
+        i1 = cc[-1, 0] * s
+        j1 = cc[-1, 1] * s
+        src = _argmin_of(vals, _near_cells(row0, lo, hi, off, i0, j0, radius))
+        dst = _argmin_of(vals, _near_cells(row0, lo, hi, off, i1, j1, radius))
+        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, False)
+        if path.shape[0] == 0:  # fall back on the upsampled endpoints themselves
+            k0 = _flat_index(row0, lo, hi, off, math.floor(i0 + 0.5), math.floor(j0 + 0.5))
+            k1 = _flat_index(row0, lo, hi, off, math.floor(i1 + 0.5), math.floor(j1 + 0.5))
+            if k0 >= 0 and k1 >= 0:
+                path = _solve(row0, lo, hi, off, vals, np.array([k0]), np.array([k1]), mrun, False)
+        if path.shape[0] == 0:
+            continue
+        pv = np.empty(path.shape[0], np.float32)
+        for q in range(path.shape[0]):
+            pv[q] = vals[_flat_index(row0, lo, hi, off, path[q, 0], path[q, 1])]
+        new_id[p] = n_out
+        n_out += 1
+        out_c.append(path)
+        out_v.append(pv)
+    return _concat_cells(out_c), _concat_values(out_v), _offsets_of(out_c), new_id
+
+
+@njit(cache=True)
+def _concat_cells(parts):
+    n = 0
+    for x in parts:
+        n += x.shape[0]
+    out = np.empty((n, 2), np.int32)
+    n = 0
+    for x in parts:
+        out[n:n + x.shape[0]] = x
+        n += x.shape[0]
+    return out
+
+
+@njit(cache=True)
+def _concat_values(parts):
+    n = 0
+    for x in parts:
+        n += x.shape[0]
+    out = np.empty(n, np.float32)
+    n = 0
+    for x in parts:
+        out[n:n + x.shape[0]] = x
+        n += x.shape[0]
+    return out
+
+
+@njit(cache=True)
+def _offsets_of(parts):
+    out = np.zeros(len(parts) + 1, np.int64)
+    for q in range(len(parts)):
+        out[q + 1] = out[q] + parts[q].shape[0]
+    return out
+
+
+@njit(cache=True)
+def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
+    """Band indices of the cells of ``path`` within Chebyshev ``radius`` of (ci, cj)."""
+    n = 0
+    tmp = np.empty(path.shape[0], np.int64)
+    for q in range(path.shape[0]):
+        if abs(path[q, 0] - ci) <= radius and abs(path[q, 1] - cj) <= radius:
+            k = _flat_index(row0, lo, hi, off, path[q, 0], path[q, 1])
+            if k >= 0:
+                tmp[n] = k
+                n += 1
+    return tmp[:n].copy()
+
+
+@njit(cache=True)
+def _position(path, i, j) -> int:
+    for q in range(path.shape[0]):
+        if path[q, 0] == i and path[q, 1] == j:
+            return q
+    return -1
+
+
+@njit(cache=True)
+def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id, new_cells, new_offsets,
+                    s, h, radius, fa, fb, index, pool, left, left_y, na, right, right_y, nb, band, mrun):
+    """Refine every bridge whose chains survived; returns (junctions, cells, values, offsets)."""
+    junctions = []
+    out_c = []
+    out_v = []
+    for b in range(bridges.shape[0]):
+        p = bridges[b, 0]
+        q = bridges[b, 2]
+        np_ = new_id[p]
+        nq = new_id[q]
+        if np_ < 0 or nq < 0:
+            continue
+        cc = b_cells[b_offsets[b]:b_offsets[b + 1]]
+        row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
+        vals = np.empty(off[-1], np.float64)
+        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
+        sp = new_cells[new_offsets[np_]:new_offsets[np_ + 1]]
+        dp = new_cells[new_offsets[nq]:new_offsets[nq + 1]]
+        a = old_offsets[p] + bridges[b, 1]
+        c = old_offsets[q] + bridges[b, 3]
+        src = _path_cells_near(row0, lo, hi, off, sp, old_cells[a, 0] * s, old_cells[a, 1] * s, radius)
+        dst = _path_cells_near(row0, lo, hi, off, dp, old_cells[c, 0] * s, old_cells[c, 1] * s, radius)
+        if src.shape[0] == 0 or dst.shape[0] == 0:
+            continue
+        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, True)
+        if path.shape[0] == 0:
+            continue
+        pv = np.empty(path.shape[0], np.float32)
+        for u in range(path.shape[0]):
+            pv[u] = vals[_flat_index(row0, lo, hi, off, path[u, 0], path[u, 1])]
+        ia = _position(sp, path[0, 0], path[0, 1])
+        ic = _position(dp, path[-1, 0], path[-1, 1])
+        junctions.append((np_, np.int64(ia), nq, np.int64(ic)))
+        out_c.append(path)
+        out_v.append(pv)
+    jn = np.empty((len(junctions), 4), np.int64)
+    for u in range(len(junctions)):
+        jn[u, 0], jn[u, 1], jn[u, 2], jn[u, 3] = junctions[u]
+    return jn, _concat_cells(out_c), _concat_values(out_v), _offsets_of(out_c)
+
+
+def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: float, cfg: MatchWebParams,
+               self_pair: bool, pad: float = 1.0) -> MatchWeb:
+    """One coarse-to-fine step (KG04 §3.2, Fig. 8) from ``web`` to ``rate``.
+
+    (1-2) each chain is padded by ``pad`` coarse cells and upsampled into a band, and only the
+    band's cells are evaluated; (3) the new endpoints are the smallest cells within one coarse
+    cell (``ceil(s)`` fine cells) of the upsampled old ones; (4) the least-total-cost slope-ruled
+    path in the band joins them. Each bridge is refined likewise inside its own band, from any
+    cell of its refined from-chain to any cell of its refined to-chain within one coarse cell of
+    the upsampled old junctions, keeping the least-average path. Chains or bridges with no
+    feasible path are dropped (with their bridges). The union of all bands is evaluated once, each
+    cell on first use, into TILE×TILE tiles allocated for the tiles the bands touch (chain and
+    bridge bands overlap, ~2× on real webs). Cost: O(union of band cells · P) for the values plus
+    O(band cells · k) for the DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search
+    regions.
+    """
+    fa, fb = pa.n_frames, pb.n_frames
+    s = float(rate / web.rate)
+    h = 0.5 + float(pad)
+    radius = math.ceil(s)
+    mrun = max_run(cfg.slope_k)
+    band_w = self_band(cfg, rate) if self_pair else -1
+    old_cells = web.paths_cells.astype(np.int64)
+    old_bcells = web.bridges_cells.astype(np.int64)
+    index = np.full((-(-fa // TILE), -(-fb // TILE)), -1, np.int64)
+    _mark_tiles(old_cells, web.paths_offsets, s, h, fa, fb, index)
+    _mark_tiles(old_bcells, web.bridges_offsets, s, h, fa, fb, index)
+    pool = _alloc_tiles(index)
+    feats = (index, pool, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms)
+    pc, pv, po, new_id = _refine_chains(old_cells, web.paths_offsets, s, h, radius, fa, fb, *feats, band_w, mrun)
+    if web.n_bridges:
+        jn, bc, bv, bo = _refine_bridges(old_cells, web.paths_offsets, web.bridges, old_bcells, web.bridges_offsets,
+                                         new_id, pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
+    else:
+        jn, bc, bv, bo = np.zeros((0, 4), np.int64), empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
+    return MatchWeb(rate=rate, shape=(fa, fb), paths_cells=pc, paths_values=pv, paths_offsets=po, bridges=jn,
+                    bridges_cells=bc, bridges_values=bv, bridges_offsets=bo, self_pair=self_pair)
