@@ -1,8 +1,9 @@
 """Benchmark: load + forward kinematics of every clip under the real-data folder.
 
-Prints MB/s parsed and joint-frames/s of FK for our readers, then the same clips written as BVH
-(the shared data is DeepMimic JSON, which bvhio cannot read) parsed by our reader and by the
-`bvhio` package in the same run, as a ratio. Target: >= 30 MB/s parsing and >= 10x bvhio.
+Prints MB/s parsed and joint-frames/s of FK for our readers; then the real CMU files (ASF/AMC and
+cgspeed BVH) and the same clips written as BVH, parsed by our reader and, in the same run, by
+`bvhio` and by `pymotion` (PyPI ``upc-pymotion``: its BVH reader, and its FK), as ratios (both are
+in the ``bench`` extra). Target: >= 30 MB/s parsing and >= 10x bvhio.
 
     .venv/bin/python bench/io.py [--repeat 3] [--upsample 120]
 """
@@ -13,6 +14,8 @@ import argparse
 import sys
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -43,6 +46,8 @@ def main() -> None:
     print(f"  load (native format)   {size / 1e6 / t_load:8.1f} MB/s   ({t_load * 1e3:.1f} ms)")
     print(f"  forward kinematics     {jf / t_fk / 1e6:8.2f} M joint-frames/s")
 
+    cmu_formats(root, args.repeat)
+
     import bvhio
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -64,6 +69,49 @@ def main() -> None:
         print(f"  ratio (bvhio / ours)   {t_bvhio / t_ours:8.1f} x   (target >= 10x)")
         print(f"  read + FK              {bsize / 1e6 / (t_ours + t_fk2):8.1f} MB/s, "
               f"FK {jf2 / t_fk2 / 1e6:.2f} M joint-frames/s")
+
+
+def pymotion_read_fk(path: Path) -> np.ndarray:
+    """pymotion's BVH reader and FK: global joint positions (F, J, 3)."""
+    from pymotion.io.bvh import BVH
+    from pymotion.ops.skeleton import fk
+
+    bvh = BVH()
+    bvh.load(str(path))
+    rots, pos, parents, offsets, _, _ = bvh.get_data()
+    return fk(rots, pos[:, 0], offsets, parents)[0]
+
+
+def cmu_formats(root: Path, repeat: int) -> None:
+    """MB/s on the shared CMU files in their own formats: AMC (ours), BVH (ours, bvhio, pymotion)."""
+    import bvhio
+
+    cmu = root / "cmu"
+    amc = sorted(cmu.rglob("*.amc"))
+    bvh = sorted(cmu.rglob("*.bvh"))
+    if not amc or not bvh:
+        print(f"no CMU AMC / BVH files under {cmu}")
+        return
+    for files, label in ((amc, "AMC"), (bvh, "BVH")):
+        size = sum(p.stat().st_size for p in files)
+        [read_motion(p) for p in files]
+        t_read = best_of(lambda files=files: [read_motion(p) for p in files], repeat)[0]
+        t_fk = best_of(lambda files=files: [forward_kinematics(read_motion(p)) for p in files], repeat)[0]
+        print(f"CMU {label}: {len(files)} files, {size / 1e6:.2f} MB")
+        print(f"  motionweb read         {size / 1e6 / t_read:8.1f} MB/s   read + FK {size / 1e6 / t_fk:8.1f} MB/s")
+        if label != "BVH":
+            continue
+        t_bvhio = best_of(lambda: [bvhio.readAsBvh(str(p)) for p in files], max(1, repeat // 2))[0]
+        from pymotion.io.bvh import BVH
+
+        t_pm = best_of(lambda: [BVH().load(str(p)) for p in files], max(1, repeat // 2))[0]
+        t_pm_fk = best_of(lambda: [pymotion_read_fk(p) for p in files], max(1, repeat // 2))[0]
+        ours = read_motion(files[0])
+        np.testing.assert_allclose(pymotion_read_fk(files[0]), forward_kinematics(ours)[0], atol=1e-3)
+        print(f"  bvhio.readAsBvh        {size / 1e6 / t_bvhio:8.1f} MB/s   ours {t_bvhio / t_read:6.1f}x faster")
+        print(f"  pymotion BVH.load      {size / 1e6 / t_pm:8.1f} MB/s   ours {t_pm / t_read:6.1f}x faster")
+        print(f"  pymotion load + fk     {size / 1e6 / t_pm_fk:8.1f} MB/s   ours {t_pm_fk / t_fk:6.1f}x faster "
+              f"(same positions to 1e-3 on {files[0].name})")
 
 
 if __name__ == "__main__":

@@ -357,7 +357,7 @@ def search(
     clip: Annotated[str, typer.Option(help="Query clip: corpus path or file stem.")],
     start: Annotated[float, typer.Option(help="Query start, seconds.")],
     end: Annotated[float, typer.Option(help="Query end, seconds.")],
-    threshold: Annotated[float | None, typer.Option(help="Absolute threshold ε on average web values.")] = None,
+    threshold: Annotated[float | None, typer.Option(help="Absolute threshold ε on average web values (default: search.eps_nearest_ratio × the query's nearest match).")] = None,
     quantile: Annotated[float | None, typer.Option(help="ε as this quantile (0-1) of the searched webs' values.")] = None,
     tiers: Annotated[int | None, typer.Option(help="Search tiers (default: config search.max_tiers).")] = None,
     all_categories: Annotated[bool, typer.Option(help="Search every chunk, not only the query's category.")] = False,

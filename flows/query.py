@@ -29,7 +29,7 @@ from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.register import Registration, register
-from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
+from motionweb.tasks.search import MatchSearch, default_epsilon, epsilon_from_quantile, nearest_costs, search
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
@@ -37,8 +37,9 @@ from prefect.cache_policies import NO_CACHE
 @dataclass
 class QueryRequest:
     """A query M1[a, b] (KG04 §3.3): ``clip`` is a corpus path or a unique file stem; ``start``
-    and ``end`` in seconds; exactly one of ``threshold`` (absolute ε) and ``quantile`` (ε as that
-    quantile of the searched webs' values)."""
+    and ``end`` in seconds; at most one of ``threshold`` (absolute ε) and ``quantile`` (ε as that
+    quantile of the searched webs' values); with neither, the default rule
+    (``tasks.search.default_epsilon``: a multiple of the query's nearest match)."""
 
     clip: str
     start: float
@@ -52,8 +53,8 @@ class QueryRequest:
     out: str | None = None
 
     def __post_init__(self) -> None:
-        if (self.threshold is None) == (self.quantile is None):
-            raise ValueError("give exactly one of threshold (absolute ε) and quantile (ε as a quantile)")
+        if self.threshold is not None and self.quantile is not None:
+            raise ValueError("give at most one of threshold (absolute ε) and quantile (ε as a quantile)")
         if self.quantile is not None and not 0.0 < self.quantile < 1.0:
             raise ValueError(f"quantile must lie in (0, 1), got {self.quantile}")
         if self.tiers is not None and self.tiers < 1:
@@ -253,9 +254,14 @@ def write_warps(reg: Registration, rows: list[dict[str, Any]], out: Path) -> lis
 @task(name="search", cache_policy=NO_CACHE)
 def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[MatchGraph, float]:
     """Choose ε and run the tiered search on the committed generation; (graph, ε)."""
-    eps = (request.threshold if request.threshold is not None
-           else epsilon_from_quantile(q.webs.all_webs(), request.quantile))
     scfg = cfg.search if request.tiers is None else cfg.search.model_copy(update={"max_tiers": request.tiers})
+    if request.threshold is not None:
+        eps = request.threshold
+    elif request.quantile is not None:
+        eps = epsilon_from_quantile(q.webs.all_webs(), request.quantile)
+    else:
+        near = nearest_costs(MatchSearch(q.webs, scfg, q.gen_cfg.matchweb), q.segment)
+        eps = default_epsilon(near, scfg.eps_nearest_ratio)
     return search(q.segment, eps, q.webs, scfg, q.gen_cfg.matchweb), eps
 
 

@@ -67,6 +67,8 @@ class SearchParams(Params):
     merge_above: float = 0.8
     max_tiers: int = 10
     all_categories: bool = False
+    #: default ε = this × the query's nearest match in another clip (``default_epsilon``)
+    eps_nearest_ratio: float = 2.0
 
 
 
@@ -535,3 +537,71 @@ def search(query: Segment, eps: float, webs: WebSource, cfg: SearchParams | None
 
 # ----------------------------------------------------------------------------------------------
 # the webs of a store generation
+
+
+# ----------------------------------------------------------------------------------------------
+# trials ranked for a user (retrieval)
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TrialRanking:
+    """Trials ranked for a query: ``ranking`` every trial with a web to the query's clip (best
+    first), ``found`` those the search returns, ``score`` per trial, ``eps`` the threshold used."""
+
+    ranking: list[str]
+    found: list[str]
+    score: dict[str, float]
+    eps: float
+    graph: MatchGraph | None = None
+
+
+def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
+    """Per clip other than the query's, the least average value of a match of ``query`` in its
+    webs: one tier with ε = ∞ (KG04 §3.3 walks, slope and length rules of
+    :meth:`MatchSearch.matches`). Clips with no walk across the query's rows are absent."""
+    best: dict[str, float] = {}
+    for m in ms.matches(query, INF):
+        if m.clip != query.clip and m.cost < best.get(m.clip, INF):
+            best[m.clip] = m.cost
+    return best
+
+
+def default_epsilon(nearest: dict[str, float], ratio: float) -> float:
+    """The default threshold: ``ratio`` times the query's nearest match in another clip (design §5).
+
+    KG04 §3.3 leaves ε to the user; an absolute ε means little (web values scale with the
+    skeleton and the motion's speed) and a quantile of the webs' values depends on what else the
+    library holds. The nearest match measures how close the closest logically similar motion is
+    for *this* query, so ``ratio`` × it admits the matches about as good as that one.
+    """
+    if not nearest:
+        raise ValueError("the query matches no other clip at any threshold: nothing to rank")
+    return float(ratio) * min(nearest.values())
+
+
+def rank_trials(ms: MatchSearch, query: Segment, eps: float | None = None, tiers: int | None = None) -> TrialRanking:
+    """Clips ranked for ``query`` by what the match graph knows (design §5).
+
+    ε defaults to :func:`default_epsilon`. The tiered search (KG04 §3.3, at most ``tiers`` tiers,
+    default ``SearchParams.max_tiers``) returns the found clips, ranked by their best node's
+    shortest-path distance to the query through the graph; every other clip with a walk across
+    the query's rows follows, by its nearest match. Cost: one tier at ε = ∞ plus the search.
+    """
+    ms.check(query)
+    near = nearest_costs(ms, query)
+    eps = default_epsilon(near, ms.cfg.eps_nearest_ratio) if eps is None else float(eps)
+    old = ms.cfg
+    if tiers is not None:
+        ms.cfg = old.model_copy(update={"max_tiers": int(tiers)})
+    try:
+        g = ms.search(query, eps)
+    finally:
+        ms.cfg = old
+    score: dict[str, float] = {}
+    for n in g.nodes[1:]:
+        if n.segment.clip != query.clip:
+            score[n.segment.clip] = min(score.get(n.segment.clip, INF), n.distance)
+    found = sorted(score, key=lambda c: (score[c], c))
+    rest = sorted((c for c in near if c not in score), key=lambda c: (near[c], c))
+    return TrialRanking(found + rest, found, {**{c: near[c] for c in rest}, **score}, eps, g)

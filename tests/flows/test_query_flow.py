@@ -94,7 +94,8 @@ def test_search_cli_table_export_and_tiers(demo, tmp_path: Path) -> None:
     (["--clip", "nope", "--start", "0", "--end", "1", "--quantile", "0.5"], "unknown clip 'nope'"),
     (["--clip", "walk_00", "--start", "0", "--end", "99", "--quantile", "0.5"], "outside clip"),
     (["--clip", "walk_00", "--start", "0", "--end", "0.1", "--quantile", "0.5"], "shorter than the minimum chain"),
-    (["--clip", "walk_00", "--start", "0", "--end", "1"], "exactly one of threshold"),
+    (["--clip", "walk_00", "--start", "0", "--end", "1", "--threshold", "1", "--quantile", "0.5"],
+     "at most one of threshold"),
     (["--clip", "walk_00", "--start", "0", "--end", "1", "--quantile", "1.5"], "quantile must lie in (0, 1)"),
 ])
 def test_search_cli_bad_requests(demo, args: list[str], message: str) -> None:

@@ -19,7 +19,10 @@ from motionweb.tasks.matchweb.params import MatchWebParams, self_band
 from motionweb.tasks.search import (
     MatchSearch,
     SearchParams,
+    default_epsilon,
     epsilon_from_quantile,
+    nearest_costs,
+    rank_trials,
     remove_redundant,
     search,
     walk_web,
@@ -294,3 +297,41 @@ def test_matches_too_short_or_too_steep_are_not_kept() -> None:
     ms = MatchSearch({"A": [("B", short)], "B": [("A", transpose(short))]})
     assert [m.segment for m in ms.matches(Segment("A", 10, 20), 1.0)] == [Segment("B", 10, 20)]
     assert ms.matches(Segment("A", 10, 16), 1.0) == []  # 6 frames < the minimum chain length (8)
+
+
+# ---------------------------------------------------------------------------- default ε and trial ranking
+
+
+def test_default_epsilon_finds_the_planted_copies(planted) -> None:
+    """The default rule (2 × the nearest match) needs no threshold: the planted copies (~3e-4)
+    are found with their endpoints, the other motions (≥ 0.02) are not."""
+    pc, webs = planted
+    ms = MatchSearch(webs, SearchParams(max_tiers=1))
+    near = nearest_costs(ms, pc.query)
+    assert pc.query.clip not in near and set(pc.expected) <= set(near)
+    assert default_epsilon(near, 2.0) == pytest.approx(2.0 * min(near.values()))
+    r = rank_trials(ms, pc.query)
+    assert r.eps == pytest.approx(2.0 * min(near.values()))
+    hits = [n.segment for n in r.graph.nodes[1:] if n.segment.clip in pc.expected
+            and abs(n.segment.start - pc.expected[n.segment.clip].start) <= TOL
+            and abs(n.segment.end - pc.expected[n.segment.clip].end) <= TOL]
+    assert len({s.clip for s in hits}) / len(pc.expected) >= 0.95
+    assert len(hits) / max(len(r.graph.nodes) - 1, 1) >= 0.95
+    # every clip with a walk is ranked: the copies first, then the rest by their nearest match
+    assert set(r.found) <= set(pc.expected) and len(r.found) >= 0.95 * len(pc.expected)
+    assert set(r.ranking[:len(r.found)]) == set(r.found) and set(r.ranking) == set(near)
+    rest = r.ranking[len(r.found):]
+    assert [near[c] for c in rest] == sorted(near[c] for c in rest)
+    with pytest.raises(ValueError, match="matches no other clip"):
+        default_epsilon({}, 2.0)
+
+
+def test_rank_trials_by_graph_distance_through_tiers(chain) -> None:
+    pc, webs = chain
+    ms = MatchSearch(webs, SearchParams())
+    one = rank_trials(ms, pc.query, eps=0.003, tiers=1)
+    assert one.found == ["kick/variant_1"]
+    tiered = rank_trials(ms, pc.query, eps=0.003)
+    assert tiered.found == list(pc.expected)  # chain order = graph distance order
+    assert [tiered.score[c] for c in tiered.found] == sorted(tiered.score[c] for c in tiered.found)
+    assert ms.cfg.max_tiers == SearchParams().max_tiers  # the tier limit was only lent
