@@ -56,6 +56,19 @@ def main() -> None:
             out = Path(tmp) / (p.stem + ".bvh")
             write_bvh(resample(m, args.upsample), out)
             bvh_files.append(out)
+        # bvhio needs CHANNELS on every joint: copies of skeletons with fixed joints (CMU ASF
+        # bones without dof, written with 0 channels) are left out of the comparison
+        readable = []
+        for p in bvh_files:
+            try:
+                bvhio.readAsBvh(str(p))
+                readable.append(p)
+            except SyntaxError:
+                pass
+        if len(readable) < len(bvh_files):
+            print(f"(bvhio cannot read {len(bvh_files) - len(readable)} of the {len(bvh_files)} copies: "
+                  f"joints with 0 channels; compared on the other {len(readable)})")
+        bvh_files = readable
         bsize = sum(p.stat().st_size for p in bvh_files)
         bm = [read_bvh(p) for p in bvh_files]
         t_ours = best_of(lambda: [read_bvh(p) for p in bvh_files], args.repeat)[0]

@@ -567,6 +567,28 @@ def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
     return best
 
 
+def window_costs(ms: MatchSearch, query: Segment, window_s: float = 0.5) -> dict[str, float]:
+    """Per clip other than the query's, the median over the query's windows (``window_s`` long,
+    half overlapping, covering the query) of the clip's nearest match of that window; a window
+    the clip does not match counts as the worst nearest match of that window in any clip.
+
+    A clip shorter than the query, or whose webs hold no path across all the query's rows,
+    still scores by the parts of the query it matches (KG04 §3.3 walks of each window). Cost:
+    one :func:`nearest_costs` per window."""
+    g = ms.graph(query.clip)
+    w = max(min_chain_extent(ms.web_cfg, g.rate) + 1, round(window_s * g.rate) + 1)
+    if query.end - query.start + 1 <= w:
+        starts = [query.start]
+    else:
+        starts = list(range(query.start, query.end - w + 2, max(1, w // 2)))
+        if starts[-1] != query.end - w + 1:
+            starts.append(query.end - w + 1)
+    per = [nearest_costs(ms, Segment(query.clip, a, min(a + w - 1, query.end))) for a in starts]
+    clips = sorted({c for p in per for c in p})
+    worst = [max(p.values()) if p else INF for p in per]
+    return {c: float(np.median([p.get(c, wv) for p, wv in zip(per, worst, strict=True)])) for c in clips}
+
+
 def default_epsilon(nearest: dict[str, float], ratio: float) -> float:
     """The default threshold: ``ratio`` times the query's nearest match in another clip (design §5).
 
@@ -585,8 +607,11 @@ def rank_trials(ms: MatchSearch, query: Segment, eps: float | None = None, tiers
 
     ε defaults to :func:`default_epsilon`. The tiered search (KG04 §3.3, at most ``tiers`` tiers,
     default ``SearchParams.max_tiers``) returns the found clips, ranked by their best node's
-    shortest-path distance to the query through the graph; every other clip with a walk across
-    the query's rows follows, by its nearest match. Cost: one tier at ε = ∞ plus the search.
+    shortest-path distance to the query through the graph; every other clip matching a window
+    of the query follows, by :func:`window_costs` (so clips shorter than the query, or whose
+    webs cross only part of its rows, still rank by what they match), then the clips matching
+    the whole query only, by their nearest match (score ∞). Cost: one tier at ε = ∞
+    for the query and for each of its windows, plus the search.
     """
     ms.check(query)
     near = nearest_costs(ms, query)
@@ -603,5 +628,8 @@ def rank_trials(ms: MatchSearch, query: Segment, eps: float | None = None, tiers
         if n.segment.clip != query.clip:
             score[n.segment.clip] = min(score.get(n.segment.clip, INF), n.distance)
     found = sorted(score, key=lambda c: (score[c], c))
-    rest = sorted((c for c in near if c not in score), key=lambda c: (near[c], c))
-    return TrialRanking(found + rest, found, {**{c: near[c] for c in rest}, **score}, eps, g)
+    win = window_costs(ms, query)
+    rest = sorted((c for c in win if c not in score), key=lambda c: (win[c], c))
+    last = sorted((c for c in near if c not in score and c not in win), key=lambda c: (near[c], c))
+    scores = {**{c: INF for c in last}, **{c: win[c] for c in rest}, **score}
+    return TrialRanking(found + rest + last, found, scores, eps, g)

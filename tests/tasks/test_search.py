@@ -26,6 +26,7 @@ from motionweb.tasks.search import (
     remove_redundant,
     search,
     walk_web,
+    window_costs,
 )
 from naive import ref_matches
 from planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
@@ -317,11 +318,17 @@ def test_default_epsilon_finds_the_planted_copies(planted) -> None:
             and abs(n.segment.end - pc.expected[n.segment.clip].end) <= TOL]
     assert len({s.clip for s in hits}) / len(pc.expected) >= 0.95
     assert len(hits) / max(len(r.graph.nodes) - 1, 1) >= 0.95
-    # every clip with a walk is ranked: the copies first, then the rest by their nearest match
+    # the copies first, then every other clip matching a window of the query, by window score
     assert set(r.found) <= set(pc.expected) and len(r.found) >= 0.95 * len(pc.expected)
-    assert set(r.ranking[:len(r.found)]) == set(r.found) and set(r.ranking) == set(near)
-    rest = r.ranking[len(r.found):]
-    assert [near[c] for c in rest] == sorted(near[c] for c in rest)
+    assert set(r.ranking[:len(r.found)]) == set(r.found) and set(near) <= set(r.ranking)
+    win = window_costs(ms, pc.query)
+    rest = [c for c in r.ranking[len(r.found):] if c in win]
+    assert r.ranking[len(r.found):len(r.found) + len(rest)] == rest and pc.query.clip not in win
+    assert [r.score[c] for c in rest] == sorted(win[c] for c in rest)
+    last = r.ranking[len(r.found) + len(rest):]
+    assert [near[c] for c in last] == sorted(near[c] for c in last)
+    # a window score is the median of per-window nearest matches: a copy scores like its full match
+    assert max(win[c] for c in pc.expected) < min(win[c] for c in win if c not in pc.expected)
     with pytest.raises(ValueError, match="matches no other clip"):
         default_epsilon({}, 2.0)
 
