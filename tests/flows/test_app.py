@@ -139,7 +139,7 @@ def load_config_of(gen):
     ({"clip": "nope", "start": 0, "end": 1, "quantile": 0.5}, 404, "unknown clip 'nope'"),
     ({"clip": "walk_00", "start": 0, "end": 99, "quantile": 0.5}, 400, "outside clip"),
     ({"clip": "walk_00", "start": 0, "end": 0.1, "quantile": 0.5}, 400, "shorter than the minimum chain"),
-    ({"clip": "walk_00", "start": 0, "end": 1}, 400, "exactly one of threshold"),
+    ({"clip": "walk_00", "start": 0, "end": 1, "threshold": 1, "quantile": 0.5}, 400, "at most one of threshold"),
     ({"clip": "walk_00", "start": 0, "end": 1, "quantile": 1.5}, 400, "quantile must lie in (0, 1)"),
     ({"clip": "walk_00", "start": 0, "end": 1, "quantile": 0.5, "tiers": 99}, 400, "tiers must be ≤ 20"),
     ({"clip": "walk_00", "start": "x", "end": 1, "quantile": 0.5}, 400, "start: Input should be a valid number"),
