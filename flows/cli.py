@@ -441,5 +441,22 @@ from motionweb.flows.space_cli import add_commands  # noqa: E402  (parameterize,
 
 add_commands(app, fail, config_or_fail)
 
+def main() -> None:
+    """The console script: run the CLI, and turn anything a command did not foresee (a Prefect
+    server that fails to start, a full disk) into one line on stderr, exit 1, instead of a
+    traceback. ``MOTIONWEB_DEBUG=1`` shows the traceback."""
+    import os
+
+    try:
+        app()
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback at the CLI
+        if os.environ.get("MOTIONWEB_DEBUG"):
+            raise
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        typer.secho(f"error: {type(exc).__name__}: {first} (MOTIONWEB_DEBUG=1 shows where)", err=True,
+                    fg=typer.colors.RED)
+        sys.exit(1)
+
+
 if __name__ == "__main__":
-    app()
+    main()

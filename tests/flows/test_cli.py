@@ -59,3 +59,18 @@ def test_preview_of_broken_file_is_a_clear_error(tmp_path: Path) -> None:
     r = runner.invoke(app, ["preview", str(tmp_path / "b.bvh"), "--out", str(tmp_path / "b.gif")])
     assert r.exit_code == 2 and "b.bvh" in r.output
 
+
+
+def test_an_unforeseen_failure_is_one_line_not_a_traceback(tmp_path: Path) -> None:
+    """The console script's last line of defence (e.g. Prefect's server failing to start)."""
+    import subprocess
+    import sys
+
+    code = ("import motionweb.flows.cli as c\n"
+            "def boom():\n    raise RuntimeError('Timed out while attempting to connect to the server.\\nmore')\n"
+            "c.app = boom\nc.main()\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1
+    assert "Traceback" not in r.stderr
+    assert r.stderr.strip().splitlines() == [
+        "error: RuntimeError: Timed out while attempting to connect to the server. (MOTIONWEB_DEBUG=1 shows where)"]
