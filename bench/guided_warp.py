@@ -43,6 +43,7 @@ from motionweb.tasks.guided_warp import (
     local_scores,
     motion_track,
     path_cost,
+    playback_speed,
     reference_features,
 )
 
@@ -190,12 +191,6 @@ def bench_row(row, repeat: int, run_python: bool) -> dict:
     return rec
 
 
-def speed_over(times: np.ndarray, f0: float, f1: float) -> float:
-    """Mean playback speed of source frames f0..f1 under a warp (source time per output time)."""
-    out = np.arange(len(times))
-    return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))
-
-
 def subject16_jumps() -> list[str]:
     """Trial names of subject 16's jumps, from the manifest's labels."""
     with open(mocap_root() / CMU / "manifest.csv", newline="") as fh:
@@ -219,10 +214,10 @@ def preservation_report() -> list[str]:
             n_out = round(frac * (n - 1)) + 1
             r = guided_warp(m, n_out=n_out, resample_motion=False)
             lin = linear_warp(m, n_out, resample_motion=False)
-            fl = speed_over(r.times, f0, f1)
+            fl = playback_speed(r.times, f0, f1)
             worst = max(worst, abs(fl - 1.0))
-            lines.append(f"{name:6s} {n:6d} {f0:4d}-{f1:<4d} {frac:5.0%} | {fl:6.3f} {speed_over(r.times, 0, f0):6.2f} "
-                         f"{speed_over(r.times, f1, n - 1):6.2f} | {speed_over(lin.times, f0, f1):6.3f}")
+            lines.append(f"{name:6s} {n:6d} {f0:4d}-{f1:<4d} {frac:5.0%} | {fl:6.3f} {playback_speed(r.times, 0, f0):6.2f} "
+                         f"{playback_speed(r.times, f1, n - 1):6.2f} | {playback_speed(lin.times, f0, f1):6.3f}")
     lines.append(f"largest flight-speed deviation from 1x: {100 * worst:.1f}% (target <= 10%)")
     return lines
 

@@ -43,6 +43,7 @@ from motionweb.tasks.guided_warp.warp import (
     check_compatible,
     guided_warp,
     linear_warp,
+    playback_speed,
     pose_error,
 )
 
@@ -66,6 +67,7 @@ __all__ = [
     "guided_warp",
     "knn_mean_distance",
     "linear_warp",
+    "playback_speed",
     "local_scores",
     "motion_track",
     "path_cost",

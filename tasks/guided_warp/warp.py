@@ -218,3 +218,12 @@ def pose_error(a: Motion, b: Motion, up: str = "y") -> float:
     pa = torso_positions(motion_track(a, 1, up))
     pb = torso_positions(motion_track(b, 1, up))
     return float(np.sqrt(np.mean(np.sum((pa - pb) ** 2, axis=-1))))
+
+
+def playback_speed(times: np.ndarray, f0: float, f1: float) -> float:
+    """Mean playback speed of source frames f0..f1 under a warp: source time per output time.
+
+    ``times`` (m,) is the (increasing) source frame of each output frame, e.g. ``WarpResult.times``;
+    1 means the span plays at its original speed (HDP07 §4.1's preservation measure)."""
+    out = np.arange(len(times))
+    return (f1 - f0) / (np.interp(f1, times, out) - np.interp(f0, times, out))

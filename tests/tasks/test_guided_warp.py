@@ -13,7 +13,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from fixtures import speed_over
 from motionweb.store.kinematics import quat_from_euler, sample_motion
 from motionweb.store.motion import Motion, Skeleton
 from motionweb.tasks.guided_warp import (
@@ -27,6 +26,7 @@ from motionweb.tasks.guided_warp import (
     local_scores,
     motion_track,
     path_cost,
+    playback_speed,
     pose_error,
     reduce_to_compression,
     reference_features,
@@ -244,10 +244,10 @@ def test_walk_then_jump_keeps_flight_at_natural_speed(walkjump):
     r = guided_warp(motion, n_out=m)
     lin = linear_warp(motion, m)
     walk_end = f0 - 40
-    assert speed_over(r.times, f0, f1) == pytest.approx(1.0, abs=0.1)
-    assert speed_over(r.times, 0, walk_end) >= 1.4
-    assert speed_over(lin.times, f0, f1) == pytest.approx((n - 1) / (m - 1))  # linear speeds the jump up
-    assert speed_over(lin.times, f0, f1) > 1.6
+    assert playback_speed(r.times, f0, f1) == pytest.approx(1.0, abs=0.1)
+    assert playback_speed(r.times, 0, walk_end) >= 1.4
+    assert playback_speed(lin.times, f0, f1) == pytest.approx((n - 1) / (m - 1))  # linear speeds the jump up
+    assert playback_speed(lin.times, f0, f1) > 1.6
 
 
 def test_expansion_by_upsampling(walkjump):
@@ -262,8 +262,8 @@ def test_expansion_by_upsampling(walkjump):
     steps = np.diff(r.raw_times)
     assert steps.min() >= 1.0 / r.upsample - 1e-12 and steps.max() <= 8.0 / r.upsample + 1e-12
     # the flight keeps its own timing while the rest slows down
-    assert speed_over(r.times, f0, f1) == pytest.approx(1.0, abs=0.15)
-    assert speed_over(r.times, 0, f0 - 40) < 0.8
+    assert playback_speed(r.times, f0, f1) == pytest.approx(1.0, abs=0.15)
+    assert playback_speed(r.times, 0, f0 - 40) < 0.8
 
 
 def test_backward_warp_reverses(walkjump):

@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures import speed_over
 from motionweb.store.formats import read_motion
 from motionweb.store.kinematics import airborne_intervals, resample
-from motionweb.tasks.guided_warp import guided_warp, linear_warp
+from motionweb.tasks.guided_warp import guided_warp, linear_warp, playback_speed
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +45,9 @@ def test_guided_warp_preserves_the_flight_of_every_subject16_jump(jumps: list[Pa
         n_out = round(frac * (n - 1)) + 1
         r = guided_warp(m, n_out=n_out, resample_motion=False)
         lin = linear_warp(m, n_out, resample_motion=False)
-        flight = speed_over(r.times, f0, f1)
+        flight = playback_speed(r.times, f0, f1)
         assert abs(flight - 1.0) <= 0.10, (path.name, frac, flight)
-        assert abs(speed_over(lin.times, f0, f1) - (n - 1) / (n_out - 1)) < 0.05  # linear scales it
+        assert abs(playback_speed(lin.times, f0, f1) - (n - 1) / (n_out - 1)) < 0.05  # linear scales it
         ground = (f0 + (n - 1 - f1)) / (np.interp(f0, r.times, np.arange(n_out))
                                         + (n_out - 1 - np.interp(f1, r.times, np.arange(n_out))))
         # the ground phases absorb the whole change: faster than linear when compressing, slower expanding
