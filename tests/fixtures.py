@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from motionweb.store.deepmimic import DEEPMIMIC_JOINTS
 from motionweb.store.kinematics import quat_from_axis_angle, quat_from_euler
 from motionweb.store.motion import Motion, Skeleton
 
@@ -116,3 +117,136 @@ def synthetic_jump(fps: float = 40.0, g: float = G, v0: float = 2.0, stand: floa
     root[:, 1] = y
     motion = Motion(jumper_skeleton(), fps, root, rot, name="synthetic_jump", unit="m")
     return motion, (float(takeoff), float(landing))
+
+
+def ragged_web(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Flat arrays of a web with three paths of different lengths (values + offsets)."""
+    lengths = [5, 0, 12]
+    offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    n = int(offsets[-1])
+    return {
+        "paths_cells": rng.integers(0, 100, size=(n, 2)).astype(np.int32),
+        "paths_values": rng.random(n).astype(np.float32),
+        "paths_offsets": offsets,
+        "bridges": np.zeros((0, 4), np.int32),
+        "shape": np.array([100, 80], np.int64),
+        "rate": np.array([30.0]),
+    }
+
+
+# ---- a hand-made DeepMimic humanoid (own numbers, URDF units = 4 x metres) ----------------------
+
+#  joint, type, parent link, origin, link mass, link com, collision
+HUMANOID_BODY = [
+    ("chest", "spherical", "root", "0 1 0", 10.0, "0 0.4 0", '<sphere radius="0.4"/>'),
+    ("neck", "spherical", "chest", "0 0.8 0", 2.0, "0 0.6 0", '<sphere radius="0.4"/>'),
+    ("right_hip", "spherical", "root", "0 0 0.4", 4.0, "0 -0.8 0", '<capsule length="1.2" radius="0.2"/>'),
+    ("right_knee", "revolute", "right_hip", "0 -1.6 0", 3.0, "0 -0.8 0", '<capsule length="1.2" radius="0.2"/>'),
+    ("right_ankle", "spherical", "right_knee", "0 -1.6 0", 1.0, "0.2 -0.1 0", '<box size="0.8 0.2 0.4"/>'),
+    ("right_shoulder", "spherical", "chest", "0 0.8 0.8", 1.5, "0 -0.5 0", '<sphere radius="0.2"/>'),
+    ("right_elbow", "revolute", "right_shoulder", "0 -1 0", 1.0, "0 -0.5 0", '<sphere radius="0.2"/>'),
+    ("right_wrist", "fixed", "right_elbow", "0 -1 0", 0.5, "0 0 0", '<sphere radius="0.2"/>'),
+]
+HUMANOID_BODY += [(r[0].replace("right", "left"), r[1], r[2].replace("right", "left"),
+           r[3].replace(" 0.4", " -0.4").replace(" 0.8 0.8", " 0.8 -0.8"), *r[4:]) for r in HUMANOID_BODY[2:]]
+ROOT_MASS, BASE_MASS = 6.0, 0.001
+
+
+def handmade_urdf_text() -> str:
+    def link(name: str, mass: float, com: str, geom: str) -> str:
+        rpy = "-1.570796 0 0" if "capsule" in geom else "0 0 0"
+        return (f'  <link name="{name}">\n    <inertial>\n      <origin rpy="0 0 0" xyz="{com}"/>\n'
+                f'      <mass value="{mass}"/>\n'
+                f'      <inertia ixx="0.2" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.2"/>\n    </inertial>\n'
+                f'    <collision>\n      <origin rpy="{rpy}" xyz="{com}"/>\n'
+                f'      <geometry>{geom}</geometry>\n    </collision>\n  </link>\n')
+
+    out = ['<robot name="handmade">\n',
+           f'  <link name="base"><inertial><mass value="{BASE_MASS}"/></inertial></link>\n',
+           link("root", ROOT_MASS, "0 0.2 0", '<sphere radius="0.3"/>'),
+           ('  <joint name="root" type="fixed"><parent link="base"/><child link="root"/>'
+            '<origin rpy="0 0 0" xyz="0 0 0"/></joint>\n')]
+    for name, kind, parent, origin, mass, com, geom in HUMANOID_BODY:
+        out.append(link(name, mass, com, geom))
+        axis = '<axis xyz="0 0 1"/><limit lower="-3" upper="0"/>' if kind == "revolute" else ""
+        out.append(f'  <joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{name}"/>'
+                   f'<origin rpy="0 0 0" xyz="{origin}"/>{axis}</joint>\n')
+    out.append("</robot>\n\x00")  # pybullet's file ends with a NUL byte too
+    return "".join(out)
+
+
+def deepmimic_frame(duration: float = 1 / 30, root=(0.0, 0.9, 0.0), root_q=(1.0, 0, 0, 0), **angles: float) -> list[float]:
+    """A frame with identity joints except revolute ``angles`` (rad) by joint name."""
+    out = [duration, *root, *root_q]
+    for name, width in DEEPMIMIC_JOINTS:
+        out += [angles.get(name, 0.0)] if width == 1 else [1.0, 0.0, 0.0, 0.0]
+    return out
+
+
+# ---- a hand-written two-bone ASF/AMC pair ----------------------------------------------------------
+
+CHAIN_ASF = """\
+# a two-bone arm, hand written for the tests
+:version 1.10
+:name arm
+:units
+  mass 1.0
+  length 0.5
+  angle deg
+:documentation
+  upper points along +X with its axis turned 90 degrees about Z,
+  lower points along +Y.
+:root
+  order TX TY TZ RX RY RZ
+  axis XYZ
+  position 0 0 0
+  orientation 0 0 0
+:bonedata
+  begin
+    id 1
+    name upper
+    direction 1 0 0
+    length 2
+    axis 0 0 90 XYZ
+    dof rx ry rz
+    limits (-180.0 180.0)
+           (-180.0 180.0)
+           (-180.0 180.0)
+  end
+  begin
+    id 2
+    name lower
+    direction 0 1 0
+    length 3
+    axis 0 0 0 XYZ
+    dof rx
+    limits (-10.0 170.0)
+  end
+:hierarchy
+  begin
+    root upper
+    upper lower
+  end
+"""
+
+CHAIN_AMC = """\
+# hand written
+:FULLY-SPECIFIED
+:DEGREES
+1
+root 1 2 3 0 0 0
+upper 90 0 0
+lower 90
+2
+root 1 2 3 0 0 0
+upper 0 0 90
+lower 0
+"""
+
+
+def lowest_root(examples, weights: np.ndarray) -> np.ndarray:
+    """A custom parameter function (imported by path in the tests): the blend's lowest root height."""
+    from motionweb.tasks.blend import blend_path
+
+    pos, _ = blend_path(examples, weights)
+    return pos[..., 1].min(axis=1)[:, None]
