@@ -444,13 +444,116 @@ def read_asf(path: str | Path, *, length_unit: str = "in") -> AsfSkeleton:
     return parse_asf(text, str(path), length_unit=length_unit, content_hash=digest)
 
 
+@dataclass(frozen=True)
+class AmcValues:
+    """The numbers of an AMC file per bone: ``values[k]`` is ``(F, len(dof_k))`` for every bone the
+    file lists (bones it never lists keep their rest pose); ``degrees`` is the file's angle unit."""
+
+    values: dict[int, np.ndarray]
+    n_frames: int
+    degrees: bool
+
+
 def parse_amc(text: str, asf: AsfSkeleton, path: str | None = None, *, fps: float = CMU_FPS,
               name: str | None = None, content_hash: str = "") -> Motion:
     """Parse AMC text against its skeleton into a :class:`Motion` (lengths in the ASF's unit).
 
-    One pass over the lines collects each bone's value tokens; numbers are converted per bone in
-    bulk. Angles are degrees unless the file says ``:RADIANS`` (or the ASF says ``angle rad``
-    and the AMC has no ``:DEGREES``).
+    A file in the layout every exporter writes (a header of ``#`` and ``:`` lines, then frames
+    numbered 1, 2, ... that each list the same bones in the same order) is read in bulk by
+    :func:`amc_values_regular`; anything else goes through :func:`amc_values_by_lines`, which
+    accepts the same files and more and names the line of what it cannot accept. Angles are degrees
+    unless the file says ``:RADIANS`` (or the ASF says ``angle rad`` and the AMC has no ``:DEGREES``).
+    """
+    read = amc_values_regular(text, asf) or amc_values_by_lines(text, asf, path)
+    return _amc_motion(asf, read.values, read.n_frames, read.degrees, fps, path, name, content_hash)
+
+
+_FRAME_LINE = re.compile(r"^[ \t]*[0-9]+[ \t]*$", re.M)
+
+
+def amc_values_regular(text: str, asf: AsfSkeleton) -> AmcValues | None:
+    """The values of an AMC file in the regular layout, or None when it departs from it anywhere.
+
+    The first frame gives the layout (its bones in order and their value counts). The body must then
+    be that layout repeated: every non-blank line holds exactly the layout's number of tokens
+    (counted on the bytes with numpy), every bone name and frame number (1, 2, ...) sits where the
+    layout puts it, and every value is a plain finite decimal. A file that passes is read exactly
+    as :func:`amc_values_by_lines` reads it. Cost is linear in the file's size, with no Python
+    work per line.
+    """
+    sk = asf.skeleton
+    index = {n: k for k, n in enumerate(sk.names)}
+    text = text.removeprefix("\ufeff")
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    first = _FRAME_LINE.search(text)
+    if first is None:
+        return None
+    degrees = asf.angle_unit == "deg"
+    for line in text[:first.start()].split("\n"):
+        head = line.strip().upper()
+        if head in (":DEGREES", ":RADIANS"):
+            degrees = head == ":DEGREES"
+        elif head and not head.startswith(("#", ":")):
+            return None
+    body = text[first.start():]
+    if not body.isascii():
+        return None
+    second = _FRAME_LINE.search(body, first.end() - first.start())
+    bones: list[tuple[int, int]] = []
+    for line in body[:second.start() if second else len(body)].split("\n")[1:]:
+        toks = line.split()
+        if not toks:
+            continue
+        k = index.get(toks[0])
+        n = len(asf.root.order if k == 0 else asf.bones[toks[0]].dof) if k is not None else -1
+        if k is None or n != len(toks) - 1 or any(k == b for b, _ in bones):
+            return None
+        bones.append((k, n))
+    per_line = _tokens_per_line(body)
+    layout = np.array([1] + [1 + n for _, n in bones])
+    n_frames, rest = divmod(len(per_line) if per_line is not None else -1, len(layout))
+    if per_line is None or rest or not np.array_equal(per_line, np.tile(layout, n_frames)):
+        return None
+    toks = body.split()
+    width = int(layout.sum())
+    heads = np.cumsum(layout) - layout
+    for h, (k, _) in zip(heads[1:], bones):
+        if toks[h::width].count(sk.names[k]) != n_frames:
+            return None
+        toks[h::width] = ["0"] * n_frames
+    if _NOT_DECIMAL.search("".join(toks)):
+        return None
+    try:
+        table = np.array(toks, dtype=np.float64).reshape(n_frames, width)
+    except ValueError:  # e.g. "1e" or "1.2.3"
+        return None
+    numbers = toks[::width]
+    if not "".join(numbers).isdigit() or np.any(np.diff(table[:, 0]) != 1) or not np.isfinite(table).all():
+        return None
+    return AmcValues({k: table[:, h + 1:h + 1 + n] for h, (k, n) in zip(heads[1:], bones)}, n_frames, degrees)
+
+
+def _tokens_per_line(body: str) -> np.ndarray | None:
+    """Number of space/tab-separated tokens on each non-blank line of ASCII text ``body``; None when
+    it holds any other control character or a ``#`` (where ``str.split`` or a comment would read
+    the line differently)."""
+    b = np.frombuffer(body.encode("ascii"), np.uint8)
+    if np.any(((b < 32) & (b != 9) & (b != 10)) | (b == 127) | (b == 35)):
+        return None
+    gap = (b == 32) | (b == 9) | (b == 10)
+    starts = np.flatnonzero(~gap & np.concatenate([[True], gap[:-1]]))
+    line = np.searchsorted(np.flatnonzero(b == 10), starts)
+    counts = np.bincount(line)
+    return counts[counts > 0]
+
+
+def amc_values_by_lines(text: str, asf: AsfSkeleton, path: str | None = None) -> AmcValues:
+    """The values of any AMC file :func:`parse_amc` accepts, read line by line.
+
+    One pass over the lines collects each bone's value tokens (bones in any order within a frame);
+    numbers are converted per bone in bulk. Raises a :class:`MotionFormatError` naming the line of
+    the first thing it cannot accept.
     """
     sk = asf.skeleton
     index = {n: k for k, n in enumerate(sk.names)}
@@ -527,7 +630,7 @@ def parse_amc(text: str, asf: AsfSkeleton, path: str | None = None, *, fps: floa
         values[k] = arr
     if bad_line is not None:
         raise FrameValueError(path, bad_line, f"non-numeric or non-finite value in {raw[bad_line - 1].strip()!r}")
-    return _amc_motion(asf, values, n_frames, deg, fps, path, name, content_hash)
+    return AmcValues(values, n_frames, deg)
 
 
 #: a character no plain decimal number has (letters of nan/inf, ``_``, ...)

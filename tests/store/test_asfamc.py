@@ -8,12 +8,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fixtures import CHAIN_AMC, CHAIN_ASF
-from motionweb.store.asfamc import CMU_FPS, read_amc, read_asf, read_asfamc
+from motionweb.store.asfamc import (
+    CMU_FPS,
+    amc_values_by_lines,
+    amc_values_regular,
+    read_amc,
+    read_asf,
+    read_asfamc,
+)
 from motionweb.store.bvh import read_bvh, write_bvh
 from motionweb.store.errors import (
     EmptyMotionError,
     FrameValueError,
     MissingSectionError,
+    MotionFormatError,
     TruncatedFileError,
     UnknownJointError,
 )
@@ -322,3 +330,60 @@ def test_amc_frame_missing_a_bone(tmp_path: Path, arm) -> None:
     lines.insert(k + 1, "lower 5")
     p = _write(tmp_path, "twice.amc", "\n".join(lines) + "\n")
     _expect(FrameValueError, p, k + 2, lambda: read_amc(p, arm))
+
+
+def _same_values(a, b) -> None:
+    assert a.n_frames == b.n_frames and a.degrees == b.degrees and a.values.keys() == b.values.keys()
+    for k in a.values:
+        assert np.array_equal(a.values[k], b.values[k]), k
+
+
+# what exporters vary and the bulk reader must read exactly as the line reader does
+REGULAR_VARIANTS = {
+    "as written": CHAIN_AMC,
+    "CRLF": CHAIN_AMC.replace("\n", "\r\n"),
+    "no final newline": CHAIN_AMC.rstrip("\n"),
+    "tabs and blank lines": CHAIN_AMC.replace("root 1 2", "\troot\t1  2").replace("\n2\n", "\n\n 2 \n\n"),
+    "radians": CHAIN_AMC.replace(":DEGREES", ":RADIANS"),
+    "byte-order mark": "\ufeff" + CHAIN_AMC,
+    "exponents": CHAIN_AMC.replace("upper 90 0 0", "upper 9e1 -0.0 +0E-3"),
+}
+
+
+@pytest.mark.parametrize("variant", REGULAR_VARIANTS)
+def test_bulk_amc_reader_equals_line_reader(arm, variant: str) -> None:
+    text = REGULAR_VARIANTS[variant]
+    bulk = amc_values_regular(text, arm)
+    assert bulk is not None, "a regular file must take the bulk path"
+    _same_values(bulk, amc_values_by_lines(text, arm))
+
+
+IRREGULAR_VARIANTS = {
+    "bones in another order": CHAIN_AMC.replace("root 1 2 3 0 0 0\nupper 0 0 90", "upper 0 0 90\nroot 1 2 3 0 0 0"),
+    "a comment after a value": CHAIN_AMC.replace("lower 90", "lower 90 # knee"),
+    "a value on the next line": CHAIN_AMC.replace("upper 90 0 0", "upper 90 0\n0"),
+    "two bones on a line": CHAIN_AMC.replace("upper 0 0 90\nlower 0", "upper 0 0 90 lower 0"),
+    "a form feed": CHAIN_AMC.replace("lower 0", "lower\f0"),
+}
+
+
+@pytest.mark.parametrize("variant", IRREGULAR_VARIANTS)
+def test_bulk_amc_reader_leaves_irregular_files_to_the_line_reader(arm, variant: str) -> None:
+    text = IRREGULAR_VARIANTS[variant]
+    assert amc_values_regular(text, arm) is None
+    try:  # whatever the line reader makes of it (a motion or a located error) is parse_amc's answer
+        amc_values_by_lines(text, arm)
+    except MotionFormatError as exc:
+        assert exc.line is not None
+
+
+@pytest.mark.parametrize("bad", ["abc", "nan", "1e999", "1_0", "1e", "1.2.3", "0x10"])
+def test_bulk_amc_reader_refuses_what_the_line_reader_refuses(arm, bad: str) -> None:
+    text = CHAIN_AMC.replace("upper 0 0 90", f"upper 0 {bad} 90")
+    assert amc_values_regular(text, arm) is None
+    with pytest.raises(FrameValueError):
+        amc_values_by_lines(text, arm)
+
+
+def test_bulk_amc_reader_refuses_frame_numbers_out_of_order(arm) -> None:
+    assert amc_values_regular(CHAIN_AMC.replace("\n2\n", "\n3\n"), arm) is None

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from motionweb.store.asfamc import read_asf
+from motionweb.store.asfamc import amc_values_by_lines, amc_values_regular, read_asf
 from motionweb.store.formats import is_clip, read_motion
 from motionweb.store.kinematics import forward_kinematics, quat_rotate
 
@@ -56,6 +56,18 @@ def test_every_cmu_file_loads_and_the_manifest_lists_them(cmu: Path) -> None:
         assert np.isfinite(pos).all(), p
     for asf in sorted(cmu.rglob("*.asf")):
         assert len(read_asf(asf).bones) == 30, asf
+
+
+def test_every_cmu_amc_takes_the_bulk_reader_and_reads_as_line_by_line(cmu: Path) -> None:
+    for asf_path in sorted(cmu.rglob("*.asf")):
+        asf = read_asf(asf_path)
+        for amc in sorted(asf_path.parent.glob("*.amc"))[:8]:
+            text = amc.read_text()
+            bulk = amc_values_regular(text, asf)
+            assert bulk is not None, amc
+            lines = amc_values_by_lines(text, asf, str(amc))
+            assert bulk.n_frames == lines.n_frames and bulk.values.keys() == lines.values.keys(), amc
+            assert all(np.array_equal(bulk.values[k], lines.values[k]) for k in bulk.values), amc
 
 
 def test_bvh_is_the_amc_take_plus_a_first_frame(take_01_01) -> None:
