@@ -11,6 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 from motionweb.store.motion import Motion
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -191,6 +192,68 @@ def forward_kinematics(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
         grot[:, j] = quat_mul(grot[:, p], local[:, j])
         gpos[:, j] = gpos[:, p] + quat_rotate(grot[:, p], trans[:, j])
     return gpos, grot
+
+
+def joint_paths(parents: np.ndarray, joints) -> np.ndarray:
+    """Sorted indices of ``joints`` and of every ancestor of theirs (the root-to-joint paths);
+    parents precede children, so the order is one FK can follow."""
+    par = np.asarray(parents).tolist()
+    keep = [False] * len(par)
+    for j in np.atleast_1d(np.asarray(joints, np.int64)).tolist():
+        while j >= 0 and not keep[j]:
+            keep[j] = True
+            j = par[j]
+    return np.flatnonzero(keep)
+
+
+def forward_kinematics_of(motion: Motion, joints) -> tuple[np.ndarray, np.ndarray]:
+    """Global positions (F, J, 3) and rotations (F, J, 4) of ``joints`` and their ancestors only
+    (e.g. the hip-to-foot paths leg IK needs), in the file's unit; every other joint is NaN.
+
+    Equal to :func:`forward_kinematics` on those joints (same operations, compiled): O(F·K) for
+    the K joints on the paths, with no per-joint Python overhead.
+    """
+    order = joint_paths(motion.skeleton.parents, joints)
+    f, j = motion.n_frames, motion.skeleton.n_joints
+    gpos = np.full((f, j, 3), np.nan)
+    grot = np.full((f, j, 4), np.nan)
+    trans = np.broadcast_to(motion.skeleton.offsets, (f, j, 3))
+    moved = [k for k in motion.translations if k in order]
+    if moved:
+        trans = trans.copy()
+        for k in moved:
+            trans[:, k] = motion.translations[k]
+    _fk_paths(np.ascontiguousarray(motion.rotations, np.float64), np.ascontiguousarray(trans, np.float64),
+              np.ascontiguousarray(motion.root_positions, np.float64), motion.skeleton.parents, order, gpos, grot)
+    return gpos, grot
+
+
+@njit(cache=True)
+def _fk_paths(local, trans, root, parents, order, gpos, grot):  # pragma: no cover - compiled
+    """FK over ``order`` (parents first), frame by frame, with quat_mul's and quat_rotate's
+    formulas in their order of operations."""
+    for f in range(local.shape[0]):
+        for j in order:
+            if j == 0:
+                for c in range(4):
+                    grot[f, 0, c] = local[f, 0, c]
+                for c in range(3):
+                    gpos[f, 0, c] = root[f, c]
+                continue
+            p = parents[j]
+            aw, ax, ay, az = grot[f, p, 0], grot[f, p, 1], grot[f, p, 2], grot[f, p, 3]
+            bw, bx, by, bz = local[f, j, 0], local[f, j, 1], local[f, j, 2], local[f, j, 3]
+            grot[f, j, 0] = aw * bw - ax * bx - ay * by - az * bz
+            grot[f, j, 1] = aw * bx + ax * bw + ay * bz - az * by
+            grot[f, j, 2] = aw * by - ax * bz + ay * bw + az * bx
+            grot[f, j, 3] = aw * bz + ax * by - ay * bx + az * bw
+            vx, vy, vz = trans[f, j, 0], trans[f, j, 1], trans[f, j, 2]
+            tx = 2.0 * (ay * vz - az * vy)
+            ty = 2.0 * (az * vx - ax * vz)
+            tz = 2.0 * (ax * vy - ay * vx)
+            gpos[f, j, 0] = gpos[f, p, 0] + (vx + aw * tx + (ay * tz - az * ty))
+            gpos[f, j, 1] = gpos[f, p, 1] + (vy + aw * ty + (az * tx - ax * tz))
+            gpos[f, j, 2] = gpos[f, p, 2] + (vz + aw * tz + (ax * ty - ay * tx))
 
 
 def end_site_positions(motion: Motion, global_positions: np.ndarray, global_rotations: np.ndarray) -> np.ndarray:

@@ -46,9 +46,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from motionweb.store.kinematics import (
     forward_kinematics,
+    forward_kinematics_of,
     heading_angle,
     quat_from_axis_angle,
-    quat_inv,
     quat_mul,
     quat_normalize,
     quat_rotate,
@@ -58,6 +58,7 @@ from motionweb.store.motion import Motion, Skeleton
 from motionweb.store.params import Params
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.register import Registration
+from numba import njit
 from pydantic import Field
 
 SIDES = ("left", "right")
@@ -401,12 +402,12 @@ def blend(ex: Examples, weights: np.ndarray, fps: float | None = None, cfg: Blen
     hold = hold_feet and bool(plants.any())
     if not (hold or measure):
         return BlendResult(motion, w, plants, float("nan"), float("nan"), 0.0, times)
-    fk = forward_kinematics(motion)
+    fk = forward_kinematics_of(motion, feet)
     raw = foot_skate(fk[0][:, feet], plants, fps) if measure else float("nan")
     miss, skate = 0.0, raw
     if hold:
         motion, miss = hold_plants(motion, ex.legs, plants, cfg, fk)
-        skate = foot_skate(forward_kinematics(motion)[0][:, feet], plants, fps) if measure else float("nan")
+        skate = foot_skate(forward_kinematics_of(motion, feet)[0][:, feet], plants, fps) if measure else float("nan")
     return BlendResult(motion, w, plants, raw, skate, miss, times)
 
 
@@ -419,22 +420,6 @@ def to_file_unit(motion: Motion, scale_to_m: float, unit: str | None) -> Motion:
 
 
 # ----------------------------------------------------------------------------------- leg IK
-def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(F, 4) the shortest rotations taking directions a (F, 3) onto b (F, 3)."""
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    c = np.cross(a, b)
-    d = np.sum(a * b, axis=-1)
-    q = np.concatenate([(1.0 + d)[:, None], c], axis=-1)
-    opposite = d < -1.0 + 1e-12
-    if opposite.any():  # any axis perpendicular to a
-        perp = np.cross(a[opposite], np.array([1.0, 0.0, 0.0]))
-        small = np.linalg.norm(perp, axis=-1) < 1e-6
-        perp[small] = np.cross(a[opposite][small], np.array([0.0, 0.0, 1.0]))
-        q[opposite] = np.concatenate([np.zeros((opposite.sum(), 1)), perp], axis=-1)
-    return quat_normalize(q)
-
-
 def leg_ik(gpos: np.ndarray, grot: np.ndarray, parents: np.ndarray, chain: tuple[int, int, int],
            target: np.ndarray, fallback_axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Analytic two-bone IK of one leg over F frames: new local rotations of hip, knee and ankle
@@ -442,59 +427,142 @@ def leg_ik(gpos: np.ndarray, grot: np.ndarray, parents: np.ndarray, chain: tuple
 
     The knee bends about its current axis (``fallback_axis`` (F, 3) when the leg is straight) to
     the law-of-cosines angle, then the whole leg turns about the hip by the shortest rotation onto
-    the target; the foot keeps its global rotation. ``gpos``/``grot`` (F, J, 3|4) are global FK.
+    the target; the foot keeps its global rotation. ``gpos``/``grot`` (F, J, 3|4) are global FK
+    (only the hip's parent, hip, knee and ankle are read, so :func:`forward_kinematics_of` of the
+    ankle suffices). Compiled, O(F); ``tests/naive.py`` keeps the same steps in numpy.
     """
     hip, knee, ankle = chain
-    h, k, a = gpos[:, hip], gpos[:, knee], gpos[:, ankle]
-    l1 = np.linalg.norm(k - h, axis=-1)
-    l2 = np.linalg.norm(a - k, axis=-1)
-    d_t = np.linalg.norm(target - h, axis=-1)
-    dc = np.clip(d_t, np.abs(l1 - l2) + 1e-9, (l1 + l2) * (1.0 - 1e-9))
-    d0 = np.linalg.norm(a - h, axis=-1)
-    beta0 = np.arccos(np.clip((l1 ** 2 + l2 ** 2 - d0 ** 2) / (2 * l1 * l2), -1.0, 1.0))
-    beta = np.arccos(np.clip((l1 ** 2 + l2 ** 2 - dc ** 2) / (2 * l1 * l2), -1.0, 1.0))
-    axis = np.cross(k - h, a - k)
-    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-    axis = np.where(norm > 1e-9 * np.maximum(l1 * l2, 1e-12)[:, None], axis / np.maximum(norm, 1e-300), fallback_axis)
-    bend = quat_from_axis_angle(axis, beta0 - beta)
-    a1 = k + quat_rotate(bend, a - k)
-    swing = rotation_between(a1 - h, target - h)
-    g_hip = quat_mul(swing, grot[:, hip])
-    g_knee = quat_mul(swing, quat_mul(bend, grot[:, knee]))
-    p = parents[hip]
-    g_parent = grot[:, p] if p >= 0 else np.tile([1.0, 0.0, 0.0, 0.0], (len(h), 1))
-    local_hip = quat_mul(quat_inv(g_parent), g_hip)
-    local_knee = quat_mul(quat_inv(g_hip), g_knee)
-    local_ankle = quat_mul(quat_inv(g_knee), grot[:, ankle])
-    return local_hip, local_knee, local_ankle, np.abs(d_t - dc)
+    f = len(gpos)
+    out = np.empty((3, f, 4))
+    miss = np.empty(f)
+    _leg_ik_kernel(np.ascontiguousarray(gpos, np.float64), np.ascontiguousarray(grot, np.float64),
+                   int(parents[hip]), hip, knee, ankle, np.ascontiguousarray(target, np.float64),
+                   np.ascontiguousarray(fallback_axis, np.float64), out, miss)
+    return out[0], out[1], out[2], miss
+
+
+@njit(cache=True, inline="always")
+def _qmul(aw, ax, ay, az, bw, bx, by, bz):  # pragma: no cover - compiled
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+@njit(cache=True)
+def _leg_ik_kernel(gpos, grot, parent, hip, knee, ankle, target, fallback, out, miss):  # pragma: no cover
+    """Frame by frame: the bend about the knee axis, the swing about the hip (shortest rotation
+    of the bent ankle onto the target; a half turn about any perpendicular axis), the new local
+    rotations into ``out`` (3, F, 4) = hip, knee, ankle and the miss (F,)."""
+    for f in range(gpos.shape[0]):
+        hx, hy, hz = gpos[f, hip, 0], gpos[f, hip, 1], gpos[f, hip, 2]
+        kx, ky, kz = gpos[f, knee, 0], gpos[f, knee, 1], gpos[f, knee, 2]
+        ax_, ay_, az_ = gpos[f, ankle, 0], gpos[f, ankle, 1], gpos[f, ankle, 2]
+        ux, uy, uz = kx - hx, ky - hy, kz - hz  # thigh
+        vx, vy, vz = ax_ - kx, ay_ - ky, az_ - kz  # shin
+        l1 = math.sqrt(ux * ux + uy * uy + uz * uz)
+        l2 = math.sqrt(vx * vx + vy * vy + vz * vz)
+        tx, ty, tz = target[f, 0] - hx, target[f, 1] - hy, target[f, 2] - hz
+        d_t = math.sqrt(tx * tx + ty * ty + tz * tz)
+        dc = min(max(d_t, abs(l1 - l2) + 1e-9), (l1 + l2) * (1.0 - 1e-9))
+        wx, wy, wz = ax_ - hx, ay_ - hy, az_ - hz
+        d0 = math.sqrt(wx * wx + wy * wy + wz * wz)
+        beta0 = math.acos(min(max((l1 ** 2 + l2 ** 2 - d0 ** 2) / (2 * l1 * l2), -1.0), 1.0))
+        beta = math.acos(min(max((l1 ** 2 + l2 ** 2 - dc ** 2) / (2 * l1 * l2), -1.0), 1.0))
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm > 1e-9 * max(l1 * l2, 1e-12):
+            nx, ny, nz = nx / norm, ny / norm, nz / norm
+        else:
+            nx, ny, nz = fallback[f, 0], fallback[f, 1], fallback[f, 2]
+        half = 0.5 * (beta0 - beta)
+        c, s = math.cos(half), math.sin(half)
+        bw, bx, by, bz = c, s * nx, s * ny, s * nz
+        # bent ankle a1 = k + bend(shin), relative to the hip
+        px, py, pz = 2.0 * (by * vz - bz * vy), 2.0 * (bz * vx - bx * vz), 2.0 * (bx * vy - by * vx)
+        rx = vx + bw * px + (by * pz - bz * py)
+        ry = vy + bw * py + (bz * px - bx * pz)
+        rz = vz + bw * pz + (bx * py - by * px)
+        ex, ey, ez = ux + rx, uy + ry, uz + rz
+        # shortest rotation from e onto t
+        ne = math.sqrt(ex * ex + ey * ey + ez * ez)
+        nt = d_t
+        ex, ey, ez = ex / ne, ey / ne, ez / ne
+        gx, gy, gz = tx / nt, ty / nt, tz / nt
+        d = ex * gx + ey * gy + ez * gz
+        if d < -1.0 + 1e-12:  # opposite: any axis perpendicular to e
+            sw, sx, sy, sz = 0.0, 0.0, ez, -ey  # e × (1, 0, 0)
+            if math.sqrt(sy * sy + sz * sz) < 1e-6:
+                sx, sy, sz = ey, -ex, 0.0  # e × (0, 0, 1)
+        else:
+            sw, sx, sy, sz = 1.0 + d, ey * gz - ez * gy, ez * gx - ex * gz, ex * gy - ey * gx
+        ns = math.sqrt(sw * sw + sx * sx + sy * sy + sz * sz)
+        sw, sx, sy, sz = sw / ns, sx / ns, sy / ns, sz / ns
+        hw, hx_, hy_, hz_ = _qmul(sw, sx, sy, sz, grot[f, hip, 0], grot[f, hip, 1], grot[f, hip, 2], grot[f, hip, 3])
+        k0 = _qmul(bw, bx, by, bz, grot[f, knee, 0], grot[f, knee, 1], grot[f, knee, 2], grot[f, knee, 3])
+        kw, kx_, ky_, kz_ = _qmul(sw, sx, sy, sz, k0[0], k0[1], k0[2], k0[3])
+        if parent >= 0:
+            pw, px_, py_, pz_ = grot[f, parent, 0], -grot[f, parent, 1], -grot[f, parent, 2], -grot[f, parent, 3]
+        else:
+            pw, px_, py_, pz_ = 1.0, -0.0, -0.0, -0.0
+        lh = _qmul(pw, px_, py_, pz_, hw, hx_, hy_, hz_)
+        lk = _qmul(hw, -hx_, -hy_, -hz_, kw, kx_, ky_, kz_)
+        la = _qmul(kw, -kx_, -ky_, -kz_, grot[f, ankle, 0], grot[f, ankle, 1], grot[f, ankle, 2], grot[f, ankle, 3])
+        for c4 in range(4):
+            out[0, f, c4] = lh[c4]
+            out[1, f, c4] = lk[c4]
+            out[2, f, c4] = la[c4]
+        miss[f] = abs(d_t - dc)
 
 
 def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ankle corrections (F, 3) holding every planted run at its mean position, eased to zero over
-    ``ramp`` frames on either side (smoothstep), and the frames (F,) that need IK."""
+    """Ankle corrections (F, 3) holding every planted run of ``plants`` (F,) at its mean ankle
+    position (``ankles`` (F, 3)), eased to zero over ``ramp`` frames on either side (smoothstep;
+    overlapping ramps average), and the frames (F,) that need IK. Compiled, O(F·ramp)."""
     off = np.zeros((n, 3))
     wsum = np.zeros(n)
-    for a, b in runs(plants):
-        hold = ankles[a:b + 1].mean(axis=0)
-        off[a:b + 1] += hold - ankles[a:b + 1]
-        wsum[a:b + 1] += 1.0
-        for side_frames, edge in ((np.arange(max(0, a - ramp), a), a), (np.arange(b + 1, min(n, b + 1 + ramp)), b)):
-            if len(side_frames):
-                s = 1.0 - np.abs(side_frames - edge) / (ramp + 1.0)
-                s = s * s * (3.0 - 2.0 * s)
-                off[side_frames] += s[:, None] * (hold - ankles[edge])
-                wsum[side_frames] += 1.0
-    mask = wsum > 0
-    off[mask] /= np.maximum(wsum[mask], 1.0)[:, None]
-    return off, mask
+    _ease_kernel(np.ascontiguousarray(plants, np.bool_), np.ascontiguousarray(ankles, np.float64), int(ramp), off, wsum)
+    return off, wsum > 0
+
+
+@njit(cache=True)
+def _ease_kernel(plants, ankles, ramp, off, wsum):  # pragma: no cover - compiled
+    n = len(plants)
+    i = 0
+    while i < n:
+        if not plants[i]:
+            i += 1
+            continue
+        a = i
+        while i < n and plants[i]:
+            i += 1
+        b = i - 1
+        hold = np.zeros(3)
+        for f in range(a, b + 1):
+            hold += ankles[f]
+        hold /= b - a + 1
+        for f in range(a, b + 1):
+            off[f] += hold - ankles[f]
+            wsum[f] += 1.0
+        for f in range(max(0, a - ramp), min(n, b + 1 + ramp)):
+            if a <= f <= b:
+                continue
+            edge = a if f < a else b
+            s = 1.0 - abs(f - edge) / (ramp + 1.0)
+            s = s * s * (3.0 - 2.0 * s)
+            off[f] += s * (hold - ankles[edge])
+            wsum[f] += 1.0
+    for f in range(n):
+        if wsum[f] > 0:
+            off[f] /= max(wsum[f], 1.0)
 
 
 def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: np.ndarray,
                 cfg: BlendParams, fk: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Motion, float]:
     """Hold each planted foot still (its run's mean ankle position) by leg IK, corrections eased
     over ``cfg.ease_s`` (KG03 constraint matching); ``fk`` = the motion's global (positions,
-    rotations) when already computed. Returns the motion and the worst miss (m)."""
-    gpos, grot = fk if fk is not None else forward_kinematics(motion)
+    rotations) of at least the root-to-ankle paths when already computed. Returns the motion and
+    the worst miss (m). O(F) for the two legs (only their FK paths are computed)."""
+    feet = [legs[side][2] for side in SIDES]
+    gpos, grot = fk if fk is not None else forward_kinematics_of(motion, feet)
     rot = motion.rotations.copy()
     ramp = max(1, round(cfg.ease_s * motion.fps))
     lateral = quat_rotate(grot[:, 0], np.array([1.0, 0.0, 0.0]))

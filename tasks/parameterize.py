@@ -26,8 +26,8 @@ answer reports how far it landed from the target. Redundant examples (§4.4,
 examples reproduces within a tolerance is dropped.
 
 Cost: sampling n points is O(n·(N·d + (d+1)·C_f)) with C_f the cost of f on one blend (a
-position: one sample's FK; the root: O(U)), and the duplicate check O(n²·d) in blocks;
-interpolation O(n·d) brute force or O(log n) with the k-d tree, independent of N.
+position: compiled FK of two samples along the joint's root path only; the root: O(U)), and the
+duplicate check O(n²·d) in blocks; interpolation O(n·d) brute force or O(log n) with the k-d tree, independent of N.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from motionweb.store.kinematics import forward_kinematics
+from motionweb.store.kinematics import forward_kinematics_of
 from motionweb.store.params import Params
 from motionweb.tasks.blend import Examples, blend_durations, blend_path, blend_poses, check_weights, posed
 from scipy.spatial import cKDTree
@@ -108,7 +108,7 @@ class JointPosition(ParamFunction):
         s = len(w)
         m = posed(ex, pos[:, u0:u0 + 2].reshape(-1, 3), phi[:, u0:u0 + 2].reshape(-1),
                   local.reshape(2 * s, *local.shape[2:]), ex.rate)
-        gpos, _ = forward_kinematics(m)
+        gpos, _ = forward_kinematics_of(m, [j])
         p = gpos[:, j].reshape(s, 2, 3)
         return (1.0 - t) * p[:, 0] + t * p[:, 1]
 
@@ -155,7 +155,7 @@ class MaxSpeed(ParamFunction):
         local = blend_poses(ex, w)
         s, u = pos.shape[:2]
         m = posed(ex, pos.reshape(-1, 3), phi.reshape(-1), local.reshape(s * u, *local.shape[2:]), ex.rate)
-        gpos, _ = forward_kinematics(m)
+        gpos, _ = forward_kinematics_of(m, [j])
         p = gpos[:, j].reshape(s, u, 3)
         dt = blend_durations(ex, w)
         return (np.linalg.norm(np.diff(p, axis=1), axis=-1) / dt).max(axis=1)[:, None]

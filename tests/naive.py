@@ -342,3 +342,99 @@ def ref_leg_ik(motion, chain: tuple[int, int, int], frame: int, target: np.ndarr
 
     best = minimize(miss, np.zeros(6), method="Nelder-Mead", options={"xatol": 1e-10, "fatol": 1e-12, "maxiter": 20000})
     return float(best.fun)
+
+
+def numpy_rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(F, 4) the shortest rotations taking directions a (F, 3) onto b (F, 3), in numpy."""
+    from motionweb.store.kinematics import quat_normalize
+
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    c = np.cross(a, b)
+    d = np.sum(a * b, axis=-1)
+    q = np.concatenate([(1.0 + d)[:, None], c], axis=-1)
+    opposite = d < -1.0 + 1e-12
+    if opposite.any():  # any axis perpendicular to a
+        perp = np.cross(a[opposite], np.array([1.0, 0.0, 0.0]))
+        small = np.linalg.norm(perp, axis=-1) < 1e-6
+        perp[small] = np.cross(a[opposite][small], np.array([0.0, 0.0, 1.0]))
+        q[opposite] = np.concatenate([np.zeros((opposite.sum(), 1)), perp], axis=-1)
+    return quat_normalize(q)
+
+
+def numpy_leg_ik(gpos, grot, parents, chain, target, fallback_axis):
+    """``motionweb.tasks.blend.leg_ik`` step by step in numpy over all frames at once (the
+    reference of the compiled kernel): bend the knee about its axis to the law-of-cosines angle,
+    swing the leg about the hip onto the target, keep the foot's global rotation."""
+    from motionweb.store.kinematics import quat_from_axis_angle, quat_inv, quat_mul, quat_rotate
+
+    hip, knee, ankle = chain
+    h, k, a = gpos[:, hip], gpos[:, knee], gpos[:, ankle]
+    l1 = np.linalg.norm(k - h, axis=-1)
+    l2 = np.linalg.norm(a - k, axis=-1)
+    d_t = np.linalg.norm(target - h, axis=-1)
+    dc = np.clip(d_t, np.abs(l1 - l2) + 1e-9, (l1 + l2) * (1.0 - 1e-9))
+    d0 = np.linalg.norm(a - h, axis=-1)
+    beta0 = np.arccos(np.clip((l1 ** 2 + l2 ** 2 - d0 ** 2) / (2 * l1 * l2), -1.0, 1.0))
+    beta = np.arccos(np.clip((l1 ** 2 + l2 ** 2 - dc ** 2) / (2 * l1 * l2), -1.0, 1.0))
+    axis = np.cross(k - h, a - k)
+    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+    axis = np.where(norm > 1e-9 * np.maximum(l1 * l2, 1e-12)[:, None], axis / np.maximum(norm, 1e-300), fallback_axis)
+    bend = quat_from_axis_angle(axis, beta0 - beta)
+    a1 = k + quat_rotate(bend, a - k)
+    swing = numpy_rotation_between(a1 - h, target - h)
+    g_hip = quat_mul(swing, grot[:, hip])
+    g_knee = quat_mul(swing, quat_mul(bend, grot[:, knee]))
+    p = parents[hip]
+    g_parent = grot[:, p] if p >= 0 else np.tile([1.0, 0.0, 0.0, 0.0], (len(h), 1))
+    local_hip = quat_mul(quat_inv(g_parent), g_hip)
+    local_knee = quat_mul(quat_inv(g_hip), g_knee)
+    local_ankle = quat_mul(quat_inv(g_knee), grot[:, ankle])
+    return local_hip, local_knee, local_ankle, np.abs(d_t - dc)
+
+
+def numpy_hold_plants(motion, legs, plants, cfg):
+    """``motionweb.tasks.blend.hold_plants`` the obvious way: one full FK of the motion, then
+    :func:`numpy_leg_ik` per leg on the frames that need it. Returns (motion, worst miss)."""
+    from dataclasses import replace
+
+    from motionweb.store.kinematics import forward_kinematics, quat_rotate
+    from motionweb.tasks.blend import SIDES
+
+    gpos, grot = forward_kinematics(motion)
+    rot = motion.rotations.copy()
+    ramp = max(1, round(cfg.ease_s * motion.fps))
+    lateral = quat_rotate(grot[:, 0], np.array([1.0, 0.0, 0.0]))
+    worst = 0.0
+    for k, side in enumerate(SIDES):
+        hip, knee, ankle = legs[side]
+        off, mask = numpy_ease_offsets(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
+        if not mask.any():
+            continue
+        lh, lk, la, miss = numpy_leg_ik(gpos[mask], grot[mask], motion.skeleton.parents, legs[side],
+                                        gpos[mask, ankle] + off[mask], lateral[mask])
+        rot[mask, hip], rot[mask, knee], rot[mask, ankle] = lh, lk, la
+        worst = max(worst, float(miss.max(initial=0.0)))
+    return replace(motion, rotations=rot), worst
+
+
+def numpy_ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> tuple[np.ndarray, np.ndarray]:
+    """``motionweb.tasks.blend.ease_offsets`` in numpy, run by run: each planted run held at its
+    mean ankle position, smoothstep ramps of ``ramp`` frames either side, overlaps averaged."""
+    from motionweb.tasks.blend import runs
+
+    off = np.zeros((n, 3))
+    wsum = np.zeros(n)
+    for a, b in runs(plants):
+        hold = ankles[a:b + 1].mean(axis=0)
+        off[a:b + 1] += hold - ankles[a:b + 1]
+        wsum[a:b + 1] += 1.0
+        for side_frames, edge in ((np.arange(max(0, a - ramp), a), a), (np.arange(b + 1, min(n, b + 1 + ramp)), b)):
+            if len(side_frames):
+                s = 1.0 - np.abs(side_frames - edge) / (ramp + 1.0)
+                s = s * s * (3.0 - 2.0 * s)
+                off[side_frames] += s[:, None] * (hold - ankles[edge])
+                wsum[side_frames] += 1.0
+    mask = wsum > 0
+    off[mask] /= np.maximum(wsum[mask], 1.0)[:, None]
+    return off, mask

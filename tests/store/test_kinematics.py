@@ -9,9 +9,11 @@ import pytest
 from motionweb.store.demo.corpus import generate_clip
 from motionweb.store.kinematics import (
     forward_kinematics,
+    forward_kinematics_of,
     heading,
     heading_angle,
     hold_ends,
+    joint_paths,
     quat_average,
     quat_exp,
     quat_from_euler,
@@ -121,6 +123,28 @@ def test_fk_two_bones_against_hand_computation() -> None:
     # end site (0,3,0) under Rz(90) Rx(90): Rx maps y->z, Rz leaves z -> (0,0,3)
     tip = pos[0, 2] + quat_rotate(rot[0, 2], np.array([0.0, 3.0, 0.0]))
     np.testing.assert_allclose(tip, [-1, 1, 3], atol=1e-12)
+
+
+def test_fk_of_some_joints_equals_the_full_fk_on_their_paths() -> None:
+    m, _ = generate_clip("kick", 2, 7)
+    m = Motion(skeleton=m.skeleton, fps=m.fps, root_positions=m.root_positions,
+               rotations=random_quats(m.n_frames * m.skeleton.n_joints).reshape(m.rotations.shape), unit=m.unit,
+               translations={3: RNG.normal(size=(m.n_frames, 3)), 15: RNG.normal(size=(m.n_frames, 3))})
+    g, r = forward_kinematics(m)
+    names = m.skeleton.names
+    for joints in ([names.index("LeftFoot"), names.index("RightFoot")], [names.index("RightHand")], [0]):
+        path = joint_paths(m.skeleton.parents, joints)
+        want = set()
+        for j in joints:
+            while j >= 0:
+                want.add(j)
+                j = int(m.skeleton.parents[j])
+        assert path.tolist() == sorted(want)
+        g2, r2 = forward_kinematics_of(m, joints)
+        np.testing.assert_allclose(g2[:, path], g[:, path], rtol=0, atol=1e-12)  # a translated joint too
+        np.testing.assert_allclose(r2[:, path], r[:, path], rtol=0, atol=1e-12)
+        rest = np.setdiff1d(np.arange(m.skeleton.n_joints), path)
+        assert np.isnan(g2[:, rest]).all() and np.isnan(r2[:, rest]).all()
 
 
 def test_resample_and_sample_motion() -> None:

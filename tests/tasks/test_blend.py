@@ -17,6 +17,7 @@ from motionweb.tasks.blend import (
     blend_poses,
     check_weights,
     detect_plants,
+    ease_offsets,
     foot_skate,
     keytime_registration,
     leg_chains,
@@ -25,7 +26,7 @@ from motionweb.tasks.blend import (
     registered_examples,
 )
 from motionweb.tasks.distance import rigid_align_2d
-from naive import ref_blend_frame, ref_leg_ik
+from naive import numpy_ease_offsets, numpy_hold_plants, numpy_leg_ik, ref_blend_frame, ref_leg_ik
 
 RATE = 30.0
 
@@ -141,6 +142,57 @@ def test_leg_ik_reaches_targets_and_keeps_the_foot_orientation() -> None:
     for i in np.flatnonzero(~reach)[:2]:  # out of reach: as close as any hip/knee rotation gets
         assert np.linalg.norm(g2[i, ankle] - target[i]) == pytest.approx(
             ref_leg_ik(m, legs["left"], int(frames[i]), target[i]), abs=2e-4)
+
+
+def test_compiled_leg_ik_equals_the_numpy_steps() -> None:
+    m, _ = generate_clip("kick", 1, 7)
+    sk = metric_skeleton(m)
+    m = replace(m, skeleton=sk, root_positions=m.root_positions * m.metres())
+    legs = leg_chains(sk)
+    gpos, grot = forward_kinematics(m)
+    rng = np.random.default_rng(5)
+    for side in ("left", "right"):
+        hip, knee, ankle = legs[side]
+        target = gpos[:, ankle] + rng.normal(0.0, 0.15, (m.n_frames, 3))  # some out of reach
+        target[::9] = gpos[::9, hip] - (gpos[::9, ankle] - gpos[::9, hip])  # straight through the hip: opposite
+        fallback = rng.normal(size=(m.n_frames, 3))
+        fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+        g = gpos.copy()
+        g[::5, knee] = 0.5 * (g[::5, hip] + g[::5, ankle])  # a straight leg: the knee axis falls back
+        fast = leg_ik(g, grot, sk.parents, legs[side], target, fallback)
+        slow = numpy_leg_ik(g, grot, sk.parents, legs[side], target, fallback)
+        for a, b in zip(fast, slow, strict=True):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-10)
+
+
+def test_compiled_ease_offsets_equal_the_numpy_runs() -> None:
+    rng = np.random.default_rng(3)
+    for n, ramp in ((5, 3), (40, 1), (120, 9), (120, 40)):
+        ankles = rng.normal(size=(n, 3))
+        for density in (0.0, 0.2, 0.7, 1.0):
+            plants = rng.random(n) < density
+            head = n // 2  # longer runs there: ramps of neighbouring runs overlap and average
+            plants[:head] = np.convolve(plants, np.ones(4), "same")[:head] > 0
+            fast, slow = ease_offsets(n, plants, ankles, ramp), numpy_ease_offsets(n, plants, ankles, ramp)
+            np.testing.assert_array_equal(fast[1], slow[1])
+            np.testing.assert_allclose(fast[0], slow[0], rtol=0, atol=1e-12)
+
+
+def test_held_plants_equal_the_full_fk_reference(walks) -> None:
+    motions, reg = walks
+    cfg = BlendParams()
+    ex = registered_examples(motions, reg, cfg=cfg)
+    for w in ([0.2, 0.5, 0.3], [1.1, -0.1, 0.0]):
+        raw = blend(ex, np.array(w), fps=60.0, cfg=cfg, hold_feet=False, measure=False)
+        fast = blend(ex, np.array(w), fps=60.0, cfg=cfg)
+        slow, miss = numpy_hold_plants(raw.motion, ex.legs, raw.plants, cfg)
+        assert raw.plants.any()
+        np.testing.assert_array_equal(fast.plants, raw.plants)
+        np.testing.assert_allclose(fast.motion.rotations, slow.rotations, rtol=0, atol=1e-10)
+        assert fast.ik_miss == pytest.approx(miss, abs=1e-10)
+        g, _ = forward_kinematics(slow)
+        feet = [ex.legs["left"][2], ex.legs["right"][2]]
+        assert fast.skate == pytest.approx(foot_skate(g[:, feet], raw.plants, 60.0), abs=1e-8)
 
 
 def test_detected_plants_agree_with_the_demo_truth() -> None:
