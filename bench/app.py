@@ -3,7 +3,9 @@
 Printed, in one run (targets from the issue):
   * today's cold CLI search (`motionweb search`, no service: Prefect's temporary server, imports,
     reading the webs) — the baseline;
-  * the same search from the CLI with the service up (forwarded; same files written), ≤ 1 s;
+  * the same search from the CLI with the service up (forwarded), ≤ 1 s, and whether every file it
+    writes equals the cold run's byte for byte; split into importing the CLI and the service's
+    answer to the forwarded request (search + drawing graph.png + the zip);
   * searches through the JSON API, warm (webs in memory), median and p90 over random 1.5 s
     queries of the webs' working rate and over one repeated query, ≤ 100 ms median;
   * load: 16 concurrent clients × 50 mixed requests (catalog, clip pose, search, registration,
@@ -17,7 +19,7 @@ The corpus and its index (by category, 30 Hz) come from bench/corpus.py and are 
 (the layout bench/search.py uses: corpus/, store-category-30/), reused when present. The fault
 runs index a copy of the corpus's demo categories only (a few seconds per run).
 
-    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50] [--faults-only]
+    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50] [--faults-only | --cli-only]
 """
 
 from __future__ import annotations
@@ -174,6 +176,42 @@ def load_test(url: str, queries: list[dict], clients: int, per_client: int) -> d
     return {"times": times, "failures": failures, "wall": time.perf_counter() - t0}
 
 
+def files_of(d: Path) -> dict[str, bytes]:
+    return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def cli_with_service(cli_args: list[str], work: Path, env: dict, cold: float, api: Api) -> None:
+    """Five forwarded CLI searches (the cold run's query and --out): wall time, files equal to the
+    cold run's byte for byte, and the parts: importing the CLI, the service's answer."""
+    fwd, same = [], []
+    cold_files = files_of(work / "cold")
+    for _ in range(5):
+        shutil.rmtree(work / "cli", ignore_errors=True)
+        t = time.perf_counter()
+        r = motionweb(*cli_args, env=env)
+        fwd.append(time.perf_counter() - t)
+        assert r.returncode == 0 and "by the service" in r.stdout, r.stdout + r.stderr
+        same.append(files_of(work / "cli") == cold_files)
+    n = len(json.loads((work / "cold" / "matches.json").read_text())["matches"])
+    print(f"CLI search with the service up: median {np.median(fwd):.2f} s, best {min(fwd):.2f} s of 5   "
+          f"target: <= 1 s; cold was {cold:.1f} s")
+    print(f"  {len(cold_files)} files, {n} matches; every file byte-identical to the cold run's: {all(same)}")
+    imp = subprocess.run([sys.executable, "-X", "importtime", "-c", "import motionweb.flows.cli"],
+                         capture_output=True, text=True)
+    total_us = max(int(line.split("|")[1]) for line in imp.stderr.splitlines() if line.startswith("import time:")
+                   and line.split("|")[1].strip().isdigit())
+    opts = dict(zip(cli_args[2::2], cli_args[3::2], strict=False))
+    body = {"clip": opts["--clip"], "start": float(opts["--start"]), "end": float(opts["--end"]),
+            "tiers": int(opts["--tiers"]), "out": opts["--out"]}
+    answer = []
+    for _ in range(5):
+        t = time.perf_counter()
+        status, _ = api.call("POST", "/api/query", body)
+        answer.append(time.perf_counter() - t)
+    print(f"  of which importing the CLI: {total_us / 1e6:.2f} s; the service's answer (POST /api/query: search, "
+          f"graph.png, zip) median {pct(answer, 50):.0f} ms (status {status})")
+
+
 def hang_ups(url: str, body: dict, n: int) -> None:
     """``n`` clients that send a search and close the socket without reading the answer."""
     host, port = url.removeprefix("http://").rsplit(":", 1)
@@ -285,6 +323,7 @@ def main() -> None:
     ap.add_argument("--requests", type=int, default=50)
     ap.add_argument("--queries", type=int, default=40)
     ap.add_argument("--faults-only", action="store_true", help="only the fault runs (needs --keep with a corpus)")
+    ap.add_argument("--cli-only", action="store_true", help="only the CLI timings (cold, then with the service)")
     args = ap.parse_args()
     if args.faults_only:
         work = Path(args.keep)
@@ -317,14 +356,18 @@ def main() -> None:
     rng = np.random.default_rng(3)
     queries = random_queries(gen, args.queries, rng)
     q0 = queries[0]
+    # the CLI's query: the default ε rule (a multiple of its nearest match), so it finds matches
     cli_args = ["search", str(cfg_path), "--clip", q0["clip"], "--start", str(q0["start"]), "--end", str(q0["end"]),
-                "--quantile", "0.05", "--tiers", "3"]
+                "--tiers", "3", "--out", str(work / "cli")]
     env = {**os.environ, "MOTIONWEB_APP_DIR": str(work / "discovery")}
     shutil.rmtree(work / "discovery", ignore_errors=True)
 
+    shutil.rmtree(work / "cli", ignore_errors=True)
     t = time.perf_counter()
-    r = motionweb(*cli_args, "--out", str(work / "cold"), env=env)
+    r = motionweb(*cli_args, env=env)
     cold = time.perf_counter() - t
+    shutil.rmtree(work / "cold", ignore_errors=True)
+    (work / "cli").rename(work / "cold")
     print(f"\ncold CLI search, no service (today): {cold:.1f} s (exit {r.returncode}; "
           f"{r.stdout.strip().splitlines()[-1] if r.stdout.strip() else r.stderr[-200:]})")
 
@@ -348,21 +391,9 @@ def main() -> None:
         print(f"API search, warm, through HTTP: one query repeated x30 median {pct(same, 50):.1f} ms, "
               f"p90 {pct(same, 90):.1f} ms; {len(queries)} random {QUERY_S:g} s queries (3 tiers) median "
               f"{pct(rand, 50):.1f} ms, p90 {pct(rand, 90):.1f} ms   target: median <= 100 ms")
-        fwd = []
-        for k in range(5):
-            t = time.perf_counter()
-            r = motionweb(*cli_args, "--out", str(work / f"fwd{k}"), env=env)
-            fwd.append(time.perf_counter() - t)
-            assert r.returncode == 0 and "by the service" in r.stdout, r.stdout + r.stderr
-        same_rows = (json.loads((work / "fwd0" / "matches.json").read_text())["matches"]
-                     == json.loads((work / "cold" / "matches.json").read_text())["matches"])
-        print(f"CLI search with the service up: median {np.median(fwd):.2f} s, best {min(fwd):.2f} s of 5 "
-              f"(same matches.json rows as the cold run: {same_rows})   target: <= 1 s; cold was {cold:.1f} s")
-        imp = subprocess.run([sys.executable, "-X", "importtime", "-c", "import motionweb.flows.cli"],
-                             capture_output=True, text=True)
-        total_us = max(int(line.split("|")[1]) for line in imp.stderr.splitlines() if line.startswith("import time:")
-                       and line.split("|")[1].strip().isdigit())
-        print(f"  of which importing the CLI: {total_us / 1e6:.2f} s")
+        cli_with_service(cli_args, work, env, cold, api)
+        if args.cli_only:
+            return
 
         res = load_test(url, queries, args.clients, args.requests)
         allt = [x for v in res["times"].values() for x in v]

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from motionweb.store.generations import gc as store_gc
-from motionweb.store.generations import load_generation, verify_generation
-from motionweb.store.zarr_store import MotionStore, StoreError
+
+if TYPE_CHECKING:  # zarr and numpy load on use: the CLI starts fast for a forwarded query
+    from motionweb.store.zarr_store import MotionStore
 
 
 def _store(config: Path) -> MotionStore:
     from motionweb.flows.cli import config_or_fail
+    from motionweb.store.zarr_store import MotionStore
 
     return MotionStore(config_or_fail(config).store.path)
 
@@ -23,6 +24,8 @@ def verify(
     """Check every object of the current generation against its checksums; exit 1 when any is
     missing or damaged (``motionweb index`` recomputes them)."""
     from motionweb.flows.cli import fail
+    from motionweb.store.generations import load_generation, verify_generation
+    from motionweb.store.zarr_store import StoreError
 
     store = _store(config)
     try:
@@ -46,6 +49,8 @@ def gc(
 ) -> None:
     """Remove old generations, leftovers of killed runs and objects no kept generation lists.
     Do not run it while an index run writes to the same store."""
+    from motionweb.store.generations import gc as store_gc
+
     store = _store(config)
     before = store.size_bytes()
     removed = store_gc(store, keep)

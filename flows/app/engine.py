@@ -42,6 +42,7 @@ from motionweb.flows.query import (
     indexed_config,
     load_indexed_clip,
     match_rows,
+    plot_graph,
     query_segment,
     register_graph,
     resolve_clip,
@@ -54,9 +55,15 @@ from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
-from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
 from motionweb.tasks.register import Registration
-from motionweb.tasks.search import MatchSearch, SearchParams, epsilon_from_quantile
+from motionweb.tasks.search import (
+    MatchSearch,
+    SearchParams,
+    default_epsilon,
+    epsilon_from_quantile,
+    nearest_costs,
+)
 from pydantic import ValidationError
 
 #: bounds on what one request may ask for (design §10: requests are bounded)
@@ -225,6 +232,15 @@ def pose_payload(snap: Snapshot, motion: Motion, frames: np.ndarray, rate: float
             "positions": np.round(pos.reshape(-1), 3).tolist()}
 
 
+def prime_plots() -> None:
+    """Draw one small match graph into memory, so the first query's ``graph.png`` does not pay
+    for loading matplotlib and its fonts (seconds on a busy machine)."""
+    graph = MatchGraph(30.0, [MatchNode(Segment("a/query.bvh", 0, 30)), MatchNode(Segment("b/m.bvh", 5, 35), 1, 0.1, 0.1)],
+                       [MatchEdge(0, 1, 0.1)])
+    rows = [{"category": "a"}, {"category": "b"}]
+    plot_graph(graph, rows, io.BytesIO())
+
+
 class Engine:
     """The current snapshot of one store and the queries on it (see the module docstring).
 
@@ -239,8 +255,10 @@ class Engine:
         self._lock = threading.Lock()
         self._loading: threading.Thread | None = None
         self.results = LRU(KEEP_RESULTS)
-        self._plot_lock = threading.Lock()  # matplotlib's pyplot is not thread-safe
+        self._plot_lock = threading.Lock()  # one figure drawn at a time (they share font caches)
         self.switches = 0
+        if warm:
+            threading.Thread(target=prime_plots, name="prime-plots", daemon=True).start()
 
     # ------------------------------------------------------------------ generations
     def pointer(self) -> str | None:
@@ -364,7 +382,12 @@ class Engine:
         with scope.lock:
             scope.search.cfg = params
             scope.search.check(seg)
-            eps = request.threshold if request.threshold is not None else scope.epsilon(request.quantile)
+            if request.threshold is not None:
+                eps = request.threshold
+            elif request.quantile is not None:
+                eps = scope.epsilon(request.quantile)
+            else:  # the query flow's default rule: a multiple of the query's nearest match
+                eps = default_epsilon(nearest_costs(scope.search, seg), params.eps_nearest_ratio)
             graph = scope.search.search(seg, eps)
         res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, float(eps),
                      match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})

@@ -28,7 +28,7 @@ from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import Segment
-from motionweb.tasks.search import epsilon_from_quantile, search
+from motionweb.tasks.search import MatchSearch, default_epsilon, epsilon_from_quantile, nearest_costs, search
 from typer.testing import CliRunner
 
 QUERY = {"clip": "walk_00", "start": 1.0, "end": 2.5, "quantile": 0.8}
@@ -101,6 +101,14 @@ def test_search_equals_the_query_flows_search(client, cfg) -> None:
     assert same_by_id["matches"] == got["matches"]
     thr = client.post("/api/search", json={"clip": "walk_00", "start": 1, "end": 2.5, "threshold": 0.0}).json()
     assert thr["matches"] == [] and thr["epsilon"] == 0.0
+    # neither threshold nor quantile: the query flow's default rule, a multiple of the nearest match
+    store = MotionStore(cfg.store.path, read_only=True)
+    gen = load_generation(store)
+    webs = StoreWebs.for_query(store, "walk/walk_00.bvh", generation=gen)
+    near = nearest_costs(MatchSearch(webs, cfg.search, cfg.matchweb), Segment("walk/walk_00.bvh", 30, 75))
+    got = client.post("/api/search", json={"clip": "walk_00", "start": 1, "end": 2.5}).json()
+    assert got["epsilon"] == pytest.approx(default_epsilon(near, cfg.search.eps_nearest_ratio), rel=1e-12)
+    assert len(got["matches"]) >= 1
 
 
 def test_registration_and_registered_downloads(client, cfg) -> None:
@@ -244,6 +252,29 @@ def test_cli_search_is_forwarded_to_a_running_service(running, app_store, tmp_pa
     bad = CliRunner().invoke(cli, ["search", str(app_store), "--clip", "walk_00", "--start", "0", "--end", "99",
                                    "--quantile", "0.5"])
     assert bad.exit_code == 2 and "outside clip" in bad.output and "Traceback" not in bad.output
+
+
+def test_forwarded_search_writes_the_bytes_of_a_local_run(running, app_store, tmp_path: Path, monkeypatch) -> None:
+    """Every file a forwarded `motionweb search` writes (JSON, PNG, CSV, BVH) equals, byte for
+    byte, what the same command writes with no service running."""
+    args = ["search", str(app_store), "--clip", "walk_00", "--start", "1", "--end", "2.5", "--quantile", "0.8",
+            "--register", "--export", str(tmp_path / "exp"), "--out", str(tmp_path / "o")]
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0 and "by the service" in r.output, r.output
+    (tmp_path / "o").rename(tmp_path / "o-service")
+    (tmp_path / "exp").rename(tmp_path / "exp-service")
+    monkeypatch.setenv("MOTIONWEB_APP_DIR", str(tmp_path / "no-service"))
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0 and "by the service" not in r.output, r.output
+
+    def files(d: Path) -> dict[str, bytes]:
+        return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+    for mine, local in (("o-service", "o"), ("exp-service", "exp")):
+        a, b = files(tmp_path / mine), files(tmp_path / local)
+        assert a.keys() == b.keys() and len(a) >= 3
+        assert [k for k in a if a[k] != b[k]] == []
+    assert {"graph.png", "warps.png", "warps.csv", "matches.json", "graph.json"} <= set(files(tmp_path / "o"))
 
 
 def test_a_stale_discovery_file_means_a_local_run(cfg, tmp_path: Path, monkeypatch) -> None:
