@@ -217,7 +217,9 @@ def all_trials() -> None:
         shares.append(of["inside_fraction"])
         why = "; ".join(f"{o['frame']}: {o['why']}" for o in of["outside"][:3])
         print(f"  {motion.name} {row['category']:5} {motion.n_frames:4d} frames: inside {of['inside_fraction']:6.1%}, "
-              f"unexplained by contacts {of['unexplained_fraction']:5.1%}{'  outside: ' + why if why else ''}"
+              f"unexplained by contacts {of['unexplained_fraction']:5.1%} (stance frames "
+              f"{of['unexplained_stance_fraction']:5.1%}, flight frames {of['unexplained_flight_fraction']:5.1%})"
+              f"{'  outside: ' + why if why else ''}"
               f"{' ...' if len(of['outside']) > 3 else ''}")
     print(f"  {sum(s >= 0.95 for s in shares)} of {len(shares)} trials have >= 95% inside; lowest {min(shares):.1%}")
 

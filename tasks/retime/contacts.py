@@ -192,7 +192,11 @@ class ContactRule:
     ``height_on`` of the floor and its midpoint slower than ``speed_on``, and stays down while
     within ``height_off`` and slower than ``speed_off``. The foot is in contact when an end is;
     then gaps shorter than ``min_gap_s`` are closed and contacts shorter than ``min_contact_s``
-    dropped. ``floor``: the ground height, or None for the clip's own floor (:func:`clip_floor`).
+    dropped. An end within ``height_ground`` of the floor is down at any speed: mocap feet skate
+    and pivot on the floor (a run's turn slides the toe at 2-4 m/s at floor height), and a foot
+    that is on the floor can push whether or not the markers say it is still (swinging feet of
+    subject 16 pass no lower than ~1.2 cm at > 2 m/s). ``floor``: the ground height, or None for
+    the clip's own floor (:func:`clip_floor`).
     """
 
     height_on: float = 0.04
@@ -201,6 +205,7 @@ class ContactRule:
     speed_off: float = 1.2
     min_contact_s: float = 0.05
     min_gap_s: float = 0.05
+    height_ground: float = 0.01
     floor: float | None = None
 
 
@@ -231,18 +236,32 @@ def hysteresis(low_on: np.ndarray, low_off: np.ndarray) -> np.ndarray:
     return out
 
 
+def one_sided_speed(step: np.ndarray, n_frames: int) -> np.ndarray:
+    """(F,) the smaller of a point's backward and forward speeds from its steps (F-1, 3) (m/s).
+
+    A foot that lands stops within a frame or two: the central difference at its first frame on
+    the ground still averages the approach speed, and at its last frame the lift-off speed. A
+    contact frame is one where the point is still on at least one side, so the smaller one-sided
+    speed dates touchdown and lift-off to the frame (120 Hz mocap: ±8 ms).
+    """
+    if n_frames < 2:
+        return np.zeros(n_frames)
+    v = np.linalg.norm(step, axis=-1)
+    return np.minimum(np.concatenate([[np.inf], v]), np.concatenate([v, [np.inf]]))
+
+
 def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactRule | None = None
                     ) -> tuple[np.ndarray, np.ndarray, float]:
     """Contact flags per foot (F, n_feet) and per sole corner (F, n_feet, 4), and the floor used.
 
-    See :class:`ContactRule`. Speeds by central differences (m/s). In a frame where a foot is in
+    See :class:`ContactRule`. Speeds: the smaller one-sided speed (:func:`one_sided_speed`). In a frame where a foot is in
     contact by gap closing only, all its corners may push. O(F · n_feet).
     """
     rule = rule or ContactRule()
     f, nf = corner_positions.shape[:2]
     floor = clip_floor(corner_positions, up_axis) if rule.floor is None else float(rule.floor)
     h = corner_positions[..., up_axis] - floor  # (F, nf, 4)
-    vel = np.gradient(corner_positions, 1.0 / fps, axis=0) if f > 1 else np.zeros_like(corner_positions)
+    step = np.diff(corner_positions, axis=0) * fps  # (F-1, nf, 4, 3): velocity between frames i and i+1
     act = np.zeros((f, nf), bool)
     corner = np.zeros((f, nf, CORNERS), bool)
     min_gap = int(round(rule.min_gap_s * fps))
@@ -251,9 +270,10 @@ def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 
         ends = []
         for pair in ((0, 1), (2, 3)):
             hp = h[:, k, pair].min(axis=1)
-            vp = np.linalg.norm(vel[:, k, pair].mean(axis=1), axis=-1)
-            ends.append(hysteresis((hp <= rule.height_on) & (vp <= rule.speed_on),
-                                   (hp <= rule.height_off) & (vp <= rule.speed_off)))
+            vp = one_sided_speed(step[:, k, pair].mean(axis=1), f)
+            ground = hp <= rule.height_ground
+            ends.append(hysteresis(((hp <= rule.height_on) & (vp <= rule.speed_on)) | ground,
+                                   ((hp <= rule.height_off) & (vp <= rule.speed_off)) | ground))
         a = ends[0] | ends[1]
         for s, e in runs(~a):
             if s > 0 and e < f and e - s < min_gap:

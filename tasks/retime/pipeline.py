@@ -59,6 +59,8 @@ class RetimeParams(Params):
     contact_speed_off: float = 1.2
     contact_min_s: float = 0.05
     contact_gap_s: float = 0.05
+    #: a foot end this close to the floor (m) is down at any speed (mocap feet skate and pivot)
+    contact_height_ground: float = 0.01
     #: floor height (m, up axis); None: each clip's own floor from its lowest foot heights
     floor_height: float | None = None
     #: per clip name: its floor height (m), overriding floor_height
@@ -70,8 +72,8 @@ class RetimeParams(Params):
     torque_limits: dict[str, float] = Field(default_factory=dict)
     torque_margin: float = 1.5
     #: half-width (s) of the local quadratic fit giving q', q'' (dynamics.path_derivatives); at
-    #: 30 fps it is the central difference, at 120 fps ±5 frames
-    smoothing_s: float = 0.04
+    #: 120 fps ±10 frames (q'' gain halves at ~5.5 Hz), at 30 fps ±2 frames
+    smoothing_s: float = 0.08
     samples_per_frame: int = 4
     #: MPS06 Eqn. 14 weights, both unit-free: α on the squared distance to the feasible polygon
     #: priced as unexplained root force in body weights, β on the mean squared torque deviation
@@ -101,6 +103,7 @@ def contact_rule(params: RetimeParams, clip: str | None = None) -> ContactRule:
     return ContactRule(height_on=params.contact_height_on, height_off=params.contact_height_off,
                        speed_on=params.contact_speed_on, speed_off=params.contact_speed_off,
                        min_contact_s=params.contact_min_s, min_gap_s=params.contact_gap_s,
+                       height_ground=params.contact_height_ground,
                        floor=params.floor_heights.get(clip or "", params.floor_height))
 
 

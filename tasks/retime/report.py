@@ -85,7 +85,10 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
     tolerance). ``unexplained``: frames whose root force the contacts cannot supply within
     ``unexplained_tol`` of body weight at the original timing (flight: the body model's momentum
     is not exactly ballistic; stance: the feet cannot push that way) — the polygon allows them that
-    residual (see ``polygons.feasible_polygons``). O(F · nv).
+    residual (see ``polygons.feasible_polygons``). ``unexplained_stance_fraction`` /
+    ``unexplained_flight_fraction``: their share of the frames with / without a foot in contact
+    (a stance frame unexplained hints at a missed contact; a flight frame never has one to find:
+    it measures how far the body model's centre of mass is from ballistic). O(F · nv).
     """
     polys, orig, body = plan.polygons, plan.original, plan.body
     weight = body.total_mass * float(np.linalg.norm(body.default_gravity()))
@@ -108,8 +111,12 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
         why = (f"flight: the body model's momentum departs from ballistic by {share:.0%} of body weight" if not feet
                else f"contact ({', '.join(feet)}) cannot supply the root force: {share:.0%} of body weight left")
         unexplained.append({"frame": i, "why": why})
+    bad = orig.residual > unexplained_tol * weight
+    stance = plan.contacts.active.any(axis=1)
     return {"inside_fraction": float(polys.original_inside.mean()) if len(polys.original_inside) else 1.0,
             "outside": outside, "unexplained_fraction": len(unexplained) / max(len(orig.residual), 1),
+            "unexplained_stance_fraction": float(bad[stance].mean()) if stance.any() else 0.0,
+            "unexplained_flight_fraction": float(bad[~stance].mean()) if (~stance).any() else 0.0,
             "unexplained": unexplained}
 
 
