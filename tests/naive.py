@@ -438,3 +438,35 @@ def numpy_ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int
     mask = wsum > 0
     off[mask] /= np.maximum(wsum[mask], 1.0)[:, None]
     return off, mask
+
+
+def ref_dynamics_terms(body, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """MPS06 §3.1 per-body path-dynamics terms (a, b, c) from five full joint-torque regressors per
+    frame, stored whole and contracted with each body's parameters afterwards (the plain statement
+    of ``tasks.retime.dynamics.dynamics_terms``): a (F, nv, B), b (F, nv, B), c (F, nv, B, 3)."""
+    import pinocchio as pin
+
+    m = body.model.copy()
+    d = m.createData()
+    f, nv, nb = q.shape[0], m.nv, body.n_bodies
+    zero = np.zeros(nv)
+    reg = pin.computeJointTorqueRegressor
+    ya = np.empty((f, nv, nb * 10))
+    yb = np.empty((f, nv, nb * 10))
+    yc = np.empty((3, f, nv, nb * 10))
+    m.gravity = pin.Motion.Zero()
+    for i in range(f):
+        ya[i] = reg(m, d, q[i], zero, dq[i])
+        yb[i] = reg(m, d, q[i], dq[i], ddq[i])
+    for k in range(3):
+        e = np.zeros(6)
+        e[k] = 1.0
+        m.gravity = pin.Motion(e)
+        for i in range(f):
+            yc[k, i] = reg(m, d, q[i], zero, zero)
+    pi = body.params
+    a = np.einsum("fvbk,bk->fvb", ya.reshape(f, nv, nb, 10), pi)
+    b = np.einsum("fvbk,bk->fvb", yb.reshape(f, nv, nb, 10), pi)
+    c = np.einsum("efvbk,bk->fvbe", yc.reshape(3, f, nv, nb, 10), pi)
+    return a, b, c

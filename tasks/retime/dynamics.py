@@ -11,7 +11,7 @@ mass multiplier recombines stored terms without running the dynamics again (the 
 polynomial-typed Featherstone code of MPS06 §3.1). Per-body terms come from Pinocchio's joint
 torque regressor Y(q, v, a) (τ = Y π), contracted with each body's 10 dynamic parameters π_b.
 
-Cost: five regressor calls per frame, O(F · nv · n_bodies) each; storage O(F · nv · n_bodies).
+Cost: two regressor calls and one Jacobian pass per frame, O(F · nv · n_bodies); storage the same.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Motion, Skeleton
@@ -412,35 +413,81 @@ def dynamics_terms(body: BodyModel, motion: Motion, smoothing_s: float = 0.0) ->
 
     ``smoothing_s``: half-width of the derivative fit (:func:`path_derivatives`).
 
-    Five joint-torque-regressor evaluations per frame: Y(q, 0, q') for a, Y(q, q', q'') for b
-    (gravity off), Y(q, 0, 0) with unit gravity along x, y, z for c. Cost O(F · nv · B).
+    Two joint-torque-regressor evaluations per frame, each contracted with the bodies' dynamic
+    parameters at once: Y(q, 0, q') for a, Y(q, q', q'') for b (gravity off); c from the bodies'
+    centre-of-mass Jacobians (:func:`gravity_terms`). Cost O(F · nv · B); the slow reference
+    (five regressors, tests/naive.py) is the same sums.
     """
     m = body.model
     d = m.createData()
     q = configurations(body, motion)
     dq, ddq = path_derivatives(body, q, motion.fps, smoothing_s)
     f, nv, nb = q.shape[0], m.nv, body.n_bodies
-    pi = body.params  # (B, 10)
+    pi = body.params[:, :, None]  # (B, 10, 1)
     zero = np.zeros(nv)
     reg = pin.computeJointTorqueRegressor
-    ya = np.empty((f, nv, nb * 10))
-    yb = np.empty((f, nv, nb * 10))
-    yc = np.empty((3, f, nv, nb * 10))
+    a = np.empty((f, nv, nb))
+    b = np.empty((f, nv, nb))
     m.gravity = pin.Motion.Zero()
-    for i in range(f):
-        ya[i] = reg(m, d, q[i], zero, dq[i])
-        yb[i] = reg(m, d, q[i], dq[i], ddq[i])
-    for k in range(3):
-        e = np.zeros(6)
-        e[k] = 1.0
-        m.gravity = pin.Motion(e)
-        for i in range(f):
-            yc[k, i] = reg(m, d, q[i], zero, zero)
-    a = np.einsum("fvbk,bk->fvb", ya.reshape(f, nv, nb, 10), pi, optimize=True)
-    b = np.einsum("fvbk,bk->fvb", yb.reshape(f, nv, nb, 10), pi, optimize=True)
-    c = np.einsum("efvbk,bk->fvbe", yc.reshape(3, f, nv, nb, 10), pi, optimize=True)
+    for i in range(f):  # (nv, B, 1, 10) @ (B, 10, 1): each body's 10 columns with its own parameters
+        a[i] = (reg(m, d, q[i], zero, dq[i]).reshape(nv, nb, 1, 10) @ pi)[:, :, 0, 0]
+        b[i] = (reg(m, d, q[i], dq[i], ddq[i]).reshape(nv, nb, 1, 10) @ pi)[:, :, 0, 0]
     m.gravity = pin.Motion(np.concatenate([body.default_gravity(), np.zeros(3)]))
-    return DynamicsTerms(q=q, dq=dq, ddq=ddq, a=a, b=b, c=c, fps=float(motion.fps))
+    return DynamicsTerms(q=q, dq=dq, ddq=ddq, a=a, b=b, c=gravity_terms(body, q), fps=float(motion.fps))
+
+
+def gravity_terms(body: BodyModel, q: np.ndarray) -> np.ndarray:
+    """(F, nv, B, 3) generalized force of each body's weight under a unit gravity along x, y, z.
+
+    Gravity acts at each body's centre of mass p_b: its share of τ = M q̈ + h − Σ J_bᵀ m_b g is
+    −m_b J_{p_b}ᵀ e, with J_{p_b} = J_v − [p_b]× J_ω from the body's world-frame joint Jacobian
+    (the columns of its supporting joints). One ``computeJointJacobians`` per frame, O(F · B · nv).
+    """
+    m = body.model
+    d = m.createData()
+    f, nv, nb = q.shape[0], m.nv, body.n_bodies
+    support = np.zeros((nb, nv), bool)  # dofs moving body b
+    for j in range(nb):
+        for k in m.supports[j + 1]:
+            if k:
+                support[j, m.idx_vs[k]:m.idx_vs[k] + m.nvs[k]] = True
+    jac = np.empty((f, 6, nv))  # WORLD: linear rows = velocity of the body point at the origin
+    place = np.empty((f, nb, 4, 4))
+    for i in range(f):
+        pin.computeJointJacobians(m, d, q[i])
+        jac[i] = d.J
+        place[i] = [d.oMi[j + 1].homogeneous for j in range(nb)]
+    mass = body.params[:, 0]
+    # m_b p_b in the world: mass times the joint origin plus the rotated first moment m·c
+    h = mass[:, None] * place[:, :, :3, 3] + np.einsum("fbij,bj->fbi", place[:, :, :3, :3], body.params[:, 1:4])
+    out = np.empty((f, nv, nb, 3))
+    weight_jacobians(jac, h, mass, support, out)
+    return out
+
+
+@numba.njit(cache=True)
+def weight_jacobians(jac: np.ndarray, h: np.ndarray, mass: np.ndarray, support: np.ndarray, out: np.ndarray) -> None:
+    """out[f, v, b] = −(m_b J_v − (m_b p_b) × J_ω)[:, v] where body b moves with dof v, else 0.
+
+    jac (F, 6, nv) world-frame Jacobians, h (F, B, 3) first moments m_b p_b, mass (B,),
+    support (B, nv) bool, out (F, nv, B, 3). O(F · nv · B).
+    """
+    f, _, nv = jac.shape
+    nb = h.shape[1]
+    for i in range(f):
+        for v in range(nv):
+            jx, jy, jz = jac[i, 0, v], jac[i, 1, v], jac[i, 2, v]
+            wx, wy, wz = jac[i, 3, v], jac[i, 4, v], jac[i, 5, v]
+            for b in range(nb):
+                if support[b, v]:
+                    hx, hy, hz = h[i, b, 0], h[i, b, 1], h[i, b, 2]
+                    out[i, v, b, 0] = -(mass[b] * jx - (hy * wz - hz * wy))
+                    out[i, v, b, 1] = -(mass[b] * jy - (hz * wx - hx * wz))
+                    out[i, v, b, 2] = -(mass[b] * jz - (hx * wy - hy * wx))
+                else:
+                    out[i, v, b, 0] = 0.0
+                    out[i, v, b, 1] = 0.0
+                    out[i, v, b, 2] = 0.0
 
 
 def mass_factors(body: BodyModel, factors: dict[str, float]) -> np.ndarray:
