@@ -196,3 +196,26 @@ def test_real_jump_with_idle_time_halved_keeps_its_flight(real_jump) -> None:
     pd, _ = _flight_speed(res, t0, t1)
     assert np.abs(pd - 1).max() < 0.10
     assert res.pd.max() > 3.0  # the standing absorbed the change
+
+
+def test_bands_clip_a_polygon_exactly_and_interpolate_forces() -> None:
+    """λ-free joint rows are cut from the polygon as 2-D bands (polygons.HalfPlanes): a unit square
+    cut by 0.25 ≤ x ≤ 0.5 and y ≤ 0.75 is that rectangle, λ linear along the cut edges; a segment
+    (a flight's thin polygon) is cut to its part inside; a band missing the polygon empties it."""
+    from motionweb.tasks.retime.polygons import HalfPlanes, polygon_area
+
+    sq = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    lam = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # λ = (x, y): linear in the point
+    bands = HalfPlanes(np.array([[1.0, 0.0], [0.0, 2.0]]), np.array([0.25, -np.inf]), np.array([0.5, 1.5]))
+    v, lv = bands.clip(sq, lam)
+    assert polygon_area(v) == pytest.approx(0.25 * 0.75)
+    assert v[:, 0].min() == pytest.approx(0.25) and v[:, 0].max() == pytest.approx(0.5)
+    assert v[:, 1].max() == pytest.approx(0.75)
+    np.testing.assert_allclose(lv, v, atol=1e-12)  # interpolated λ equals the linear field
+    assert bands.violation(np.array([0.3, 0.5])) == 0.0 and bands.violation(np.array([0.6, 0.5])) == pytest.approx(0.1)
+    seg = np.array([[0.0, 0.5], [1.0, 0.5]])
+    v, lv = bands.clip(seg, seg.copy())
+    np.testing.assert_allclose(v, [[0.25, 0.5], [0.5, 0.5]])
+    np.testing.assert_allclose(lv, v)
+    v, _ = HalfPlanes(np.array([[1.0, 0.0]]), np.array([2.0]), np.array([3.0])).clip(sq, lam)
+    assert len(v) == 0
