@@ -32,20 +32,22 @@ from typing import Any
 import numpy as np
 from motionweb.flows.config import Config, load_config
 from motionweb.flows.query import (
+    PreparedQuery,
     QueryRequest,
     committed_generation,
     indexed_config,
     load_indexed_clip,
     plan_query,
     prepare_query,
-    register_task,
+    register_graph,
     search_task,
 )
 from motionweb.store.generations import load_generation, package_versions
 from motionweb.store.motion import Motion
 from motionweb.store.zarr_store import MotionStore, now_iso
 from motionweb.tasks.blend import BlendParams, blend, registered_examples, to_file_unit
-from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.flights import FlightExamples, flight_registration, query_flight
+from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.parameterize import (
     JointPosition,
     MotionSpace,
@@ -78,22 +80,76 @@ class SpaceRequest:
                             quantile=self.quantile)
 
 
-def plan_space(cfg: Config, request: SpaceRequest) -> None:
-    """Every check that needs no search, before a flow starts: the query (store, clip, range),
-    the parameter spec, its joint and time against the query clip, the sample count."""
+def plan_space(cfg: Config, request: SpaceRequest) -> int:
+    """Every check before a flow starts, each failing with one clear line (ValueError): the query
+    (store, clip, range), the parameter spec, the sample count, then the parameter function
+    evaluated on the query alone (an unknown joint, a time outside the query, a custom
+    function's output, the feet of ``blend.feet``; this also gives its dimension d), and last the
+    search itself with the examples it yields (fewer than d + 1 cannot span a d-D space). Returns
+    the number of examples. Costs one search, which the flow repeats (seconds at most; the flow
+    records it as its own task)."""
     fn = parse_param(request.param)
     if request.samples is not None and request.samples < 1:
         raise ValueError(f"--samples must be ≥ 1, got {request.samples}")
     plan_query(cfg, request.query())
     q = prepare_query(cfg, request.query())
-    joint = getattr(fn, "joint", None)
-    if joint is not None:
-        names = load_indexed_clip(q.gen_cfg, q.record).skeleton.names
-        if joint not in names:
-            raise ValueError(f"unknown joint {joint!r} in {q.record['path']}; joints: {', '.join(names)}")
+    query = load_indexed_clip(q.gen_cfg, q.record)
+    rate = float(max(q.gen_cfg.features.rates))
     if isinstance(fn, JointPosition) and not 0.0 <= fn.seconds <= request.end - request.start:
         raise ValueError(f"time {fn.seconds:g} s is outside the query (0 .. {request.end - request.start:g} s "
                          "from its start)")
+    alone = Registration(rate, [0], [q.segment], [-1], np.zeros(1),
+                         np.arange(q.segment.start, q.segment.end + 1, dtype=np.float64)[:, None], [])
+    try:
+        check_param(fn, registered_examples([query], alone, [q.record["path"]], cfg.blend))
+    except ValueError as exc:
+        raise ValueError(f"{q.record['path']}: {exc}") from None
+    mode = registration_mode(cfg.parameterize.registration, query, q.segment, rate)
+    graph, _ = search_task.fn(q, cfg, request.query())
+    n = len(graph.nodes)
+    if mode == "flight":
+        n = len(flight_examples(q, graph).kept)
+    check_count(n, fn.dim, mode)
+    return n
+
+
+def registration_mode(setting: str, query: Motion, segment: Segment, rate: float) -> str:
+    """``web`` or ``flight`` for ``ParameterizeParams.registration`` (``auto``: flight when the query holds
+    exactly one flight phase)."""
+    has_flight = query_flight(query, segment, rate) is not None
+    if setting == "flight" and not has_flight:
+        raise ValueError(f"parameterize.registration = flight, but the query {segment.clip} {segment.start / rate:g}-"
+                         f"{segment.end / rate:g} s holds no single flight phase")
+    return setting if setting != "auto" else ("flight" if has_flight else "web")
+
+
+def check_count(n: int, dim: int, mode: str) -> None:
+    """ValueError unless ``n`` examples (the query included) can span a ``dim``-D space."""
+    if n < dim + 1:
+        what = "motions with a flight phase" if mode == "flight" else "motions"
+        raise ValueError(f"the search found {n} {what} (the query included); a {dim}-D parameter needs at least "
+                         f"{dim + 1}: raise --threshold / --quantile")
+
+
+def flight_examples(q: PreparedQuery, graph: MatchGraph) -> FlightExamples:
+    """The search's matches as flight-keyed examples (``tasks/flights.py``)."""
+    clips = {c["path"]: c for c in q.gen.clips}
+    names = sorted({n.segment.clip for n in graph.nodes})
+    motions = {c: load_indexed_clip(q.gen_cfg, clips[c]) for c in names}
+    return flight_registration(motions, [n.segment for n in graph.nodes], [n.distance for n in graph.nodes],
+                               graph.rate)
+
+
+@task(name="register-examples", cache_policy=NO_CACHE)
+def examples_task(q: PreparedQuery, graph: MatchGraph, mode: str) -> Registration:
+    """The matches registered to the query: along the match graph (KG04 §4.1) or by flights."""
+    if mode == "flight":
+        fx = flight_examples(q, graph)
+        get_run_logger().info("flight-keyed examples: %d of %d matches kept; dropped: %s", len(fx.kept),
+                              len(graph.nodes), fx.dropped)
+        return fx.registration
+    clips = {c["path"]: c for c in q.gen.clips}
+    return register_graph(q.store, q.gen, q.gen_cfg, graph, clips)
 
 
 def space_digest(gen_id: str, reg: Registration, shas: list[str], spec: str, pcfg: ParameterizeParams,
@@ -130,13 +186,11 @@ def parameterize(config: str | Config, request: SpaceRequest) -> dict[str, Any]:
     graph, eps = search_task(q, cfg, request.query())
     clips = {c["path"]: c for c in q.gen.clips}
     fn = parse_param(request.param)
-    need = {"position": 3, "final_root": 2}.get(request.param.partition(":")[0], 1)
-    if len(graph.nodes) < need + 1:
-        raise ValueError(f"the search found {len(graph.nodes)} motions (the query included); a {need}-D parameter "
-                         f"needs at least {need + 1}: raise --threshold / --quantile")
+    query = load_indexed_clip(q.gen_cfg, q.record)
+    mode = registration_mode(cfg.parameterize.registration, query, q.segment, graph.rate)
     timings = {"search_s": time.perf_counter() - t0}
     t = time.perf_counter()
-    reg = register_task(q.store, q.gen, q.gen_cfg, graph, clips)
+    reg = examples_task(q, graph, mode)
     timings["register_s"] = time.perf_counter() - t
     motions = [load_indexed_clip(q.gen_cfg, clips[s.clip]) for s in reg.segments]
     names = example_names(reg.segments)
@@ -144,6 +198,8 @@ def parameterize(config: str | Config, request: SpaceRequest) -> dict[str, Any]:
     pcfg = cfg.parameterize if request.samples is None else cfg.parameterize.model_copy(
         update={"samples": request.samples})
     t = time.perf_counter()
+    check_param(fn, ex)
+    check_count(ex.n, fn.dim, mode)  # plan_space checked it; the index cannot change under a generation
     space = sample_task(ex, request.param, pcfg)
     timings["sample_s"] = time.perf_counter() - t
     shas = [clips[s.clip]["sha256"] for s in reg.segments]
@@ -152,7 +208,7 @@ def parameterize(config: str | Config, request: SpaceRequest) -> dict[str, Any]:
         "kind": "motion-space", "param": fn.spec, "dim": space.dim, "rate": reg.rate,
         "clips": [s.clip for s in reg.segments], "names": names, "sha256": shas, "segments": [[s.start, s.end] for s in reg.segments],
         "nodes": reg.nodes, "parents": reg.parents, "generation": q.gen.id, "store": cfg.store.path,
-        "config_digest": cfg.digest(), "parameterize": pcfg.model_dump(mode="json"),
+        "config_digest": cfg.digest(), "parameterize": pcfg.model_dump(mode="json"), "registration": mode,
         "blend": cfg.blend.model_dump(mode="json"), "epsilon": eps, "request": asdict(request),
         "versions": package_versions(), "created": now_iso(),
     }

@@ -36,6 +36,7 @@ import importlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from motionweb.store.kinematics import forward_kinematics_of
@@ -63,6 +64,10 @@ class ParameterizeParams(Params):
     #: t' = t' + (t − f(w(t'))) and keep the best, so weights stay in the samples' hull (Eq. 1)
     refine: int = 3
     seed: int = 0
+    #: how the search's matches become examples: ``web`` = KG04 §4.1 registration along the match
+    #: graph; ``flight`` = keyed by take-off and landing (``tasks/flights.py``: jumps, hops);
+    #: ``auto`` = flight when the query holds exactly one flight phase, else web
+    registration: Literal["auto", "web", "flight"] = "auto"
 
 
 # ----------------------------------------------------------------------------- parameter functions
@@ -175,8 +180,12 @@ class CustomParam(ParamFunction):
         return f"custom:{self.path}"
 
     def __call__(self, ex: Examples, weights: np.ndarray) -> np.ndarray:
-        out = np.asarray(self.fn(ex, check_weights(weights, ex.n)), np.float64)  # type: ignore[misc]
-        return out.reshape(len(np.atleast_2d(weights)), -1)
+        w = check_weights(weights, ex.n)
+        try:
+            out = np.asarray(self.fn(ex, w), np.float64)  # type: ignore[misc]
+            return out.reshape(len(w), -1)
+        except Exception as exc:  # noqa: BLE001 - any failure of imported code becomes one clear line
+            raise ValueError(f"parameter function {self.spec} failed: {type(exc).__name__}: {exc}") from None
 
 
 def joint_index(ex: Examples, name: str) -> int:

@@ -97,20 +97,92 @@ def test_bad_space_requests_fail_with_one_line(space, args: list[str], message: 
     assert message in r.output and "Traceback" not in r.output
 
 
+def no_flow(*args, **kwargs):
+    raise AssertionError("the flow started although the request is bad")
+
+
 @pytest.mark.parametrize(("args", "message"), [
-    (["--param", "position:Nose@0.5"], "unknown joint 'Nose'"),
-    (["--param", "position:LeftHand@9"], "outside the query"),
-    (["--param", "wiggle"], "unknown kind 'wiggle'"),
-    (["--param", "final_root", "--samples", "0"], "--samples must be ≥ 1"),
-    (["--param", "final_root", "--threshold", "1e-9", "--quantile", None], "needs at least 3"),
+    (["--param", "position:Nose@0.5", "--quantile", "0.9"], "unknown joint 'Nose'"),
+    (["--param", "position:LeftHand@9", "--quantile", "0.9"], "outside the query"),
+    (["--param", "wiggle", "--quantile", "0.9"], "unknown kind 'wiggle'"),
+    (["--param", "custom:json.dumps", "--quantile", "0.9"], "custom:json.dumps failed: TypeError"),
+    (["--param", "final_root", "--samples", "0", "--quantile", "0.9"], "--samples must be ≥ 1"),
+    (["--param", "final_root", "--threshold", "1e-9"], "found 1 motions (the query included); a 2-D parameter "
+                                                       "needs at least 3"),
 ])
-def test_bad_parameterize_requests_fail_with_one_line(space, args: list, message: str) -> None:
+def test_bad_parameterize_requests_fail_with_one_line_before_the_flow(space, args: list, message: str,
+                                                                     monkeypatch) -> None:
     cfg_path, _, _ = space
+    monkeypatch.setattr("motionweb.flows.space.parameterize", no_flow)
     base = ["parameterize", str(cfg_path), "--clip", "walk_00", "--start", "0.5", "--end", "2.5"]
-    if None in args:
-        args = args[: args.index("--quantile")]
-    else:
-        args = [*args, "--quantile", "0.9"]
     r = runner.invoke(app, base + args)
     assert r.exit_code == 2, r.output
     assert message in r.output and "Traceback" not in r.output
+    assert len(r.output.strip().splitlines()) == 1, r.output
+
+
+@pytest.mark.parametrize(("section", "message"), [
+    ("parameterize: {registration: flight}", "parameterize.registration = flight, but the query"),
+    ("blend: {feet: {left: Nope}}", "unknown left ankle joint 'Nope'"),
+])
+def test_bad_config_for_a_space_fails_with_one_line_before_the_flow(space, section: str, message: str,
+                                                                   monkeypatch) -> None:
+    cfg_path, _, _ = space
+    other = cfg_path.parent / "other.yaml"
+    other.write_text(cfg_path.read_text().replace("parameterize: {samples: 300}\n", "") + section + "\n")
+    monkeypatch.setattr("motionweb.flows.space.parameterize", no_flow)
+    r = runner.invoke(app, ["parameterize", str(other), "--clip", "walk_00", "--start", "0.5", "--end", "2.5",
+                            "--quantile", "0.9", "--param", "final_root"])
+    assert r.exit_code == 2, r.output
+    assert message in r.output and len(r.output.strip().splitlines()) == 1, r.output
+
+
+def test_an_error_inside_the_flow_is_one_line_too(space, monkeypatch) -> None:
+    """Were the index to change between the checks and the flow, the flow's own check fails: one
+    line at the CLI, and Prefect's run loggers pass on no record of it (no traceback on stderr)."""
+    import logging
+
+    cfg_path, _, _ = space
+    monkeypatch.setattr("motionweb.flows.space.plan_space", lambda cfg, request: 0)
+    seen: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            seen.append(record)
+
+    keep = Keep(logging.DEBUG)
+    loggers = [logging.getLogger(n) for n in ("prefect.flow_runs", "prefect.task_runs")]
+    for lg in loggers:
+        lg.addHandler(keep)
+    try:
+        r = runner.invoke(app, ["parameterize", str(cfg_path), "--clip", "walk_00", "--start", "0.5", "--end",
+                                "2.5", "--threshold", "1e-9", "--param", "final_root"])
+    finally:
+        for lg in loggers:
+            lg.removeHandler(keep)
+    assert r.exit_code == 2, r.output
+    assert "needs at least 3" in r.output and "Traceback" not in r.output
+    assert seen, "the flow ran and logged"
+    assert not [x for x in seen if x.exc_info or x.levelno >= logging.ERROR], [x.getMessage() for x in seen]
+
+
+def test_the_cli_drops_prefect_records_of_errors_it_reports() -> None:
+    import logging
+    import sys
+
+    from motionweb.flows.space_cli import DropReported
+
+    def record(msg: str, exc: BaseException | None, level: int = logging.ERROR) -> logging.LogRecord:
+        info = None
+        if exc is not None:
+            try:
+                raise exc
+            except BaseException:
+                info = sys.exc_info()
+        return logging.LogRecord("prefect.flow_runs", level, __file__, 1, msg, None, info)
+
+    drop = DropReported()
+    assert not drop.filter(record("Encountered exception during execution", ValueError("bad")))
+    assert not drop.filter(record("Finished in state Failed('bad')", None))
+    assert drop.filter(record("Encountered exception during execution", ZeroDivisionError()))  # a bug: shown
+    assert drop.filter(record("space ab12: 6 examples", None, logging.INFO))
