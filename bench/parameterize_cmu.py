@@ -28,10 +28,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from motionweb.flows.cli import app
-from motionweb.flows.config import load_config
-from motionweb.flows.query import indexed_config, load_indexed_clip
-from motionweb.flows.space import SpaceRequest, load_space, parameterize, plan_space
 from motionweb.store.datasets import mocap_root
 from motionweb.store.generations import load_generation
 from motionweb.store.kinematics import forward_kinematics_of
@@ -59,6 +55,8 @@ def corpus(folder: Path, trials) -> None:
 
 def example_skates(st, bcfg: BlendParams) -> list[float]:
     """Foot skate of every example over its own registered segment at its own fps (cm/s)."""
+    from motionweb.flows.query import indexed_config, load_indexed_clip
+
     ex, reg_rate = st.space.examples, st.space.examples.rate
     feet = [ex.legs["left"][2], ex.legs["right"][2]]
     out = []
@@ -76,7 +74,9 @@ def example_skates(st, bcfg: BlendParams) -> list[float]:
     return out
 
 
-def report(label: str, cfg, request: SpaceRequest) -> None:
+def report(label: str, cfg, request) -> None:
+    from motionweb.flows.space import load_space, parameterize, plan_space
+
     t = time.perf_counter()
     plan_space(cfg, request)
     res = parameterize(cfg, request)
@@ -107,6 +107,14 @@ def report(label: str, cfg, request: SpaceRequest) -> None:
 
 
 def main() -> None:
+    # before Prefect is imported: a patient start of its ephemeral server on a busy machine, terse logs
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "600")
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    from motionweb.flows.cli import app
+    from motionweb.flows.config import load_config
+    from motionweb.flows.space import SpaceRequest
+
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:
         for k, (label, (trials, clip, a, b, q, param)) in enumerate(QUERIES.items()):
