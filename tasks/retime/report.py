@@ -15,6 +15,11 @@ from motionweb.tasks.retime.pipeline import RetimePlan
 from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, closest_point
 from motionweb.tasks.retime.spline import RetimeResult
 
+#: a joint turning faster than this within a frame's derivative window is named as a likely capture
+#: glitch in the report (subject 16's toes and hands peak at ~2,900 °/s; the arm glitches at the
+#: starts of 16_15, 16_23, 16_28 turn 10,000-11,300 °/s, e.g. 16_28's rhumerus 84° in one frame)
+GLITCH_DEG_PER_S = 5000.0
+
 
 def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
     """A lower bound on the duration of any timing that stays inside every polygon (MPS06 §3.3).
@@ -77,11 +82,26 @@ def output_time(res: RetimeResult, src_time: float) -> float:
     return 0.5 * (lo + hi)
 
 
+def largest_step(rotations: np.ndarray, frame: int, half: int) -> tuple[float, int]:
+    """The largest one-frame turn (degrees) of a joint's rotations (F, 4, wxyz) over frames
+    ``frame`` ± ``half``, and the frame it ends at: a capture glitch shows as a joint that turns
+    tens of degrees in one frame (a marker swap or dropout), which no torque limit admits. O(half)."""
+    lo, hi = max(frame - half, 0), min(frame + half, len(rotations) - 1)
+    if hi <= lo:
+        return 0.0, frame
+    q = rotations[lo:hi + 1]
+    dot = np.abs(np.sum(q[1:] * q[:-1], axis=-1)) / (np.linalg.norm(q[1:], axis=-1) * np.linalg.norm(q[:-1], axis=-1))
+    ang = 2.0 * np.degrees(np.arccos(np.clip(dot, 0.0, 1.0)))
+    k = int(np.argmax(ang))
+    return float(ang[k]), lo + k + 1
+
+
 def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dict[str, Any]:
     """How well the model explains the clip at its own timing (p̈, ṗ²) = (0, 1) (MPS06 §3.3).
 
     ``inside_fraction``: source frames whose original timing lies in their polygon; ``outside``:
-    the others, each with why (a joint over its torque limit, or the root force beyond its
+    the others, each with why (a joint over its torque limit — with the joint's one-frame jump when
+    the data turns it faster than ``GLITCH_DEG_PER_S`` nearby — or the root force beyond its
     tolerance). ``unexplained``: frames whose root force the contacts cannot supply within
     ``unexplained_tol`` of body weight at the original timing (flight: the body model's momentum
     is not exactly ballistic; stance: the feet cannot push that way) — the polygon allows them that
@@ -93,6 +113,7 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
     polys, orig, body = plan.polygons, plan.original, plan.body
     weight = body.total_mass * float(np.linalg.norm(body.default_gravity()))
     names = body.skeleton.names
+    half = max(1, round(0.08 * plan.motion.fps))  # the derivative fit's reach (smoothing_s default)
     outside = []
     for i in np.flatnonzero(~polys.original_inside).tolist():
         over = np.abs(orig.tau[i, N_ROOT:]) > orig.limits[N_ROOT:] * (1 + 1e-9)
@@ -101,6 +122,12 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
             j = next(j for j in range(1, body.n_bodies) if body.joint_dofs(j).start <= k + N_ROOT < body.joint_dofs(j).stop)
             why = (f"joint {names[j]} needs {abs(orig.tau[i, N_ROOT + k]):.0f} N·m, over its limit "
                    f"{orig.limits[N_ROOT + k]:.0f}")
+            # the torque of j carries its subtree's accelerations: look for the jump there
+            sub = [int(c) - 1 for c in body.model.subtrees[j + 1]]  # Pinocchio joint c is skeleton joint c - 1
+            deg, at, g = max(largest_step(plan.motion.rotations[:, c], i, half) + (c,) for c in sub)
+            if deg * plan.motion.fps > GLITCH_DEG_PER_S:
+                why += (f"; the data turns {names[g]} {deg:.0f}° from frame {at - 1} to {at} "
+                        f"({deg * plan.motion.fps:,.0f}°/s): likely a capture glitch")
         else:
             why = "root force beyond the tolerance of the polygon"
         outside.append({"frame": i, "why": why})

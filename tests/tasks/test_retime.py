@@ -219,3 +219,15 @@ def test_bands_clip_a_polygon_exactly_and_interpolate_forces() -> None:
     np.testing.assert_allclose(lv, v)
     v, _ = HalfPlanes(np.array([[1.0, 0.0]]), np.array([2.0]), np.array([3.0])).clip(sq, lam)
     assert len(v) == 0
+
+
+def test_largest_step_finds_a_one_frame_jump_of_a_joint() -> None:
+    """The report names a capture glitch by the joint's largest one-frame turn near the frame."""
+    from motionweb.tasks.retime.report import largest_step
+
+    ang = np.radians(np.concatenate([np.zeros(10), np.full(10, 84.0)]) + np.arange(20) * 1.0)  # 1°/frame, 84° jump
+    rot = np.stack([np.cos(ang / 2), np.sin(ang / 2), np.zeros(20), np.zeros(20)], axis=1)
+    deg, at = largest_step(rot, 12, 5)
+    assert deg == pytest.approx(85.0) and at == 10
+    deg, at = largest_step(rot, 2, 5)  # the window 0..7 does not reach the jump
+    assert deg == pytest.approx(1.0)
