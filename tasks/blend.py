@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -556,11 +556,14 @@ def _ease_kernel(plants, ankles, ramp, off, wsum):  # pragma: no cover - compile
 
 
 def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: np.ndarray,
-                cfg: BlendParams, fk: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Motion, float]:
+                cfg: BlendParams, fk: tuple[np.ndarray, np.ndarray] | None = None,
+                ik: Callable = leg_ik, ease: Callable = ease_offsets) -> tuple[Motion, float]:
     """Hold each planted foot still (its run's mean ankle position) by leg IK, corrections eased
     over ``cfg.ease_s`` (KG03 constraint matching); ``fk`` = the motion's global (positions,
     rotations) of at least the root-to-ankle paths when already computed. Returns the motion and
-    the worst miss (m). O(F) for the two legs (only their FK paths are computed)."""
+    the worst miss (m). O(F) for the two legs (only their FK paths are computed). ``ik`` and
+    ``ease`` are the two steps (the compiled ones; tests run the numpy references through the
+    same loop)."""
     feet = [legs[side][2] for side in SIDES]
     gpos, grot = fk if fk is not None else forward_kinematics_of(motion, feet)
     rot = motion.rotations.copy()
@@ -569,11 +572,11 @@ def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: n
     worst = 0.0
     for k, side in enumerate(SIDES):
         hip, knee, ankle = legs[side]
-        off, mask = ease_offsets(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
+        off, mask = ease(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
         if not mask.any():
             continue
-        lh, lk, la, miss = leg_ik(gpos[mask], grot[mask], motion.skeleton.parents, legs[side],
-                                  gpos[mask, ankle] + off[mask], lateral[mask])
+        lh, lk, la, miss = ik(gpos[mask], grot[mask], motion.skeleton.parents, legs[side],
+                              gpos[mask, ankle] + off[mask], lateral[mask])
         rot[mask, hip], rot[mask, knee], rot[mask, ankle] = lh, lk, la
         worst = max(worst, float(miss.max(initial=0.0)))
     return replace(motion, rotations=rot), worst

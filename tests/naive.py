@@ -395,27 +395,12 @@ def numpy_leg_ik(gpos, grot, parents, chain, target, fallback_axis):
 
 def numpy_hold_plants(motion, legs, plants, cfg):
     """``motionweb.tasks.blend.hold_plants`` the obvious way: one full FK of the motion, then
-    :func:`numpy_leg_ik` per leg on the frames that need it. Returns (motion, worst miss)."""
-    from dataclasses import replace
+    :func:`numpy_leg_ik` and :func:`numpy_ease_offsets` per leg. Returns (motion, worst miss)."""
+    from motionweb.store.kinematics import forward_kinematics
+    from motionweb.tasks.blend import hold_plants
 
-    from motionweb.store.kinematics import forward_kinematics, quat_rotate
-    from motionweb.tasks.blend import SIDES
-
-    gpos, grot = forward_kinematics(motion)
-    rot = motion.rotations.copy()
-    ramp = max(1, round(cfg.ease_s * motion.fps))
-    lateral = quat_rotate(grot[:, 0], np.array([1.0, 0.0, 0.0]))
-    worst = 0.0
-    for k, side in enumerate(SIDES):
-        hip, knee, ankle = legs[side]
-        off, mask = numpy_ease_offsets(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
-        if not mask.any():
-            continue
-        lh, lk, la, miss = numpy_leg_ik(gpos[mask], grot[mask], motion.skeleton.parents, legs[side],
-                                        gpos[mask, ankle] + off[mask], lateral[mask])
-        rot[mask, hip], rot[mask, knee], rot[mask, ankle] = lh, lk, la
-        worst = max(worst, float(miss.max(initial=0.0)))
-    return replace(motion, rotations=rot), worst
+    return hold_plants(motion, legs, plants, cfg, forward_kinematics(motion), ik=numpy_leg_ik,
+                       ease=numpy_ease_offsets)
 
 
 def numpy_ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> tuple[np.ndarray, np.ndarray]:
