@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from motionweb.flows.app.client import ServiceError, forward_space
 from motionweb.store.errors import MotionFormatError
 
 #: RuntimeError: e.g. Prefect's local API server not starting in time on a busy machine
@@ -49,6 +50,14 @@ def parse_target(text: str) -> list[float]:
         return [float(v) for v in text.split(",")]
     except ValueError:
         raise ValueError(f"--target {text!r}: expected numbers separated by commas, e.g. 0.3,1.2,0.5") from None
+
+
+def synthesis_line(out: Path, frames: int, achieved, error: float, outside: bool, service: str | None = None) -> str:
+    """What ``synthesize`` prints: the file, its frames, the achieved parameter and the error."""
+    got = ",".join(f"{v:.4f}" for v in achieved)
+    note = " (outside the accessible region: projected)" if outside else ""
+    via = f" (by the service at {service})" if service else ""
+    return f"wrote {out}: {frames} frames; achieved {got}, {100 * error:.2f} cm from the target{note}{via}"
 
 
 def parse_weights(items: list[str]) -> dict[str, float]:
@@ -104,14 +113,23 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         out: Annotated[Path, typer.Option(help="Output BVH.")],
         config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
     ) -> None:
-        """Make a motion that hits a target parameter (KG04 §4.3); a target outside is projected."""
+        """Make a motion that hits a target parameter (KG04 §4.3); a target outside is projected.
+
+        With a `motionweb app` running for the config's store, the service answers (same BVH)."""
+        try:
+            t = parse_target(target)
+            res = forward_space(config, space, "synthesize", {"target": t}, out)
+        except (ValueError, ServiceError) as exc:
+            fail(str(exc).strip("'\""))
+        if res is not None:
+            typer.echo(synthesis_line(out, res["frames"], res["achieved"], res["error"], res["outside"], res["service"]))
+            return
         import numpy as np
         from motionweb.flows.space import load_space, space_info
         from motionweb.store.bvh import write_bvh
 
         cfg = config_or_fail(config)
         try:
-            t = parse_target(target)
             _, info, _ = space_info(cfg, space)
             if len(t) != info["dim"]:
                 raise ValueError(f"--target has {len(t)} values; space parameter {info['param']} has {info['dim']}")
@@ -119,10 +137,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             write_bvh(motion, out)
         except ERRORS as exc:
             fail(str(exc).strip("'\""))
-        got = ",".join(f"{v:.4f}" for v in syn.achieved)
-        note = " (outside the accessible region: projected)" if syn.outside else ""
-        typer.echo(f"wrote {out}: {motion.n_frames} frames; achieved {got}, {100 * syn.error:.2f} cm from the "
-                   f"target{note}")
+        typer.echo(synthesis_line(out, motion.n_frames, syn.achieved, syn.error, syn.outside))
 
     @app.command("blend")
     def blend_cmd(
@@ -131,13 +146,22 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         out: Annotated[Path, typer.Option(help="Output BVH.")],
         config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
     ) -> None:
-        """Blend a space's examples with explicit weights (KG04 §4, foot plants held)."""
+        """Blend a space's examples with explicit weights (KG04 §4, foot plants held).
+
+        With a `motionweb app` running for the config's store, the service answers (same BVH)."""
+        try:
+            w = parse_weights(weights)
+            res = forward_space(config, space, "blend", {"weights": w}, out)
+        except (ValueError, ServiceError) as exc:
+            fail(str(exc).strip("'\""))
+        if res is not None:
+            typer.echo(f"wrote {out}: {res['frames']} frames at {res['fps']:g} fps (by the service at {res['service']})")
+            return
         from motionweb.flows.space import load_space, space_info, weight_vector
         from motionweb.store.bvh import write_bvh
 
         cfg = config_or_fail(config)
         try:
-            w = parse_weights(weights)
             _, info, _ = space_info(cfg, space)
             weight_vector(info["names"], w)  # names and sum, before loading clips
             motion = load_space(cfg, space).blend(w)

@@ -16,6 +16,10 @@ traceback: 400 bad request, 401 bad token, 404 unknown clip or result, 409 store
     GET  /api/results/{rid}/nodes/{rank}/bvh?registered=    a match as a BVH download
     POST /api/query                              what `motionweb search` writes, as a zip
                                                  (result.json, out/..., export/...)
+    GET  /api/spaces                             the stored motion spaces (KG04 §4)
+    GET  /api/spaces/{sid}                       a space's parameter, examples, sampled cloud
+    POST /api/spaces/{sid}/synthesize            {target}: the motion for it (§4.3), how close
+    POST /api/spaces/{sid}/blend                 {weights}: the blend of the examples
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
@@ -36,8 +40,10 @@ from fastapi import FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
-from motionweb.flows.app.engine import Engine, NotFound, NotIndexed
+from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed
+from motionweb.flows.app.spaces import Spaces
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 MAX_BODY = 64 * 1024
 MAX_QUERY_STRING = 2048
@@ -80,6 +86,24 @@ class QueryBody(SearchBody):
 
     out: str | None = Field(default=None, max_length=1000)
     export: str | None = Field(default=None, max_length=1000)
+
+
+class SynthesizeBody(BaseModel):
+    """A target parameter (metres, as many values as the space's parameter has)."""
+
+    model_config = ConfigDict(extra="forbid")
+    target: list[float] = Field(min_length=1, max_length=3)
+    pose: bool = True
+    bvh: bool = False
+
+
+class BlendBody(BaseModel):
+    """Weights by example (corpus path or stem), summing to 1."""
+
+    model_config = ConfigDict(extra="forbid")
+    weights: dict[str, float] = Field(min_length=1, max_length=256)
+    pose: bool = True
+    bvh: bool = False
 
 
 def error(status: int, message: str) -> JSONResponse:
@@ -147,6 +171,10 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     """The FastAPI app of ``engine`` behind its :class:`Guard` (``token``, if any, is required
     on every request)."""
     app = FastAPI(title="motionweb", docs_url=None, redoc_url=None, openapi_url=None)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        return error(exc.status_code, str(exc.detail))  # e.g. no such route: JSON like every error
 
     @app.exception_handler(NotFound)
     async def not_found(_: Request, exc: NotFound) -> JSONResponse:
@@ -235,6 +263,26 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         fields = body.fields()
         data = await run(engine.query_bundle, fields, body.search, body.export is not None)
         return Response(data, media_type="application/zip")
+
+    spaces = Spaces(engine.cfg)
+
+    @app.get("/api/spaces")
+    async def space_list() -> dict:
+        return {"spaces": await run(spaces.summaries)}
+
+    @app.get("/api/spaces/{sid}")
+    async def space_detail(sid: str) -> dict:
+        return await run(spaces.detail, sid)
+
+    @app.post("/api/spaces/{sid}/synthesize")
+    async def space_synthesize(sid: str, body: SynthesizeBody) -> dict:
+        return await run(lambda: spaces.answer(*spaces.synthesize(sid, body.target), body.pose, body.bvh,
+                                               MAX_DRAW_FRAMES))
+
+    @app.post("/api/spaces/{sid}/blend")
+    async def space_blend(sid: str, body: BlendBody) -> dict:
+        return await run(lambda: spaces.answer(*spaces.blend(sid, body.weights), body.pose, body.bvh,
+                                               MAX_DRAW_FRAMES))
 
     static = static_dir()
 

@@ -3,9 +3,10 @@
 A running ``motionweb app`` writes a discovery file ``<dir>/<sha256(store url)[:16]>.json``
 (``dir`` = ``$MOTIONWEB_APP_DIR``, default ``~/.cache/motionweb/app``, mode 0700; the file mode
 0600, since it holds the token) with its URL, token and process id, and removes it when it stops.
-``motionweb search`` reads it and, when the service answers, sends the query there and writes
-the same files a local run would. This module imports only the standard library and YAML, so a
-forwarded command does not pay for importing the stages (numba, scipy, zarr, Prefect).
+``motionweb search``, ``synthesize`` and ``blend`` read it and, when the service answers, send
+the query there and write the same files a local run would. This module imports only the
+standard library and YAML, so a forwarded command does not pay for importing the stages (numpy,
+numba, scipy, zarr, matplotlib, Prefect).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import urllib.error
 import urllib.request
 import zipfile
@@ -95,18 +97,24 @@ def find_service(store_url: str) -> Service | None:
     return Service(info["url"], info.get("token"))
 
 
-def raw_config(path: Path) -> dict[str, Any] | None:
-    """The config file as YAML data, its store and output paths resolved; None when it cannot be
-    read as a mapping (the local run then reports the problem)."""
+def raw_config(path: Path | None) -> dict[str, Any] | None:
+    """The config file as YAML data, its store and output paths resolved (those of the packaged
+    default, ``path`` None, against the working directory, as the config loader does); None when
+    it cannot be read as a mapping (the local run then reports the problem)."""
+    from importlib import resources
+
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        if path is None:
+            text, base = (resources.files("motionweb.configs") / "default.yaml").read_text(), Path.cwd()
+        else:
+            text, base = path.read_text(), path.resolve().parent
+        data = yaml.safe_load(text) or {}
     except (OSError, yaml.YAMLError):
         return None
     if not isinstance(data, dict) or not isinstance(data.get("store", {}), dict):
         return None
-    base = path.resolve().parent
     data["store_path"] = resolve_path((data.get("store") or {}).get("path", "motionweb-store"), base)
     data["output"] = resolve_path(data.get("output", "motionweb-out"), base)
     return data
@@ -116,22 +124,16 @@ class ServiceError(Exception):
     """The service refused the query; the message is the CLI's."""
 
 
-def forward_search(config: Path, fields: dict[str, Any]) -> dict[str, Any] | None:
-    """Send ``motionweb search`` to the running service of the config's store and write its
-    outputs where the local run would (``fields["out"]`` or the config's output; exported BVH
-    into ``fields["export"]``). The query flow's result with local paths, or None when there is
-    no running service (or it does not answer): then the caller runs locally."""
-    data = raw_config(config)
-    if data is None:
-        return None
+def ask(config: Path | None, data: dict[str, Any], path: str, body: dict[str, Any]) -> tuple[Service, bytes] | None:
+    """POST ``body`` to ``path`` of the running service of the store of ``data`` (the config
+    ``config`` as :func:`raw_config` read it): (service, the answer), or None when no service
+    runs (or it does not answer): then the caller runs locally. :class:`ServiceError` with the
+    service's message when it refuses."""
     svc = find_service(data["store_path"])
     if svc is None:
         return None
-    search = data.get("search") if isinstance(data.get("search"), dict) else None
-    body = {k: v for k, v in fields.items() if v is not None}
-    body["search"] = search
     try:
-        status, payload = svc.call("POST", "/api/query", body)
+        status, payload = svc.call("POST", path, body)
     except OSError:
         return None  # gone since it wrote its file: run locally
     if status != 200:
@@ -142,6 +144,23 @@ def forward_search(config: Path, fields: dict[str, Any]) -> dict[str, Any] | Non
         if status == 400 and message.startswith("search."):
             message = f"{config}: {message}"
         raise ServiceError(message)
+    return svc, payload
+
+
+def forward_search(config: Path, fields: dict[str, Any]) -> dict[str, Any] | None:
+    """Send ``motionweb search`` to the running service of the config's store and write its
+    outputs where the local run would (``fields["out"]`` or the config's output; exported BVH
+    into ``fields["export"]``). The query flow's result with local paths, or None when there is
+    no running service: then the caller runs locally."""
+    data = raw_config(config)
+    if data is None:
+        return None
+    body = {k: v for k, v in fields.items() if v is not None}
+    body["search"] = data.get("search") if isinstance(data.get("search"), dict) else None
+    got = ask(config, data, "/api/query", body)
+    if got is None:
+        return None
+    svc, payload = got
     out = Path(fields.get("out") or data["output"])
     export = Path(fields["export"]) if fields.get("export") else None
     with zipfile.ZipFile(io.BytesIO(payload)) as z:
@@ -156,4 +175,27 @@ def forward_search(config: Path, fields: dict[str, Any]) -> dict[str, Any] | Non
             dest.write_bytes(z.read(name))
             files.append(str(dest))
     res["out"], res["files"], res["service"] = str(out), files, svc.url
+    return res
+
+
+def forward_space(config: Path | None, space: str, kind: str, body: dict[str, Any], out: Path
+                  ) -> dict[str, Any] | None:
+    """Send ``motionweb synthesize`` (``kind`` "synthesize", ``body`` {"target": [...]}) or
+    ``blend`` ({"weights": {...}}) to the running service of the config's store and write the
+    BVH it makes to ``out``, as the local run would. Its answer (frames, fps, achieved, ...)
+    without the BVH text, or None when no service runs (or ``space`` is no hex id: the local
+    run names the problem)."""
+    data = raw_config(config)
+    if data is None or not re.fullmatch(r"[0-9a-f]{1,64}", space):
+        return None
+    got = ask(config, data, f"/api/spaces/{space}/{kind}", {**body, "pose": False, "bvh": True})
+    if got is None:
+        return None
+    svc, payload = got
+    res = json.loads(payload)
+    try:
+        out.write_text(res.pop("bvh"))
+    except OSError as exc:
+        raise ServiceError(str(exc)) from None
+    res["service"] = svc.url
     return res

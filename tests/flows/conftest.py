@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -27,3 +30,40 @@ def app_store(prefect_harness, tmp_path_factory) -> Path:
                                         "dask": {"processes": False}, "output": "out"}))
     index_library(load_config(cfg_path))
     return cfg_path
+
+
+@pytest.fixture(scope="session")
+def app_space(app_store) -> str:
+    """The id of a motion space stored in ``app_store``: the right hand's position 0.75 s into
+    walk_00 1-2.5 s over that query's matches (KG04 §4, a 3-D parameter), 300 samples."""
+    from motionweb.flows.config import load_config
+    from motionweb.flows.space import SpaceRequest, parameterize
+
+    res = parameterize(load_config(app_store), SpaceRequest(clip="walk_00", start=1.0, end=2.5, quantile=0.8,
+                                                           param="position:RightHand@0.75", samples=300,
+                                                           out=str(app_store.parent / "out")))
+    return res["id"]
+
+
+@pytest.fixture(scope="module")
+def running(app_store, tmp_path_factory):
+    """A real service of ``app_store`` (uvicorn in a thread, no Prefect recording) with its
+    discovery file in a folder of the module's own (``MOTIONWEB_APP_DIR``)."""
+    from motionweb.flows.app.client import discovery_file
+    from motionweb.flows.app.server import Service
+    from motionweb.flows.config import load_config
+
+    cfg = load_config(app_store)
+    os.environ["MOTIONWEB_APP_DIR"] = str(tmp_path_factory.mktemp("disc"))
+    svc = Service(cfg, port=0, record=False)
+    t = threading.Thread(target=svc.run, daemon=True)
+    t.start()
+    for _ in range(200):
+        if svc.server.started:
+            break
+        time.sleep(0.05)
+    yield svc
+    svc.stop()
+    t.join(10)
+    assert not discovery_file(cfg.store.path).exists()
+    del os.environ["MOTIONWEB_APP_DIR"]

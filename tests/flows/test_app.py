@@ -6,7 +6,8 @@ from __future__ import annotations
 import io
 import json
 import os
-import threading
+import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from fastapi.testclient import TestClient
 from motionweb.flows.app.api import MAX_BODY, create_app
 from motionweb.flows.app.client import discovery_file, find_service
 from motionweb.flows.app.engine import Engine, clip_id
-from motionweb.flows.app.server import Service, check_host
+from motionweb.flows.app.server import check_host
 from motionweb.flows.cli import app as cli
 from motionweb.flows.config import load_config
 from motionweb.flows.index import index_library
@@ -215,26 +216,6 @@ def test_query_bundle_matches_a_local_search(client, cfg, tmp_path: Path) -> Non
     assert matches["matches"] == rows and matches["request"]["export"] == "kept-as-text"
 
 
-@pytest.fixture(scope="module")
-def running(cfg, tmp_path_factory):
-    """A real service (uvicorn in a thread, no Prefect recording) with its discovery file."""
-    os.environ["MOTIONWEB_APP_DIR"] = str(tmp_path_factory.mktemp("disc"))
-    svc = Service(cfg, port=0, record=False)
-    t = threading.Thread(target=svc.run, daemon=True)
-    t.start()
-    import time
-
-    for _ in range(200):
-        if svc.server.started:
-            break
-        time.sleep(0.05)
-    yield svc
-    svc.stop()
-    t.join(10)
-    assert not discovery_file(cfg.store.path).exists()
-    del os.environ["MOTIONWEB_APP_DIR"]
-
-
 def test_cli_search_is_forwarded_to_a_running_service(running, app_store, tmp_path: Path) -> None:
     path = discovery_file(running.cfg.store.path)
     assert path.stat().st_mode & 0o777 == 0o600 and path.parent.stat().st_mode & 0o777 == 0o700
@@ -275,6 +256,18 @@ def test_forwarded_search_writes_the_bytes_of_a_local_run(running, app_store, tm
         assert a.keys() == b.keys() and len(a) >= 3
         assert [k for k in a if a[k] != b[k]] == []
     assert {"graph.png", "warps.png", "warps.csv", "matches.json", "graph.json"} <= set(files(tmp_path / "o"))
+
+
+def test_a_forwarded_search_imports_nothing_heavy(running, app_store, tmp_path: Path) -> None:
+    """The forwarding path of the CLI loads none of numpy, Prefect, matplotlib, Dask, Zarr."""
+    code = ("import sys\nfrom motionweb.flows.cli import app\ntry:\n    app(sys.argv[1:])\nexcept SystemExit as e:\n"
+            "    assert not e.code, e.code\nheavy = ('numpy', 'prefect', 'matplotlib', 'dask', 'zarr', 'scipy', 'numba')\n"
+            "print(sorted(m for m in heavy if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code, "search", str(app_store), "--clip", "walk_00", "--start", "1",
+                        "--end", "2.5", "--quantile", "0.8", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=300)
+    assert "by the service" in r.stdout and r.stdout.strip().splitlines()[-1] == "[]", r.stdout + r.stderr
+    assert (tmp_path / "o" / "graph.png").stat().st_size > 0
 
 
 def test_a_stale_discovery_file_means_a_local_run(cfg, tmp_path: Path, monkeypatch) -> None:

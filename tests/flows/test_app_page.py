@@ -14,6 +14,7 @@ from motionweb.flows.config import load_config
 
 selenium = pytest.importorskip("selenium", reason="selenium is not installed (pip install -e '.[dev]')")
 from selenium import webdriver  # noqa: E402
+from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support import expected_conditions as ec  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
@@ -108,6 +109,49 @@ def test_page_opens_a_clip_searches_and_animates(browser, service) -> None:
                                "const x = c.getContext('2d'); x.fillStyle = '#fff'; x.fillRect(0, 0, 420, 240);"
                                "return c.toDataURL();")
     assert canvas_data(drv, "graph") != blank and canvas_data(drv, "warps") != blank
+    errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    assert drv.find_element(By.ID, "message").text == ""
+
+
+def test_space_panel_plays_the_motion_for_a_dragged_target(browser, service, app_space) -> None:
+    """The motion-space panel: the sampled cloud drawn, a target dragged across it, the synthesized
+    motion in the player changing with it, the distance shown for a target outside."""
+    drv = browser
+    wait = WebDriverWait(drv, 60)
+    drv.get(service.url + "/")
+    wait.until(lambda d: "examples" in d.find_element(By.ID, "space-info").text)
+    assert drv.find_element(By.ID, "space").get_attribute("value") == app_space
+    assert "hidden" not in drv.find_element(By.ID, "space-height-box").get_attribute("class")  # 3-D: height slider
+    cloud = drv.find_element(By.ID, "cloud")
+    ActionChains(drv).move_to_element(cloud).click_and_hold().move_by_offset(-20, 10).release().perform()
+    wait.until(lambda d: "achieved" in d.find_element(By.ID, "space-result").text)
+    assert "synthesized" in drv.find_element(By.ID, "clip-title").text
+    first = canvas_data(drv, "view")
+    time.sleep(0.5)
+    assert canvas_data(drv, "view") != first  # it plays
+    drv.find_element(By.ID, "play").click()  # pause, then compare the same frame of two motions
+
+    def frame0() -> tuple[str, str]:
+        drv.execute_script("state.time = 0;")
+        time.sleep(0.2)
+        return canvas_data(drv, "view"), drv.execute_script("return JSON.stringify(state.pose.positions.slice(0, 60));")
+
+    before, pos_before = frame0()
+    text = drv.find_element(By.ID, "space-result").text
+    cloud_before = canvas_data(drv, "cloud")
+    (ActionChains(drv).move_to_element(cloud).click_and_hold().move_by_offset(25, -10).move_by_offset(25, -10)
+     .move_by_offset(20, 5).release().perform())
+    wait.until(lambda d: d.find_element(By.ID, "space-result").text != text)
+    time.sleep(0.5)  # the last (debounced) request of the drag answered
+    wait.until(lambda d: not d.execute_script("return space.busy || space.pending;"))
+    after, pos_after = frame0()
+    assert pos_after != pos_before and after != before  # another motion in the player
+    assert canvas_data(drv, "cloud") != cloud_before  # the target moved on the cloud
+    # a target far outside the sampled region: projected, its distance shown
+    drv.execute_script("space.target = space.info.hi.map((v) => v + 1.0); drawCloud(); synthesizeSoon(0);")
+    wait.until(lambda d: "outside the sampled region" in d.find_element(By.ID, "space-result").text)
+    assert " cm from the target" in drv.find_element(By.ID, "space-result").text
     errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
     assert not errors, errors
     assert drv.find_element(By.ID, "message").text == ""

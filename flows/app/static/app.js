@@ -1,5 +1,6 @@
 // motionweb page: catalog, clip player, segment search, registered matches, graph and warps.
 // Plain JS and canvas; every request goes to this service's JSON API (flows/app/api.py).
+// Motion spaces: the sampled parameter cloud, a target to drag, the synthesized motion played.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -380,11 +381,167 @@ function setup() {
   $("eps-mode").addEventListener("change", setEpsMode);
   $("search").addEventListener("click", () => runSearch().catch((e) => say(e.message)));
   for (const id of ["f-category", "f-name", "f-min", "f-max"]) $(id).addEventListener("input", catalogSoon);
+  setupSpaces();
   epsLabel();
-  loadStatus().then(loadCatalog).catch((e) => say(e.message));
-  // a newly committed generation shows up between requests; refresh the header now and then
-  setInterval(() => loadStatus().catch(() => {}), 10000);
+  loadStatus().then(loadCatalog).then(loadSpaces).catch((e) => say(e.message));
+  // a newly committed generation (or a new space) shows up between requests; refresh now and then
+  setInterval(() => { loadStatus().catch(() => {}); loadSpaces().catch(() => {}); }, 10000);
   requestAnimationFrame(tick);
+}
+
+// ------------------------------------------------------------------ motion spaces (KG04 §4)
+// The sampled parameter cloud on a canvas, seen from above: x to the right, z up the canvas
+// (for a 3-D position parameter the height y is a slider beside it; 1-D parameters lie on a
+// line). Dragging the target asks the service for the motion that hits it (requests debounced,
+// one in flight, the latest target wins) and plays that motion in the player.
+const space = { info: null, target: null, result: null, busy: false, pending: false, timer: null, view: null };
+
+async function loadSpaces() {
+  const res = await api("/api/spaces");
+  const sel = $("space");
+  const keep = sel.value;
+  sel.length = 0;
+  for (const s of res.spaces) sel.add(new Option(`${s.id.slice(0, 12)} · ${s.param} · ${s.examples} examples`, s.id));
+  if (!res.spaces.length) $("space-info").textContent = "no motion spaces yet: motionweb parameterize CONFIG …";
+  if (keep && res.spaces.some((s) => s.id === keep)) sel.value = keep;
+  if (res.spaces.length && (!space.info || space.info.id !== sel.value)) await openSpace(sel.value);
+}
+
+async function openSpace(id, synthesize) {
+  const info = await api(`/api/spaces/${id}`);
+  space.info = info; space.result = null;
+  const all = info.samples.concat(info.example_params);
+  const xs = all.map((p) => p[0]), zs = all.map((p) => (info.dim === 3 ? p[2] : info.dim === 2 ? p[1] : 0));
+  const pad = (lo, hi) => { const m = Math.max(0.05, 0.15 * (hi - lo)); return [lo - m, hi + m]; };
+  let [x0, x1] = pad(Math.min(...xs), Math.max(...xs)), [z0, z1] = pad(Math.min(...zs), Math.max(...zs));
+  // equal scale on both axes (a top view); 1-D: a line across the middle
+  const c = $("cloud"), span = Math.max((x1 - x0) / c.width, (z1 - z0) / c.height);
+  const cx = (x0 + x1) / 2, cz = (z0 + z1) / 2;
+  space.view = { cx, cz, s: span };
+  const h = $("space-height");
+  $("space-height-box").classList.toggle("hidden", info.dim !== 3);
+  if (info.dim === 3) {
+    h.min = info.lo[1]; h.max = info.hi[1]; h.step = Math.max(1e-4, (info.hi[1] - info.lo[1]) / 100);
+    h.value = median(info.samples.map((p) => p[1]));
+    $("space-height-value").textContent = parseFloat(h.value).toFixed(3);
+  }
+  const mid = info.samples[0] || info.example_params[0];
+  space.target = mid.slice();
+  if (info.dim === 3) space.target[1] = parseFloat(h.value);
+  $("space-info").textContent = `${info.param} · ${info.names.length} examples · ${info.samples_total} samples` +
+    (info.dim === 3 ? " · seen from above (x →, z ↑); height y on the slider" : info.dim === 2 ? " · x →, z ↑" : "");
+  $("space-result").textContent = "drag the target on the cloud: its motion plays in the player";
+  drawCloud();
+  if (synthesize) synthesizeSoon(0);
+}
+
+function median(v) { const s = v.slice().sort((a, b) => a - b); return s.length ? s[s.length >> 1] : 0; }
+
+function toCanvas(p) {
+  const c = $("cloud"), v = space.view, d = space.info.dim;
+  const z = d === 3 ? p[2] : d === 2 ? p[1] : v.cz;
+  return [c.width / 2 + (p[0] - v.cx) / v.s, c.height / 2 - (z - v.cz) / v.s];
+}
+
+function fromCanvas(px, py) {
+  const c = $("cloud"), v = space.view, d = space.info.dim;
+  const x = v.cx + (px - c.width / 2) * v.s, z = v.cz - (py - c.height / 2) * v.s;
+  if (d === 3) return [x, parseFloat($("space-height").value), z];
+  if (d === 2) return [x, z];
+  return [x];
+}
+
+function drawCloud() {
+  const c = $("cloud"), ctx = c.getContext("2d"), w = c.width, h = c.height;
+  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, w, h);
+  if (!space.info) return;
+  ctx.fillStyle = "rgba(96,125,139,0.45)";
+  for (const p of space.info.samples) { const q = toCanvas(p); ctx.fillRect(q[0] - 1, q[1] - 1, 2, 2); }
+  ctx.fillStyle = "#c62828"; ctx.font = "10px sans-serif";
+  space.info.example_params.forEach((p, i) => {
+    const q = toCanvas(p); ctx.fillRect(q[0] - 4, q[1] - 4, 8, 8); ctx.fillText(String(i), q[0] + 5, q[1] - 5);
+  });
+  const r = space.result;
+  if (r && r.achieved) {
+    const a = toCanvas(r.achieved), t = toCanvas(space.target);
+    ctx.strokeStyle = "#2e7d32"; ctx.setLineDash([3, 3]); line(ctx, t, a); ctx.setLineDash([]);
+    ctx.fillStyle = "#2e7d32"; ctx.beginPath(); ctx.arc(a[0], a[1], 4, 0, 2 * Math.PI); ctx.fill();
+  }
+  if (space.target) {
+    const t = toCanvas(space.target);
+    ctx.strokeStyle = "#1565c0"; ctx.lineWidth = 2;
+    ctx.beginPath(); ctx.arc(t[0], t[1], 7, 0, 2 * Math.PI); ctx.stroke();
+    line(ctx, [t[0] - 11, t[1]], [t[0] + 11, t[1]]); line(ctx, [t[0], t[1] - 11], [t[0], t[1] + 11]);
+    ctx.lineWidth = 1;
+  }
+  ctx.fillStyle = "#555";
+  ctx.fillText("■ examples  · samples  ⊕ target  ● achieved", 6, h - 6);
+}
+
+function synthesizeSoon(delay) {
+  clearTimeout(space.timer);
+  space.timer = setTimeout(synthesizeNow, delay === undefined ? 90 : delay);
+}
+
+async function synthesizeNow() {
+  if (!space.info || !space.target) return;
+  if (space.busy) { space.pending = true; return; }
+  space.busy = true;
+  const id = space.info.id, target = space.target.slice();
+  try {
+    const t0 = performance.now();
+    const r = await api(`/api/spaces/${id}/synthesize`, { method: "POST", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ target: target.map((v) => +v.toFixed(4)) }) });
+    if (!space.info || space.info.id !== id) return;
+    space.result = r;
+    const fmt = (v) => v.map((x) => x.toFixed(3)).join(", ");
+    $("space-result").textContent = `target (${fmt(target)}) → achieved (${fmt(r.achieved)}) · ` +
+      `${(100 * r.error).toFixed(1)} cm off · ${r.frames} frames · ${(performance.now() - t0).toFixed(0)} ms` +
+      (r.outside ? ` · outside the sampled region: projected, ${(100 * r.error).toFixed(1)} cm from the target` : "");
+    $("space-result").classList.toggle("outside", r.outside);
+    showSynthesized(r);
+    drawCloud();
+    say("");
+  } catch (e) {
+    say(e.message);
+  } finally {
+    space.busy = false;
+    if (space.pending) { space.pending = false; synthesizeSoon(0); }
+  }
+}
+
+function showSynthesized(r) {
+  const pose = r.pose;
+  const keep = state.pose && state.pose.synthesized;
+  state.clip = null; state.sel = null; state.pose = Object.assign(pose, { synthesized: true });
+  if (!keep) {  // the first synthesized motion: the camera frames it and it plays
+    state.time = 0; view.setPose(pose); state.playing = true; $("play").textContent = "pause";
+  } else { view.pose = pose; view.nJ = pose.parents.length; }
+  if (state.time > clipDuration()) state.time = 0;
+  $("play").disabled = false;
+  $("search").disabled = true; $("clip-bvh").classList.add("hidden");
+  $("clip-title").textContent = `synthesized from space ${r.space.slice(0, 12)} · ${(r.frames / r.fps).toFixed(2)} s`;
+}
+
+function setupSpaces() {
+  const c = $("cloud");
+  let dragging = false;
+  const move = (e) => {
+    if (!space.info) return;
+    const r = c.getBoundingClientRect();
+    space.target = fromCanvas((e.clientX - r.left) * c.width / r.width, (e.clientY - r.top) * c.height / r.height);
+    drawCloud(); synthesizeSoon();
+  };
+  c.addEventListener("pointerdown", (e) => { dragging = true; c.setPointerCapture(e.pointerId); move(e); });
+  c.addEventListener("pointermove", (e) => { if (dragging) move(e); });
+  c.addEventListener("pointerup", () => { dragging = false; });
+  $("space").addEventListener("change", () => openSpace($("space").value, true).catch((e) => say(e.message)));
+  $("space-height").addEventListener("input", () => {
+    if (!space.target || space.info.dim !== 3) return;
+    space.target[1] = parseFloat($("space-height").value);
+    $("space-height-value").textContent = space.target[1].toFixed(3);
+    drawCloud(); synthesizeSoon();
+  });
 }
 
 setup();
