@@ -176,6 +176,23 @@ def load_test(url: str, queries: list[dict], clients: int, per_client: int) -> d
     return {"times": times, "failures": failures, "wall": time.perf_counter() - t0}
 
 
+def cli_query(store_path: Path, gen, queries: list[dict]) -> dict:
+    """The first of ``queries`` with a match in another clip (the default ε rule needs one)."""
+    from motionweb.flows.query import indexed_config
+    from motionweb.store.webs import StoreWebs
+    from motionweb.tasks.matchgraph import Segment
+    from motionweb.tasks.search import MatchSearch, SearchParams, nearest_costs
+
+    store = MotionStore(str(store_path), read_only=True)
+    matchweb = indexed_config(gen).matchweb
+    for q in queries:
+        webs = StoreWebs.for_query(store, q["clip"], generation=gen)
+        seg = Segment(q["clip"], round(q["start"] * RATE), round(q["end"] * RATE))
+        if nearest_costs(MatchSearch(webs, SearchParams(), matchweb), seg):
+            return q
+    raise RuntimeError("no query matches another clip")
+
+
 def files_of(d: Path) -> dict[str, bytes]:
     return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
 
@@ -356,8 +373,9 @@ def main() -> None:
     rng = np.random.default_rng(3)
     queries = random_queries(gen, args.queries, rng)
     q0 = queries[0]
+    cq = cli_query(store_path, gen, queries)
     # the CLI's query: the default ε rule (a multiple of its nearest match), so it finds matches
-    cli_args = ["search", str(cfg_path), "--clip", q0["clip"], "--start", str(q0["start"]), "--end", str(q0["end"]),
+    cli_args = ["search", str(cfg_path), "--clip", cq["clip"], "--start", str(cq["start"]), "--end", str(cq["end"]),
                 "--tiers", "3", "--out", str(work / "cli")]
     env = {**os.environ, "MOTIONWEB_APP_DIR": str(work / "discovery")}
     shutil.rmtree(work / "discovery", ignore_errors=True)
@@ -366,6 +384,8 @@ def main() -> None:
     t = time.perf_counter()
     r = motionweb(*cli_args, env=env)
     cold = time.perf_counter() - t
+    if r.returncode != 0:
+        raise RuntimeError(f"the cold CLI search failed: {r.stderr[-500:]}")
     shutil.rmtree(work / "cold", ignore_errors=True)
     (work / "cli").rename(work / "cold")
     print(f"\ncold CLI search, no service (today): {cold:.1f} s (exit {r.returncode}; "

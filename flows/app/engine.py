@@ -360,6 +360,14 @@ class Engine:
         if req.tiers is not None and req.tiers > MAX_TIERS:
             raise ValueError(f"tiers must be ≤ {MAX_TIERS}, got {req.tiers}")
 
+    def search_params(self, search: dict[str, Any] | None) -> SearchParams:
+        """The config's search section with ``search`` (the CLI's own) over it."""
+        try:
+            return SearchParams.model_validate({**self.cfg.search.model_dump(), **(search or {})})
+        except ValidationError as exc:
+            raise ValueError("; ".join(f"search.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"
+                                       for e in exc.errors())) from None
+
     def search(self, fields: dict[str, Any], search: dict[str, Any] | None = None) -> Result:
         """Search the current snapshot (KG04 §3.3) for the request ``fields`` (those of
         :class:`QueryRequest` but out/export), with ``search`` overriding the config's search
@@ -370,11 +378,7 @@ class Engine:
         rec = snap.clip(request.clip)
         seg = query_segment(rec, request.start, request.end, snap.rate)
         self.check_bounds(request)
-        try:
-            params = SearchParams.model_validate({**self.cfg.search.model_dump(), **(search or {})})
-        except ValidationError as exc:
-            raise ValueError("; ".join(f"search.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"
-                                       for e in exc.errors())) from None
+        params = self.search_params(search)
         if request.tiers is not None:
             params = params.model_copy(update={"max_tiers": request.tiers})
         all_cats = params.all_categories if request.all_categories is None else request.all_categories
@@ -472,7 +476,8 @@ class Engine:
         res = self.search({k: v for k, v in fields.items() if k not in ("out", "export")}, search)
         snap = res.snap
         request = QueryRequest(**{**asdict(res.request), "out": fields.get("out"), "export": fields.get("export")})
-        cfg = self.cfg.model_copy(update={"search": res.params})
+        # the config as the CLI's run records it: its search section, not the request's tiers
+        cfg = self.cfg.model_copy(update={"search": self.search_params(search)})
         rec = snap.clip(request.clip)
         q = PreparedQuery(MotionStore(snap.url, read_only=True), snap.gen, snap.gen_cfg, rec,
                           res.graph.nodes[0].segment, snap.scope(rec.get("category", "")).webs)

@@ -239,7 +239,7 @@ def test_forwarded_search_writes_the_bytes_of_a_local_run(running, app_store, tm
     """Every file a forwarded `motionweb search` writes (JSON, PNG, CSV, BVH) equals, byte for
     byte, what the same command writes with no service running."""
     args = ["search", str(app_store), "--clip", "walk_00", "--start", "1", "--end", "2.5", "--quantile", "0.8",
-            "--register", "--export", str(tmp_path / "exp"), "--out", str(tmp_path / "o")]
+            "--tiers", "2", "--register", "--export", str(tmp_path / "exp"), "--out", str(tmp_path / "o")]
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 0 and "by the service" in r.output, r.output
     (tmp_path / "o").rename(tmp_path / "o-service")
