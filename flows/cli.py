@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
+from motionweb.flows.reported import ERRORS, reported_flow_errors
 from motionweb.store.errors import MotionFormatError
 
 if TYPE_CHECKING:  # the config imports every stage: loaded on use, so a forwarded search starts fast
@@ -27,7 +28,7 @@ def _main() -> None:
     _quiet_services()
 
 
-def fail(message: str, code: int = 2) -> None:
+def fail(message: str, code: int = 2) -> NoReturn:
     """Print a clear error (never a traceback) and exit non-zero."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
     raise typer.Exit(code)
@@ -331,8 +332,9 @@ def run_query(cfg: Config, request) -> dict:
 
     try:
         plan_query(cfg, request)
-        res = query(cfg, request)
-    except (ValueError, KeyError, FileNotFoundError, MotionFormatError) as exc:
+        with reported_flow_errors():
+            res = query(cfg, request)
+    except ERRORS as exc:
         fail(str(exc).strip("'\""))
     print_query(res)
     return res

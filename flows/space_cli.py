@@ -4,45 +4,13 @@ starts and a bad one ends in one line (exit 2)."""
 
 from __future__ import annotations
 
-import logging
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 from motionweb.flows.app.client import ServiceError, forward_space
-from motionweb.store.errors import MotionFormatError
-
-#: RuntimeError: e.g. Prefect's local API server not starting in time on a busy machine
-ERRORS = (ValueError, KeyError, FileNotFoundError, MotionFormatError, RuntimeError)
-
-
-class DropReported(logging.Filter):
-    """Drops Prefect's records of an error the CLI reports itself in one line (a ValueError raised
-    inside the flow would otherwise print its traceback first): records carrying such an
-    exception, and the run's "Finished in state Failed" line that repeats it."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        exc = record.exc_info[1] if record.exc_info else None
-        if isinstance(exc, ERRORS):
-            return False
-        return not (record.levelno >= logging.ERROR and "Finished in state Failed" in record.getMessage())
-
-
-@contextmanager
-def reported_flow_errors() -> Iterator[None]:
-    """While a flow runs for the CLI, Prefect's flow- and task-run loggers drop what
-    :class:`DropReported` drops (the failure is still recorded in Prefect's run history)."""
-    loggers = [logging.getLogger(name) for name in ("prefect.flow_runs", "prefect.task_runs")]
-    drop = DropReported()
-    for lg in loggers:
-        lg.addFilter(drop)
-    try:
-        yield
-    finally:
-        for lg in loggers:
-            lg.removeFilter(drop)
+from motionweb.flows.reported import ERRORS, reported_flow_errors
 
 
 def parse_target(text: str) -> list[float]:
@@ -71,6 +39,17 @@ def parse_weights(items: list[str]) -> dict[str, float]:
         except ValueError:
             raise ValueError(f"--weights {text!r}: expected CLIP=WEIGHT, e.g. walk_01=0.6") from None
     return out
+
+
+def ask_service(fail: Callable[[str], NoReturn], config: Path | None, space: str, op: str,
+                payload: Callable[[], dict], out: Path) -> tuple[dict, dict | None]:
+    """The parsed request and, when a `motionweb app` serves the config's store, its answer (None
+    otherwise); a bad option or the service's refusal ends in ``fail``."""
+    try:
+        body = payload()
+        return body, forward_space(config, space, op, body, out)
+    except (ValueError, ServiceError) as exc:
+        fail(str(exc).strip("'\""))
 
 
 def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: Callable) -> None:
@@ -116,11 +95,8 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         """Make a motion that hits a target parameter (KG04 §4.3); a target outside is projected.
 
         With a `motionweb app` running for the config's store, the service answers (same BVH)."""
-        try:
-            t = parse_target(target)
-            res = forward_space(config, space, "synthesize", {"target": t}, out)
-        except (ValueError, ServiceError) as exc:
-            fail(str(exc).strip("'\""))
+        t, res = ask_service(fail, config, space, "synthesize", lambda: {"target": parse_target(target)}, out)
+        t = t["target"]
         if res is not None:
             typer.echo(synthesis_line(out, res["frames"], res["achieved"], res["error"], res["outside"], res["service"]))
             return
@@ -149,11 +125,8 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         """Blend a space's examples with explicit weights (KG04 §4, foot plants held).
 
         With a `motionweb app` running for the config's store, the service answers (same BVH)."""
-        try:
-            w = parse_weights(weights)
-            res = forward_space(config, space, "blend", {"weights": w}, out)
-        except (ValueError, ServiceError) as exc:
-            fail(str(exc).strip("'\""))
+        w, res = ask_service(fail, config, space, "blend", lambda: {"weights": parse_weights(weights)}, out)
+        w = w["weights"]
         if res is not None:
             typer.echo(f"wrote {out}: {res['frames']} frames at {res['fps']:g} fps (by the service at {res['service']})")
             return

@@ -170,7 +170,7 @@ def test_the_cli_drops_prefect_records_of_errors_it_reports() -> None:
     import logging
     import sys
 
-    from motionweb.flows.space_cli import DropReported
+    from motionweb.flows.reported import DropReported
 
     def record(msg: str, exc: BaseException | None, level: int = logging.ERROR) -> logging.LogRecord:
         info = None
