@@ -108,8 +108,12 @@ class WalkGraph:
     path_first: np.ndarray
     path_last: np.ndarray
     work: tuple[np.ndarray, ...] = field(repr=False, default=())
+    clip_names: list[str] = field(init=False, repr=False)
+    clip_rank: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        self.clip_names = sorted(set(self.others))
+        self.clip_rank = np.searchsorted(self.clip_names, self.others).astype(np.int64)
         n = len(self.rows)
         self.work = (np.full(n, -1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
                      np.empty(n, np.float64), np.empty(n, np.float64), np.empty(n, np.int64), np.empty(n, np.int64))
@@ -362,19 +366,37 @@ class WebMatch:
         return Segment(self.clip, self.start, self.end)
 
 
-def find_matches(graph: WalkGraph, a: int, b: int, eps: float) -> list[WebMatch]:
-    """All matches of rows a..b in the webs of ``graph`` with average ≤ ``eps`` (KG04 §3.3), one
-    per (clip, c, d) with its least-average walk. Cost: see the module docstring."""
+def _walk_arrays(graph: WalkGraph, a: int, b: int, eps: float):
+    """:func:`_walk` on ``graph``, one entry per (clip, c, d) kept: the least average, the first
+    such walk found on ties (KG04 §3.3). Returns (clip ranks, c, d, averages, cells, offsets,
+    entries) with ``entries`` indexing the walk outputs in the order each key first appears."""
     paths, cs, ds, avgs, flat, off = _walk(
         graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.path_first,
         graph.path_last, int(a), int(b), float(eps), *graph.work)
-    best: dict[tuple[str, int, int], WebMatch] = {}
-    for u in range(len(paths)):
-        clip = graph.others[graph.web_of[graph.path_first[paths[u]]]]
-        key = (clip, int(cs[u]), int(ds[u]))
-        if key not in best or avgs[u] < best[key].cost:
-            best[key] = WebMatch(clip, key[1], key[2], float(avgs[u]), flat[off[u]:off[u + 1]].copy())
-    return list(best.values())
+    rank = graph.clip_rank[graph.web_of[graph.path_first[paths]]]
+    order = np.lexsort((np.arange(len(paths)), avgs, ds, cs, rank))
+    new = np.ones(len(order), bool)
+    new[1:] = (np.diff(rank[order]) != 0) | (np.diff(cs[order]) != 0) | (np.diff(ds[order]) != 0)
+    group = np.cumsum(new) - 1
+    chosen = order[new]  # first least average per key
+    first = np.full(len(chosen), len(paths), np.int64)
+    np.minimum.at(first, group, order)  # where each key first appears
+    chosen = chosen[np.argsort(first, kind="stable")]
+    return rank, cs, ds, avgs, flat, off, chosen
+
+
+def _as_matches(graph: WalkGraph, arrays, entries: np.ndarray) -> list[WebMatch]:
+    rank, cs, ds, avgs, flat, off, _ = arrays
+    names = graph.clip_names
+    return [WebMatch(names[rank[u]], int(cs[u]), int(ds[u]), float(avgs[u]), flat[off[u]:off[u + 1]].copy())
+            for u in entries]
+
+
+def find_matches(graph: WalkGraph, a: int, b: int, eps: float) -> list[WebMatch]:
+    """All matches of rows a..b in the webs of ``graph`` with average ≤ ``eps`` (KG04 §3.3), one
+    per (clip, c, d) with its least-average walk. Cost: see the module docstring."""
+    arrays = _walk_arrays(graph, a, b, eps)
+    return _as_matches(graph, arrays, arrays[-1])
 
 
 def walk_web(web: MatchWeb, a: int, b: int, eps: float, other: str = "") -> list[WebMatch]:
@@ -382,15 +404,47 @@ def walk_web(web: MatchWeb, a: int, b: int, eps: float, other: str = "") -> list
     return find_matches(walk_graph([(other, web)]), a, b, eps)
 
 
+@njit(cache=True)
+def _greedy_disjoint(clip, start, end, overlap) -> np.ndarray:
+    """KG04 §3.3 redundancy removal on matches already sorted best first: keep a match unless it
+    overlaps (``Segment.overlap``: shared frames over the shorter length) a kept match of the same
+    clip by more than ``overlap``. Returns the kept positions. O(m · kept)."""
+    kept = np.empty(len(clip), np.int64)
+    n = 0
+    for u in range(len(clip)):
+        ok = True
+        for v in range(n):
+            w = kept[v]
+            if clip[w] != clip[u]:
+                continue
+            shared = min(end[u], end[w]) - max(start[u], start[w]) + 1
+            if max(shared, 0) / min(end[u] - start[u] + 1, end[w] - start[w] + 1) > overlap:
+                ok = False
+                break
+        if ok:
+            kept[n] = u
+            n += 1
+    return kept[:n]
+
+
+def _redundant_order(rank: np.ndarray, start: np.ndarray, end: np.ndarray, cost: np.ndarray,
+                     overlap: float) -> np.ndarray:
+    """Positions kept by redundancy removal, best first: by (cost, clip, start, end)."""
+    order = np.lexsort((end, start, rank, cost))
+    return order[_greedy_disjoint(rank[order], start[order], end[order], float(overlap))]
+
+
 def remove_redundant(matches: Iterable[WebMatch], overlap: float) -> list[WebMatch]:
     """KG04 §3.3: by increasing average value, keep a match and drop every other overlapping it by
-    more than ``overlap`` (``Segment.overlap``), repeat. O(m²) for m matches."""
-    kept: list[WebMatch] = []
-    for m in sorted(matches, key=lambda x: (x.cost, x.clip, x.start, x.end)):
-        seg = m.segment
-        if all(seg.overlap(k.segment) <= overlap for k in kept):
-            kept.append(m)
-    return kept
+    more than ``overlap`` (``Segment.overlap``), repeat. O(m · kept) for m matches."""
+    ms = list(matches)
+    if not ms:
+        return []
+    names = sorted({m.clip for m in ms})
+    rank = np.searchsorted(names, [m.clip for m in ms])
+    keep = _redundant_order(rank, np.array([m.start for m in ms], np.int64), np.array([m.end for m in ms], np.int64),
+                            np.array([m.cost for m in ms], np.float64), overlap)
+    return [ms[u] for u in keep]
 
 
 def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
@@ -458,9 +512,13 @@ class MatchSearch:
         b = min(query.end, g.n_frames - 1)
         rows, k = b - query.start + 1, self.web_cfg.slope_k
         need = min_chain_extent(self.web_cfg, g.rate)
-        found = [m for m in find_matches(g, query.start, b, eps)
-                 if m.end - m.start >= need and rows <= k * (m.end - m.start + 1) and m.end - m.start + 1 <= k * rows]
-        return remove_redundant(found, self.cfg.overlap_redundant)
+        arrays = _walk_arrays(g, query.start, b, eps)
+        rank, cs, ds, avgs = (x[arrays[-1]] for x in arrays[:4])
+        span = ds - cs
+        ok = (span >= need) & (rows <= k * (span + 1)) & (span + 1 <= k * rows)
+        entries = arrays[-1][ok]
+        keep = _redundant_order(rank[ok], cs[ok], ds[ok], avgs[ok], self.cfg.overlap_redundant)
+        return _as_matches(g, arrays, entries[keep])
 
     def search(self, query: Segment, eps: float) -> MatchGraph:
         """The tiered search from ``query`` (KG04 §3.3): a match graph, nodes sorted by distance."""

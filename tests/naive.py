@@ -455,3 +455,13 @@ def ref_dynamics_terms(body, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
     b = np.einsum("fvbk,bk->fvb", yb.reshape(f, nv, nb, 10), pi)
     c = np.einsum("efvbk,bk->fvbe", yc.reshape(3, f, nv, nb, 10), pi)
     return a, b, c
+
+
+def ref_remove_redundant(matches, overlap: float) -> list:
+    """KG04 §3.3 redundancy removal literally: by increasing (cost, clip, start, end), keep a match
+    unless it overlaps a kept one (``Segment.overlap``) by more than ``overlap``."""
+    kept = []
+    for m in sorted(matches, key=lambda x: (x.cost, x.clip, x.start, x.end)):
+        if all(m.segment.overlap(k.segment) <= overlap for k in kept):
+            kept.append(m)
+    return kept

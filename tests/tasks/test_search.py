@@ -28,7 +28,7 @@ from motionweb.tasks.search import (
     walk_web,
     window_costs,
 )
-from naive import ref_matches
+from naive import ref_matches, ref_remove_redundant
 from planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
 
 TOL = 3  # frames at 30 Hz
@@ -96,6 +96,21 @@ def test_redundancy_removal_keeps_the_best_of_overlapping() -> None:
     kept = remove_redundant(ms, 0.5)
     # (5,33) best; (0,30) overlaps it 26/29 > 0.5: dropped; (20,50) overlaps 14/29 ≤ 0.5: kept
     assert [(m.clip, m.start, m.end) for m in kept] == [("x", 5, 33), ("x", 20, 50), ("y", 0, 30)]
+
+
+def test_redundancy_removal_is_the_plain_greedy() -> None:
+    from motionweb.tasks.search import WebMatch
+
+    rng = np.random.default_rng(3)
+    cells = np.zeros((0, 2), np.int32)
+    for trial in range(20):
+        n = int(rng.integers(0, 80))
+        starts = rng.integers(0, 100, n)
+        ms = [WebMatch(f"c{rng.integers(0, 4)}", int(s), int(s + rng.integers(0, 40)),
+                       float(rng.integers(0, 6)) / 5, cells) for s in starts]  # ties in cost on purpose
+        for ov in (0.0, 0.5, 0.8):
+            got = [(m.clip, m.start, m.end, m.cost) for m in remove_redundant(ms, ov)]
+            assert got == [(m.clip, m.start, m.end, m.cost) for m in ref_remove_redundant(ms, ov)], (trial, ov)
 
 
 # ---------------------------------------------------------------------------- planted copies
