@@ -11,9 +11,10 @@ Queries: a fixed-seed draw of 1 s and 2 s segments of walk, run and jump trials 
 of the kick trials. Relevant trials: the other trials of the query's category (the query's own
 trial is left out of every ranking).
 
-* motionweb: the default search (``tasks.search.rank_trials``: the ε rule and the ranking of
-  trials by what the match graph knows), one tier and tiered; also the ε-as-quantile rule of the
-  query's webs for reference.
+* motionweb: the default trial ranking (``tasks.search.rank_trials``: per query window the
+  nearest matches, ε = 2 × the nearest, a match graph of ``window_tiers`` tiers through the
+  matches within ε, trials by their mean log distance ratio), one tier and tiered; with
+  ``--quantiles`` also KG04's tiered search with ε as a quantile of the query's webs (slow).
 * baseline: ``dtaidistance.subsequence.dtw.subsequence_alignment`` (C, ``use_c=True``) of the
   query's joint positions in the root heading frame (metres, 30 Hz) against every trial, trials
   ranked by ``best_match().value``; no index, no threshold.
@@ -210,7 +211,8 @@ def print_rows(rows: list[dict], queries: list[Segment], lib: Library) -> None:
 
 def tier_examples(queries: list[Segment], lib: Library, ms: MatchSearch) -> None:
     """Queries where tiers find same-category trials that one tier does not, and what else they add."""
-    print("\ntiers vs one tier (trials found only through tiers, by category):")
+    print("\ntiers vs one tier (trials found only through tiers, by category; found = geometric mean "
+          "distance ratio to the windows' nearest matches ≤ eps_nearest_ratio):")
     gained = {"same": 0, "other": 0}
     for q in queries:
         one = set(rank_trials(ms, q, tiers=1).found)
@@ -234,7 +236,8 @@ def main() -> None:
     ap.add_argument("--queries-per", type=int, default=16, help="queries per category (half 1 s, half 2 s)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "motionweb-bench-retrieval")
-    ap.add_argument("--quantiles", type=float, nargs="*", default=[0.1, 0.3])
+    ap.add_argument("--quantiles", type=float, nargs="*", default=[],
+                    help="also KG04's tiered search with ε = these quantiles of the query's webs (seconds per query)")
     args = ap.parse_args()
     root = mocap_root() / "cmu"
     fcfg, wcfg, scfg = FeatureParams(), MatchWebParams(), SearchParams()

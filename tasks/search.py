@@ -38,6 +38,11 @@ cheaper kept). Edge cost = average cell value; node distance = shortest-path cos
 (Dijkstra); nodes 1.. are returned sorted by that distance. A full search costs one query per
 node.
 
+Nearest matches and trial ranking (design §5): :func:`nearest_matches` finds, per web, the match
+of least average in one pass over the states of the query's rows for all starts at once (per-web
+Dinkelbach), which the default ε rule (:func:`default_epsilon`) and :func:`rank_trials` use;
+:func:`rank_trials` ranks clips by a small match graph per query window (see there).
+
 Webs come from a mapping ``clip -> [(other clip, web with clip as rows), ...]`` (:data:`WebSource`),
 so the core needs no store; :class:`motionweb.store.webs.StoreWebs` builds that mapping from a
 store generation.
@@ -69,6 +74,10 @@ class SearchParams(Params):
     all_categories: bool = False
     #: default ε = this × the query's nearest match in another clip (``default_epsilon``)
     eps_nearest_ratio: float = 2.0
+    #: trial ranking (``rank_trials``): window length, tiers, nodes per tier per window
+    window_s: float = 0.5
+    window_tiers: int = 2
+    window_nodes: int = 5
 
 
 
@@ -92,6 +101,9 @@ class WalkGraph:
     joins; −1 at a path's end); ``branch_to[branch_off[s]:branch_off[s + 1]]`` are the bridges
     leaving path cell s (their first interior cell, or the joined cell for a two-cell bridge).
     Path p spans states ``path_first[p]..path_last[p]``. ``others[w]`` is the columns clip of web w.
+    ``row_order`` lists the states by (web, row, col) — per web a topological order, as every
+    step advances the row or the column — and the states of web w in rows a..b are
+    ``row_order[web_rows[w, a]:web_rows[w, b + 1]]``; its paths are ``web_paths[w]..web_paths[w + 1]``.
     The work buffers are reused by every query (one query at a time per graph).
     """
 
@@ -110,10 +122,19 @@ class WalkGraph:
     work: tuple[np.ndarray, ...] = field(repr=False, default=())
     clip_names: list[str] = field(init=False, repr=False)
     clip_rank: np.ndarray = field(init=False, repr=False)
+    row_order: np.ndarray = field(init=False, repr=False)
+    web_rows: np.ndarray = field(init=False, repr=False)
+    web_paths: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.clip_names = sorted(set(self.others))
         self.clip_rank = np.searchsorted(self.clip_names, self.others).astype(np.int64)
+        n_webs = len(self.others)
+        self.row_order = np.lexsort((self.cols, self.rows, self.web_of)).astype(np.int64)
+        key = self.web_of[self.row_order].astype(np.int64) * (self.n_frames + 1) + self.rows[self.row_order]
+        want = np.arange(n_webs)[:, None] * (self.n_frames + 1) + np.arange(self.n_frames + 1)[None, :]
+        self.web_rows = np.searchsorted(key, want).astype(np.int64)
+        self.web_paths = np.searchsorted(self.web_of[self.path_first], np.arange(n_webs + 1)).astype(np.int64)
         n = len(self.rows)
         self.work = (np.full(n, -1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
                      np.empty(n, np.float64), np.empty(n, np.float64), np.empty(n, np.int64), np.empty(n, np.int64))
@@ -343,6 +364,82 @@ def _walk(rows, cols, values, nxt, boff, bto, path_first, path_last, a, b, eps,
         ds[u] = o_d[u]
         avgs[u] = o_avg[u]
     return paths, cs, ds, avgs, flat, off
+
+
+@njit(cache=True)
+def _nearest(rows, cols, values, nxt, boff, bto, path_first, path_last, web_paths, order, web_rows, a, b,
+             min_span, slope_k, cost, total, length, src):
+    """Per web, the least average value of a walk across rows a..b (KG04 §3.3 walks, from the
+    earliest row-a cell of any path to the last cell of a row-b run), with the first and last
+    columns of that walk: (averages (W,), c (W,), d (W,)); ∞ and −1 for a web with no walk.
+
+    All starts of a web at once, by Dinkelbach's method: λ ← the least average found so far
+    (λ = 0 at first), one shortest-path pass of (value − λ) over the web's states of rows a..b in
+    (row, col) order, until the average stops falling. Cost O(S · passes) for the S states of
+    all webs in rows a..b (two to four passes), independent of how many paths cross row a."""
+    n_webs = web_paths.shape[0] - 1
+    best = np.full(n_webs, INF)
+    bc = np.full(n_webs, -1, np.int64)
+    bd = np.full(n_webs, -1, np.int64)
+    starts = np.empty(path_first.shape[0], np.int64)
+    for w in range(n_webs):
+        n_starts = 0
+        for p in range(web_paths[w], web_paths[w + 1]):
+            f = path_first[p]
+            e = path_last[p]
+            if rows[f] > a or rows[e] < a:
+                continue
+            u = f
+            v = e
+            while u < v:  # earliest cell of the path in row a
+                mid = (u + v) // 2
+                if rows[mid] < a:
+                    u = mid + 1
+                else:
+                    v = mid
+            starts[n_starts] = u
+            n_starts += 1
+        if n_starts == 0:
+            continue
+        lo = web_rows[w, a]
+        hi = web_rows[w, b + 1]
+        lam = 0.0
+        first = True
+        while True:
+            for q in range(lo, hi):
+                cost[order[q]] = INF
+            for k in range(n_starts):
+                s0 = starts[k]
+                cost[s0] = values[s0] - lam
+                total[s0] = values[s0]
+                length[s0] = 1
+                src[s0] = cols[s0]
+            for q in range(lo, hi):
+                s = order[q]
+                if cost[s] == INF:
+                    continue
+                n = _n_succ(s, rows, nxt, boff, b)
+                if n == 0:
+                    span = cols[s] - src[s]
+                    if (rows[s] == b and total[s] / length[s] < best[w]  # a terminal: last cell of a row-b run
+                            and span >= min_span and b - a + 1 <= slope_k * (span + 1) and span + 1 <= slope_k * (b - a + 1)):
+                        best[w] = total[s] / length[s]
+                        bc[w] = src[s]
+                        bd[w] = cols[s]
+                    continue
+                for k in range(n):
+                    t = _succ(s, k, nxt, boff, bto)
+                    c = cost[s] + values[t] - lam
+                    if c < cost[t]:
+                        cost[t] = c
+                        total[t] = total[s] + values[t]
+                        length[t] = length[s] + 1
+                        src[t] = src[s]
+            if best[w] == INF or not (first or best[w] < lam - 1e-12 * max(abs(lam), 1e-30)):
+                break
+            first = False
+            lam = best[w]
+    return best, bc, bd
 
 
 # ----------------------------------------------------------------------------------------------
@@ -602,49 +699,34 @@ def search(query: Segment, eps: float, webs: WebSource, cfg: SearchParams | None
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass
-class TrialRanking:
-    """Trials ranked for a query: ``ranking`` every trial with a web to the query's clip (best
-    first), ``found`` those the search returns, ``score`` per trial, ``eps`` the threshold used."""
+def nearest_matches(graph: WalkGraph, a: int, b: int, min_span: int = 0, slope_k: int = 1 << 30
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per web of ``graph`` (order of ``graph.others``), the match ``[c, d]`` of rows a..b of least
+    average value (KG04 §3.3 at ε = ∞): (averages (W,), c (W,), d (W,)), ∞ / −1 where none.
 
-    ranking: list[str]
-    found: list[str]
-    score: dict[str, float]
-    eps: float
-    graph: MatchGraph | None = None
+    With ``min_span`` / ``slope_k`` only walks with d − c ≥ min_span and an overall slope in
+    [1/k, k] end a match (the rules of :meth:`MatchSearch.matches`); the search then returns the
+    best valid walk its passes meet: exact without the rules (the defaults), with them an upper
+    bound (a valid walk is missed only when an invalid one beats it at its terminal in every
+    pass). Cost: see :func:`_nearest`."""
+    work = graph.work
+    return _nearest(graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to,
+                    graph.path_first, graph.path_last, graph.web_paths, graph.row_order, graph.web_rows,
+                    int(a), int(b), int(min_span), int(slope_k), work[3], work[4], work[1], work[2])
 
 
 def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
-    """Per clip other than the query's, the least average value of a match of ``query`` in its
-    webs: one tier with ε = ∞ (KG04 §3.3 walks, slope and length rules of
-    :meth:`MatchSearch.matches`). Clips with no walk across the query's rows are absent."""
-    best: dict[str, float] = {}
-    for m in ms.matches(query, INF):
-        if m.clip != query.clip and m.cost < best.get(m.clip, INF):
-            best[m.clip] = m.cost
-    return best
-
-
-def window_costs(ms: MatchSearch, query: Segment, window_s: float = 0.5) -> dict[str, float]:
-    """Per clip other than the query's, the median over the query's windows (``window_s`` long,
-    half overlapping, covering the query) of the clip's nearest match of that window; a window
-    the clip does not match counts as the worst nearest match of that window in any clip.
-
-    A clip shorter than the query, or whose webs hold no path across all the query's rows,
-    still scores by the parts of the query it matches (KG04 §3.3 walks of each window). Cost:
-    one :func:`nearest_costs` per window."""
+    """Per clip other than the query's, the least average value of a match of the query in its
+    web (:func:`nearest_matches` with the length and slope rules of :meth:`MatchSearch.matches`).
+    Clips with no such match are absent."""
     g = ms.graph(query.clip)
-    w = max(min_chain_extent(ms.web_cfg, g.rate) + 1, round(window_s * g.rate) + 1)
-    if query.end - query.start + 1 <= w:
-        starts = [query.start]
-    else:
-        starts = list(range(query.start, query.end - w + 2, max(1, w // 2)))
-        if starts[-1] != query.end - w + 1:
-            starts.append(query.end - w + 1)
-    per = [nearest_costs(ms, Segment(query.clip, a, min(a + w - 1, query.end))) for a in starts]
-    clips = sorted({c for p in per for c in p})
-    worst = [max(p.values()) if p else INF for p in per]
-    return {c: float(np.median([p.get(c, wv) for p, wv in zip(per, worst, strict=True)])) for c in clips}
+    cost, _, _ = nearest_matches(g, query.start, min(query.end, g.n_frames - 1),
+                                 min_chain_extent(ms.web_cfg, g.rate), ms.web_cfg.slope_k)
+    best: dict[str, float] = {}
+    for w, clip in enumerate(g.others):
+        if clip != query.clip and cost[w] < best.get(clip, INF):
+            best[clip] = float(cost[w])
+    return best
 
 
 def default_epsilon(nearest: dict[str, float], ratio: float) -> float:
@@ -660,34 +742,105 @@ def default_epsilon(nearest: dict[str, float], ratio: float) -> float:
     return float(ratio) * min(nearest.values())
 
 
-def rank_trials(ms: MatchSearch, query: Segment, eps: float | None = None, tiers: int | None = None) -> TrialRanking:
-    """Clips ranked for ``query`` by what the match graph knows (design §5).
+def query_windows(query: Segment, frames: int) -> list[Segment]:
+    """Half-overlapping windows of ``frames`` frames covering ``query`` (the query itself when
+    it is no longer than one window)."""
+    if query.end - query.start + 1 <= frames:
+        return [query]
+    starts = list(range(query.start, query.end - frames + 2, max(1, frames // 2)))
+    if starts[-1] != query.end - frames + 1:
+        starts.append(query.end - frames + 1)
+    return [Segment(query.clip, a, a + frames - 1) for a in starts]
 
-    ε defaults to :func:`default_epsilon`. The tiered search (KG04 §3.3, at most ``tiers`` tiers,
-    default ``SearchParams.max_tiers``) returns the found clips, ranked by their best node's
-    shortest-path distance to the query through the graph; every other clip matching a window
-    of the query follows, by :func:`window_costs` (so clips shorter than the query, or whose
-    webs cross only part of its rows, still rank by what they match), then the clips matching
-    the whole query only, by their nearest match (score ∞). Cost: one tier at ε = ∞
-    for the query and for each of its windows, plus the search.
+
+@dataclass
+class TrialRanking:
+    """Trials ranked for a query (best first): ``ranking`` every clip with a web to the query's
+    clip but the query's own, ``score`` per clip (mean over the query's windows of log(graph
+    distance / the window's nearest match)), ``found`` the clips scoring ≤ log(ratio) (their
+    matches are on average within ``ratio`` × the nearest), ``windows`` the query's windows."""
+
+    ranking: list[str]
+    found: list[str]
+    score: dict[str, float]
+    windows: list[Segment]
+
+
+def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> TrialRanking:
+    """Clips ranked for ``query`` by a match graph per query window (KG04 §3.3 tiers; design §5).
+
+    The query is cut into half-overlapping windows of ``SearchParams.window_s``. For each window
+    w: its nearest match in every clip (:func:`nearest_matches`, one per web), n_w the least of
+    them, ε_w = ``eps_nearest_ratio`` × n_w (the default ε rule). Tier 1: the best match per clip
+    with cost ≤ ε_w (and the slope and length rules of :meth:`MatchSearch.matches`), at most
+    ``window_nodes`` of them, become nodes; tier k + 1 queries the nodes of tier k in turn and
+    adds, for clips without a node, the best matches whose bottleneck distance (the largest edge
+    cost on the path to w) is ≤ ε_w; up to ``tiers`` tiers (default ``window_tiers``). A clip's
+    distance to w is the least bottleneck distance of its matches to w or to any node; a clip
+    with no match counts as the window's worst. Score = the mean over windows of
+    log(distance / n_w): scale-free per window, so every part of the query counts alike.
+
+    Why windows: a clip shorter than the query, or whose web holds no walk across all its rows,
+    still ranks by the parts it matches. Why the bottleneck and ε_w: a chain of matches each as
+    good as the query's nearest one stays logically similar, while a sum would punish long
+    chains and a looser ε would let tiers drift into other motions.
+    Cost: one :func:`nearest_matches` per window and per node (≤ windows × (1 + tiers' nodes)).
     """
-    ms.check(query)
-    near = nearest_costs(ms, query)
-    eps = default_epsilon(near, ms.cfg.eps_nearest_ratio) if eps is None else float(eps)
-    old = ms.cfg
-    if tiers is not None:
-        ms.cfg = old.model_copy(update={"max_tiers": int(tiers)})
-    try:
-        g = ms.search(query, eps)
-    finally:
-        ms.cfg = old
-    score: dict[str, float] = {}
-    for n in g.nodes[1:]:
-        if n.segment.clip != query.clip:
-            score[n.segment.clip] = min(score.get(n.segment.clip, INF), n.distance)
-    found = sorted(score, key=lambda c: (score[c], c))
-    win = window_costs(ms, query)
-    rest = sorted((c for c in win if c not in score), key=lambda c: (win[c], c))
-    last = sorted((c for c in near if c not in score and c not in win), key=lambda c: (near[c], c))
-    scores = {**{c: INF for c in last}, **{c: win[c] for c in rest}, **score}
-    return TrialRanking(found + rest + last, found, scores, eps, g)
+    g = ms.check(query)
+    cfg = ms.cfg
+    tiers = cfg.window_tiers if tiers is None else int(tiers)
+    if tiers < 1:
+        raise ValueError(f"tiers must be ≥ 1, got {tiers}")
+    clips = [c for c in g.clip_names if c != query.clip]
+    index = {c: i for i, c in enumerate(clips)}
+    need = min_chain_extent(ms.web_cfg, g.rate)
+    k = ms.web_cfg.slope_k
+    wins = query_windows(query, max(need + 1, round(cfg.window_s * g.rate) + 1))
+    logs = []
+
+    def reach(seg: Segment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cost, c, d) per clip of ``clips`` of the nearest match of ``seg``."""
+        gg = ms.graph(seg.clip)
+        cost, c, d = nearest_matches(gg, seg.start, min(seg.end, gg.n_frames - 1), need, k)
+        out = np.full(len(clips), INF), np.full(len(clips), -1, np.int64), np.full(len(clips), -1, np.int64)
+        for w, other in enumerate(gg.others):
+            i = index.get(other)
+            if i is not None and other != seg.clip and cost[w] < out[0][i]:
+                out[0][i], out[1][i], out[2][i] = cost[w], c[w], d[w]
+        return out
+
+    for win in wins:
+        dist, c, d = reach(win)
+        if not np.isfinite(dist).any():
+            continue
+        lo = float(dist.min())
+        eps = cfg.eps_nearest_ratio * lo
+        frontier = [(i, int(c[i]), int(d[i]), float(dist[i])) for i in np.argsort(dist, kind="stable")]
+        noded = np.zeros(len(clips), bool)
+        for _ in range(2, tiers + 1):
+            nodes = []
+            for i, ci, di, cost in frontier:
+                if cost <= eps and not noded[i] and len(nodes) < cfg.window_nodes:
+                    noded[i] = True
+                    nodes.append((i, ci, di, cost))
+            frontier = []
+            for i, ci, di, cost in nodes:
+                hop, hc, hd = reach(Segment(clips[i], ci, di))
+                hop = np.maximum(hop, cost)
+                better = hop < dist
+                dist = np.where(better, hop, dist)
+                frontier += [(j, int(hc[j]), int(hd[j]), float(hop[j])) for j in np.nonzero(better)[0]]
+            frontier.sort(key=lambda x: x[3])
+            if not frontier:
+                break
+        worst = float(dist[np.isfinite(dist)].max())
+        logs.append(np.log(np.where(np.isfinite(dist), dist, worst) / lo) if lo > 0 else
+                    np.where(dist <= 0, 0.0, np.inf))
+    if not logs:
+        raise ValueError(f"query {query.clip}[{query.start}..{query.end}] matches no other clip: nothing to rank")
+    score = np.mean(logs, axis=0)
+    order = sorted(range(len(clips)), key=lambda i: (score[i], clips[i]))
+    ranking = [clips[i] for i in order]
+    cut = np.log(cfg.eps_nearest_ratio)
+    return TrialRanking(ranking, [clips[i] for i in order if score[i] <= cut],
+                        {clips[i]: float(score[i]) for i in order}, wins)
