@@ -623,7 +623,7 @@ class MatchSearch:
             raise ValueError(f"threshold ε must be finite and ≥ 0, got {eps}")
         g = self.check(query)
         nodes = [MatchNode(query, tier=0, cost=0.0, distance=0.0)]
-        by_clip: dict[str, list[int]] = {query.clip: [0]}
+        by_clip = {query.clip: ([0], np.array([[query.start], [query.end]], np.int64))}
         edges: dict[tuple[int, int], MatchEdge] = {}
         frontier = [0]
         for tier in range(1, self.cfg.max_tiers + 1):
@@ -643,23 +643,27 @@ class MatchSearch:
             frontier = added
         return _finish(g.rate, nodes, list(edges.values()))
 
-    def _place(self, nodes: list[MatchNode], by_clip: dict[str, list[int]], m: WebMatch,
+    def _place(self, nodes: list[MatchNode], by_clip: dict[str, tuple[list[int], np.ndarray]], m: WebMatch,
                tier: int) -> tuple[int | None, bool]:
         """Dedup a match against the graph (KG04 §3.3): (its node index or None when discarded,
-        whether the node is new). Only nodes of the same clip can overlap (``by_clip``)."""
-        seg = m.segment
-        same = by_clip.setdefault(seg.clip, [])
-        ov = [seg.overlap(nodes[i].segment) for i in same]
-        k = int(np.argmax(ov)) if ov else -1
-        if k < 0 or ov[k] < self.cfg.new_node_below:
-            nodes.append(MatchNode(seg, tier=tier, cost=m.cost))
+        whether the node is new). Only nodes of the same clip can overlap: ``by_clip[clip]`` =
+        (their indices, their (start, end) as a (2, n) array)."""
+        same, ends = by_clip.setdefault(m.clip, ([], np.zeros((2, 0), np.int64)))
+        if same:  # the largest Segment.overlap with a node of the clip, the first on ties
+            shared = np.minimum(m.end, ends[1]) - np.maximum(m.start, ends[0]) + 1
+            ov = np.maximum(shared, 0) / np.minimum(m.end - m.start + 1, ends[1] - ends[0] + 1)
+            k = int(np.argmax(ov))
+        if not same or ov[k] < self.cfg.new_node_below:
+            nodes.append(MatchNode(m.segment, tier=tier, cost=m.cost))
             same.append(len(nodes) - 1)
+            by_clip[m.clip] = (same, np.concatenate([ends, [[m.start], [m.end]]], axis=1))
             return len(nodes) - 1, True
         best = same[k]
         if ov[k] > self.cfg.merge_above:
             if best != 0:
                 old = nodes[best].segment
-                nodes[best].segment = Segment(old.clip, round((old.start + seg.start) / 2), round((old.end + seg.end) / 2))
+                nodes[best].segment = Segment(old.clip, round((old.start + m.start) / 2), round((old.end + m.end) / 2))
+                ends[:, k] = nodes[best].segment.start, nodes[best].segment.end
             return best, False
         return None, False
 
