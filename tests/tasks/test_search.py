@@ -365,12 +365,11 @@ def test_default_epsilon_and_ranking_find_the_planted_copies(planted) -> None:
             and abs(n.segment.end - pc.expected[n.segment.clip].end) <= TOL]
     assert len({s.clip for s in hits}) / len(pc.expected) >= 0.95
     assert len(hits) / max(len(graph.nodes) - 1, 1) >= 0.95
-    for tiers in (1, 2):
-        r = rank_trials(ms, pc.query, tiers=tiers)
-        assert set(r.found) <= set(pc.expected) and len(r.found) >= 0.95 * len(pc.expected)
-        assert set(r.ranking[:len(pc.expected)]) == set(pc.expected) and pc.query.clip not in r.ranking
-        assert [r.score[c] for c in r.ranking] == sorted(r.score.values())
-        assert len(r.windows) >= 3 and r.windows[0].start == pc.query.start and r.windows[-1].end == pc.query.end
+    r = rank_trials(ms, pc.query, tiers=1)  # one tier: only the query clip's webs get built (tiers: below)
+    assert set(r.found) <= set(pc.expected) and len(r.found) >= 0.95 * len(pc.expected)
+    assert set(r.ranking[:len(pc.expected)]) == set(pc.expected) and pc.query.clip not in r.ranking
+    assert [r.score[c] for c in r.ranking] == sorted(r.score.values())
+    assert len(r.windows) >= 3 and r.windows[0].start == pc.query.start and r.windows[-1].end == pc.query.end
     with pytest.raises(ValueError, match="matches no other clip"):
         default_epsilon({}, 2.0)
     with pytest.raises(ValueError, match="tiers"):
