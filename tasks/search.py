@@ -290,6 +290,21 @@ def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, leng
 
 
 @njit(cache=True)
+def _row_start(rows, f, e, a):
+    """The earliest cell of the path whose cells are f..e in row a, or -1 when the path does not
+    cross row a (rows never decrease along a path: binary search)."""
+    if rows[f] > a or rows[e] < a:
+        return -1
+    while f < e:
+        mid = (f + e) // 2
+        if rows[mid] < a:
+            f = mid + 1
+        else:
+            e = mid
+    return f
+
+
+@njit(cache=True)
 def _walk(rows, cols, values, nxt, boff, bto, path_first, path_last, a, b, eps,
           local, reach, stack, cost, total, length, pred):
     """Every match of rows a..b with average ≤ eps, per (start path, terminal cell), each with its
@@ -300,19 +315,9 @@ def _walk(rows, cols, values, nxt, boff, bto, path_first, path_last, a, b, eps,
     o_avg = []
     o_cells = []
     for p in range(path_first.shape[0]):
-        f = path_first[p]
-        e = path_last[p]
-        if rows[f] > a or rows[e] < a:
+        s0 = _row_start(rows, path_first[p], path_last[p], a)
+        if s0 < 0:
             continue
-        lo = f
-        hi = e
-        while lo < hi:  # earliest cell of the path in row a (rows never decrease along a path)
-            mid = (lo + hi) // 2
-            if rows[mid] < a:
-                lo = mid + 1
-            else:
-                hi = mid
-        s0 = lo
         n = _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack)
         _dp(n, reach, rows, values, nxt, boff, bto, b, local, eps, cost, total, length, pred)
         terms = []
@@ -385,18 +390,9 @@ def _nearest(rows, cols, values, nxt, boff, bto, path_first, path_last, web_path
     for w in range(n_webs):
         n_starts = 0
         for p in range(web_paths[w], web_paths[w + 1]):
-            f = path_first[p]
-            e = path_last[p]
-            if rows[f] > a or rows[e] < a:
+            u = _row_start(rows, path_first[p], path_last[p], a)
+            if u < 0:
                 continue
-            u = f
-            v = e
-            while u < v:  # earliest cell of the path in row a
-                mid = (u + v) // 2
-                if rows[mid] < a:
-                    u = mid + 1
-                else:
-                    v = mid
             starts[n_starts] = u
             n_starts += 1
         if n_starts == 0:
