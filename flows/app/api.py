@@ -264,7 +264,7 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         data = await run(engine.query_bundle, fields, body.search, body.export is not None)
         return Response(data, media_type="application/zip")
 
-    spaces = Spaces(engine.cfg)
+    spaces = Spaces(engine.cfg, on_query=engine.on_query)
 
     @app.get("/api/spaces")
     async def space_list() -> dict:

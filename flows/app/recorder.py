@@ -29,7 +29,7 @@ log = logging.getLogger("motionweb.app")
 
 @flow(name="app-query", persist_result=False)
 def app_query(kind: str, parameters: dict[str, Any], outcome: dict[str, Any]) -> dict[str, Any]:
-    """The record of one query the service answered (``kind``: search, register, query): its
+    """The record of one query the service answered (``kind``: search, register, query, synthesize, blend): its
     parameters and outcome (generation, ε, matches, timings) in the run's log and result."""
     get_run_logger().info("%s %s -> %s", kind, parameters, outcome)
     return outcome

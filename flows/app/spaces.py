@@ -15,6 +15,7 @@ import logging
 import math
 import re
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -61,8 +62,8 @@ def check_target(param: str, dim: int, target: list[float]) -> np.ndarray:
 class Spaces:
     """The motion spaces of one store (see the module docstring)."""
 
-    def __init__(self, cfg: Config):
-        self.cfg = cfg
+    def __init__(self, cfg: Config, on_query: Callable[[str, dict, dict], None] | None = None):
+        self.cfg, self.on_query = cfg, on_query
         self._loaded: dict[str, Loaded] = {}
         self._order: list[str] = []
         self._loading: dict[str, threading.Lock] = {}
@@ -142,10 +143,12 @@ class Spaces:
         loaded = self.load(space_id)
         with loaded.lock:
             motion, syn = loaded.space.synthesize(t)
-        return loaded, motion, {
+        extra = {
             "target": syn.target.tolist(), "achieved": syn.achieved.tolist(), "error": float(syn.error),
             "nearest": float(syn.nearest), "outside": bool(syn.outside),
             "weights": {n: float(w) for n, w in zip(loaded.space.clips, syn.weights, strict=True) if w != 0}}
+        self._record("synthesize", {"space": space_id, "target": t.tolist()}, extra)
+        return loaded, motion, extra
 
     def blend(self, space_id: str, weights: dict[str, float]) -> tuple[Loaded, Motion, dict[str, Any]]:
         """A motion from explicit weights by example (corpus path or stem; they sum to 1)."""
@@ -156,7 +159,14 @@ class Spaces:
         loaded = self.load(space_id)
         with loaded.lock:
             motion = loaded.space.motion(w)
-        return loaded, motion, {"weights": {n: float(v) for n, v in zip(loaded.space.clips, w, strict=True) if v}}
+        extra = {"weights": {n: float(v) for n, v in zip(loaded.space.clips, w, strict=True) if v}}
+        self._record("blend", {"space": space_id, "weights": weights}, {"frames": motion.n_frames})
+        return loaded, motion, extra
+
+    def _record(self, kind: str, parameters: dict[str, Any], outcome: dict[str, Any]) -> None:
+        """Hand an answered synthesis or blend to the recorder (a Prefect flow run, as searches)."""
+        if self.on_query:
+            self.on_query(kind, parameters, outcome)
 
     @staticmethod
     def answer(loaded: Loaded, motion: Motion, extra: dict[str, Any], pose: bool, bvh: bool,

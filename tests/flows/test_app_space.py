@@ -59,6 +59,21 @@ def test_synthesis_equals_the_stored_spaces_own(client, cfg, app_space) -> None:
     assert got["error"] > 0.1  # the far target is reported with its distance
 
 
+def test_syntheses_and_blends_go_to_the_recorder_like_searches(cfg, app_space) -> None:
+    seen: list[tuple[str, dict, dict]] = []
+    recording = TestClient(create_app(Engine(cfg, on_query=lambda *rec: seen.append(rec), warm=False)))
+    st = load_space(cfg, app_space)
+    target = st.samples[len(st.example_params) + 1]
+    assert recording.post(f"/api/spaces/{app_space}/synthesize", json={"target": target.tolist()}).status_code == 200
+    weights = {st.clips[0]: 0.5, st.clips[1]: 0.5}
+    assert recording.post(f"/api/spaces/{app_space}/blend", json={"weights": weights}).status_code == 200
+    assert recording.post(f"/api/spaces/{app_space}/synthesize", json={"target": [1.0]}).status_code == 400
+    assert [k for k, _, _ in seen] == ["synthesize", "blend"]  # a refused request is not a run
+    (_, p1, o1), (_, p2, o2) = seen
+    assert p1 == {"space": app_space, "target": target.tolist()} and o1["error"] >= 0
+    assert p2 == {"space": app_space, "weights": weights} and o2["frames"] > 0
+
+
 def test_blend_equals_the_stored_spaces_own(client, cfg, app_space) -> None:
     st = load_space(cfg, app_space)
     w = {st.clips[0]: 0.25, st.clips[1]: 0.75}
