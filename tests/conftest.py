@@ -25,6 +25,15 @@ def deepmimic_dir(mocap_dir: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def cmu_dir(mocap_dir: Path) -> Path:
+    """The CMU folder of the real data (``manifest.csv``, ``asf_amc/``, ``bvh/``)."""
+    d = mocap_dir / "cmu"
+    if not (d / "manifest.csv").is_file():
+        pytest.skip(f"CMU files not found under {d} (set {ENV_VAR})")
+    return d
+
+
+@pytest.fixture(scope="session")
 def prefect_harness():
     """Prefect's test harness (a temporary API server) once per session, heartbeats off."""
     from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings

@@ -29,37 +29,29 @@ BELOW_THORAX = ("lowerneck", "upperneck", "head", "lclavicle", "lhumerus", "lrad
 
 
 @pytest.fixture(scope="module")
-def cmu(mocap_dir: Path) -> Path:
-    d = mocap_dir / "cmu"
-    if not (d / "manifest.csv").is_file():
-        pytest.skip(f"CMU files not found under {d}")
-    return d
-
-
-@pytest.fixture(scope="module")
-def take_01_01(cmu: Path):
-    amc = read_motion(cmu / "asf_amc/01/01_01.amc")
-    bvh = read_motion(cmu / "bvh/01/01_01.bvh")
+def take_01_01(cmu_dir: Path):
+    amc = read_motion(cmu_dir / "asf_amc/01/01_01.amc")
+    bvh = read_motion(cmu_dir / "bvh/01/01_01.bvh")
     return amc, bvh
 
 
-def test_every_cmu_file_loads_and_the_manifest_lists_them(cmu: Path) -> None:
-    files = sorted(p for p in cmu.rglob("*") if p.is_file() and is_clip(p))
-    with open(cmu / "manifest.csv", newline="") as fh:
+def test_every_cmu_file_loads_and_the_manifest_lists_them(cmu_dir: Path) -> None:
+    files = sorted(p for p in cmu_dir.rglob("*") if p.is_file() and is_clip(p))
+    with open(cmu_dir / "manifest.csv", newline="") as fh:
         listed = {row["path"] for row in csv.DictReader(fh)}
-    assert {p.relative_to(cmu).as_posix() for p in files} == listed
+    assert {p.relative_to(cmu_dir).as_posix() for p in files} == listed
     assert {p.suffix for p in files} == {".amc", ".bvh"}
     for p in files:
         m = read_motion(p)
         pos, _ = forward_kinematics(m)
         assert m.skeleton.n_joints == 31 and m.fps == 120.0 and m.n_frames > 100, p
         assert np.isfinite(pos).all(), p
-    for asf in sorted(cmu.rglob("*.asf")):
+    for asf in sorted(cmu_dir.rglob("*.asf")):
         assert len(read_asf(asf).bones) == 30, asf
 
 
-def test_every_cmu_amc_takes_the_bulk_reader_and_reads_as_line_by_line(cmu: Path) -> None:
-    for asf_path in sorted(cmu.rglob("*.asf")):
+def test_every_cmu_amc_takes_the_bulk_reader_and_reads_as_line_by_line(cmu_dir: Path) -> None:
+    for asf_path in sorted(cmu_dir.rglob("*.asf")):
         asf = read_asf(asf_path)
         for amc in sorted(asf_path.parent.glob("*.amc"))[:8]:
             text = amc.read_text()
@@ -92,9 +84,9 @@ def test_legs_and_spine_agree_to_1e3_file_units(take_01_01) -> None:
         np.testing.assert_allclose(bvh.skeleton.offsets[j], amc.skeleton.offsets[j], atol=1e-4, err_msg=name)
 
 
-def test_bvh_drops_the_thorax_length_below_neck_and_clavicles(cmu: Path, take_01_01) -> None:
+def test_bvh_drops_the_thorax_length_below_neck_and_clavicles(cmu_dir: Path, take_01_01) -> None:
     amc, bvh = take_01_01
-    thorax = read_asf(cmu / "asf_amc/01/01.asf").bones["thorax"]
+    thorax = read_asf(cmu_dir / "asf_amc/01/01.asf").bones["thorax"]
     assert thorax.length == pytest.approx(2.065, abs=1e-3)
     pa, ra = forward_kinematics(amc)
     pb, _ = forward_kinematics(bvh)

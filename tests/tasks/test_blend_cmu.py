@@ -33,11 +33,11 @@ WALKS = tuple(f"16_{t}" for t in (11, 12, 13, 14, 15, 16, 21, 22, 23, 24, 25, 26
 
 
 @pytest.fixture(scope="module")
-def walks(mocap_dir: Path):
+def walks(cmu_dir: Path):
     cfg = BlendParams()
     motions, keys, skates = [], [], []
     for name in WALKS:
-        path = mocap_dir / "cmu" / "asf_amc" / "16" / f"{name}.amc"
+        path = cmu_dir / "asf_amc" / "16" / f"{name}.amc"
         if not path.is_file():
             pytest.skip(f"{path} not found")
         m = read_motion(path)

@@ -77,11 +77,11 @@ def test_queries_without_one_flight_are_not_flight_keyed(jumps) -> None:
         flight_registration({m.name: m}, [seg(m.name, 0.0, 0.5)], [0.0], RATE)
 
 
-def test_cmu_forward_jumps_keyed_by_flight_give_a_landing_space(mocap_dir) -> None:
+def test_cmu_forward_jumps_keyed_by_flight_give_a_landing_space(cmu_dir) -> None:
     """Real jumps (CMU subject 16) as the search leaves them: short and shifted matches of the
     query 16_07 1.5-2.9 s; flight-keyed, their landings span a space that reproduces each
     left-out landing within a few centimetres."""
-    root = mocap_dir / "cmu" / "asf_amc" / "16"
+    root = cmu_dir / "asf_amc" / "16"
     trials = ("16_07", "16_05", "16_06", "16_09", "16_10", "16_01", "16_02")
     motions = {t: read_motion(root / f"{t}.amc") for t in trials}
     segments = [Segment("16_07", 45, 87), Segment("16_05", 40, 63), Segment("16_06", 68, 87),

@@ -1,6 +1,6 @@
 """MPS06 on its own data: CMU subject 16 (16_06 forward jump, 16_03 high jump, 16_16 walk, a run).
 
-Skipped without the CMU folder of the real motion capture (``mocap_dir``). Each plan is prepared
+Skipped without the CMU folder of the real motion capture (``cmu_dir``). Each plan is prepared
 once per module; the figures are MPS06 §4's (Figs. 1, 8, 9, 11) with the issue's tolerances.
 """
 
@@ -19,8 +19,8 @@ OPTS = RetimeParams()
 
 
 @pytest.fixture(scope="module")
-def cmu16(mocap_dir: Path) -> Path:
-    d = mocap_dir / "cmu" / "asf_amc" / "16"
+def cmu16(cmu_dir: Path) -> Path:
+    d = cmu_dir / "asf_amc" / "16"
     if not (d / "16.asf").is_file():
         pytest.skip(f"CMU subject 16 not found under {d}")
     return d
