@@ -181,7 +181,8 @@ def cli_query(store_path: Path, gen, queries: list[dict]) -> dict:
     from motionweb.flows.query import indexed_config
     from motionweb.store.webs import StoreWebs
     from motionweb.tasks.matchgraph import Segment
-    from motionweb.tasks.search import MatchSearch, SearchParams, nearest_costs
+    from motionweb.tasks.ranking import nearest_costs
+    from motionweb.tasks.search import MatchSearch, SearchParams
 
     store = MotionStore(str(store_path), read_only=True)
     matchweb = indexed_config(gen).matchweb

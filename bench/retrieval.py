@@ -11,7 +11,7 @@ Queries: a fixed-seed draw of 1 s and 2 s segments of walk, run and jump trials 
 of the kick trials. Relevant trials: the other trials of the query's category (the query's own
 trial is left out of every ranking).
 
-* motionweb: the default trial ranking (``tasks.search.rank_trials``: per query window the
+* motionweb: the default trial ranking (``tasks.ranking.rank_trials``: per query window the
   nearest matches, ε = 2 × the nearest, a match graph of ``window_tiers`` tiers through the
   matches within ε, trials by their mean log distance ratio), one tier and tiered; with
   ``--quantiles`` also KG04's tiered search with ε as a quantile of the query's webs (slow).
@@ -47,7 +47,8 @@ from motionweb.tasks.features import FeatureParams, clip_features, joint_positio
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb.build import build_web_operands
 from motionweb.tasks.matchweb.params import MatchWebParams
-from motionweb.tasks.search import MatchSearch, SearchParams, rank_trials
+from motionweb.tasks.ranking import rank_trials
+from motionweb.tasks.search import MatchSearch, SearchParams
 
 RATE = 30.0
 CATEGORIES = ("walk", "run", "jump", "kick")

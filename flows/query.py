@@ -28,8 +28,9 @@ from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.ranking import default_epsilon, nearest_costs
 from motionweb.tasks.register import Registration, register
-from motionweb.tasks.search import MatchSearch, default_epsilon, epsilon_from_quantile, nearest_costs, search
+from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
@@ -39,7 +40,7 @@ class QueryRequest:
     """A query M1[a, b] (KG04 §3.3): ``clip`` is a corpus path or a unique file stem; ``start``
     and ``end`` in seconds; at most one of ``threshold`` (absolute ε) and ``quantile`` (ε as that
     quantile of the searched webs' values); with neither, the default rule
-    (``tasks.search.default_epsilon``: a multiple of the query's nearest match)."""
+    (``tasks.ranking.default_epsilon``: a multiple of the query's nearest match)."""
 
     clip: str
     start: float

@@ -40,8 +40,7 @@ node.
 
 Nearest matches and trial ranking (design §5): :func:`nearest_matches` finds, per web, the match
 of least average in one pass over the states of the query's rows for all starts at once (per-web
-Dinkelbach), which the default ε rule (:func:`default_epsilon`) and :func:`rank_trials` use;
-:func:`rank_trials` ranks clips by a small match graph per query window (see there).
+Dinkelbach), which the default ε rule and the trial ranking use (``tasks.ranking``).
 
 Webs come from a mapping ``clip -> [(other clip, web with clip as rows), ...]`` (:data:`WebSource`),
 so the core needs no store; :class:`motionweb.store.webs.StoreWebs` builds that mapping from a
@@ -72,18 +71,15 @@ class SearchParams(Params):
     merge_above: float = 0.8
     max_tiers: int = 10
     all_categories: bool = False
-    #: default ε = this × the query's nearest match in another clip (``default_epsilon``)
+    #: default ε = this × the query's nearest match in another clip (``tasks.ranking.default_epsilon``)
     eps_nearest_ratio: float = 2.0
-    #: trial ranking (``rank_trials``): window length, tiers, nodes per tier per window
+    #: trial ranking (``tasks.ranking.rank_trials``): window length, tiers, nodes per tier per window
     window_s: float = 0.5
     window_tiers: int = 2
     window_nodes: int = 5
 
 
-
-
 INF = np.inf
-
 
 
 # ----------------------------------------------------------------------------------------------
@@ -691,11 +687,7 @@ def search(query: Segment, eps: float, webs: WebSource, cfg: SearchParams | None
 
 
 # ----------------------------------------------------------------------------------------------
-# the webs of a store generation
-
-
-# ----------------------------------------------------------------------------------------------
-# trials ranked for a user (retrieval)
+# nearest matches (one pass per web)
 # ----------------------------------------------------------------------------------------------
 
 
@@ -713,134 +705,3 @@ def nearest_matches(graph: WalkGraph, a: int, b: int, min_span: int = 0, slope_k
     return _nearest(graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to,
                     graph.path_first, graph.path_last, graph.web_paths, graph.row_order, graph.web_rows,
                     int(a), int(b), int(min_span), int(slope_k), work[3], work[4], work[1], work[2])
-
-
-def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
-    """Per clip other than the query's, the least average value of a match of the query in its
-    web (:func:`nearest_matches` with the length and slope rules of :meth:`MatchSearch.matches`).
-    Clips with no such match are absent."""
-    g = ms.graph(query.clip)
-    cost, _, _ = nearest_matches(g, query.start, min(query.end, g.n_frames - 1),
-                                 min_chain_extent(ms.web_cfg, g.rate), ms.web_cfg.slope_k)
-    best: dict[str, float] = {}
-    for w, clip in enumerate(g.others):
-        if clip != query.clip and cost[w] < best.get(clip, INF):
-            best[clip] = float(cost[w])
-    return best
-
-
-def default_epsilon(nearest: dict[str, float], ratio: float) -> float:
-    """The default threshold: ``ratio`` times the query's nearest match in another clip (design §5).
-
-    KG04 §3.3 leaves ε to the user; an absolute ε means little (web values scale with the
-    skeleton and the motion's speed) and a quantile of the webs' values depends on what else the
-    library holds. The nearest match measures how close the closest logically similar motion is
-    for *this* query, so ``ratio`` × it admits the matches about as good as that one.
-    """
-    if not nearest:
-        raise ValueError("the query matches no other clip at any threshold: nothing to rank")
-    return float(ratio) * min(nearest.values())
-
-
-def query_windows(query: Segment, frames: int) -> list[Segment]:
-    """Half-overlapping windows of ``frames`` frames covering ``query`` (the query itself when
-    it is no longer than one window)."""
-    if query.end - query.start + 1 <= frames:
-        return [query]
-    starts = list(range(query.start, query.end - frames + 2, max(1, frames // 2)))
-    if starts[-1] != query.end - frames + 1:
-        starts.append(query.end - frames + 1)
-    return [Segment(query.clip, a, a + frames - 1) for a in starts]
-
-
-@dataclass
-class TrialRanking:
-    """Trials ranked for a query (best first): ``ranking`` every clip with a web to the query's
-    clip but the query's own, ``score`` per clip (mean over the query's windows of log(graph
-    distance / the window's nearest match)), ``found`` the clips scoring ≤ log(ratio) (their
-    matches are on average within ``ratio`` × the nearest), ``windows`` the query's windows."""
-
-    ranking: list[str]
-    found: list[str]
-    score: dict[str, float]
-    windows: list[Segment]
-
-
-def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> TrialRanking:
-    """Clips ranked for ``query`` by a match graph per query window (KG04 §3.3 tiers; design §5).
-
-    The query is cut into half-overlapping windows of ``SearchParams.window_s``. For each window
-    w: its nearest match in every clip (:func:`nearest_matches`, one per web), n_w the least of
-    them, ε_w = ``eps_nearest_ratio`` × n_w (the default ε rule). Tier 1: the best match per clip
-    with cost ≤ ε_w (and the slope and length rules of :meth:`MatchSearch.matches`), at most
-    ``window_nodes`` of them, become nodes; tier k + 1 queries the nodes of tier k in turn and
-    adds, for clips without a node, the best matches whose bottleneck distance (the largest edge
-    cost on the path to w) is ≤ ε_w; up to ``tiers`` tiers (default ``window_tiers``). A clip's
-    distance to w is the least bottleneck distance of its matches to w or to any node; a clip
-    with no match counts as the window's worst. Score = the mean over windows of
-    log(distance / n_w): scale-free per window, so every part of the query counts alike.
-
-    Why windows: a clip shorter than the query, or whose web holds no walk across all its rows,
-    still ranks by the parts it matches. Why the bottleneck and ε_w: a chain of matches each as
-    good as the query's nearest one stays logically similar, while a sum would punish long
-    chains and a looser ε would let tiers drift into other motions.
-    Cost: one :func:`nearest_matches` per window and per node (≤ windows × (1 + tiers' nodes)).
-    """
-    g = ms.check(query)
-    cfg = ms.cfg
-    tiers = cfg.window_tiers if tiers is None else int(tiers)
-    if tiers < 1:
-        raise ValueError(f"tiers must be ≥ 1, got {tiers}")
-    clips = [c for c in g.clip_names if c != query.clip]
-    index = {c: i for i, c in enumerate(clips)}
-    need = min_chain_extent(ms.web_cfg, g.rate)
-    k = ms.web_cfg.slope_k
-    wins = query_windows(query, max(need + 1, round(cfg.window_s * g.rate) + 1))
-    logs = []
-
-    def reach(seg: Segment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(cost, c, d) per clip of ``clips`` of the nearest match of ``seg``."""
-        gg = ms.graph(seg.clip)
-        cost, c, d = nearest_matches(gg, seg.start, min(seg.end, gg.n_frames - 1), need, k)
-        out = np.full(len(clips), INF), np.full(len(clips), -1, np.int64), np.full(len(clips), -1, np.int64)
-        for w, other in enumerate(gg.others):
-            i = index.get(other)
-            if i is not None and other != seg.clip and cost[w] < out[0][i]:
-                out[0][i], out[1][i], out[2][i] = cost[w], c[w], d[w]
-        return out
-
-    for win in wins:
-        dist, c, d = reach(win)
-        if not np.isfinite(dist).any():
-            continue
-        lo = float(dist.min())
-        eps = cfg.eps_nearest_ratio * lo
-        frontier = [(i, int(c[i]), int(d[i]), float(dist[i])) for i in np.argsort(dist, kind="stable")]
-        noded = np.zeros(len(clips), bool)
-        for _ in range(2, tiers + 1):
-            nodes = []
-            for i, ci, di, cost in frontier:
-                if cost <= eps and not noded[i] and len(nodes) < cfg.window_nodes:
-                    noded[i] = True
-                    nodes.append((i, ci, di, cost))
-            frontier = []
-            for i, ci, di, cost in nodes:
-                hop, hc, hd = reach(Segment(clips[i], ci, di))
-                hop = np.maximum(hop, cost)
-                better = hop < dist
-                dist = np.where(better, hop, dist)
-                frontier += [(j, int(hc[j]), int(hd[j]), float(hop[j])) for j in np.nonzero(better)[0]]
-            frontier.sort(key=lambda x: x[3])
-            if not frontier:
-                break
-        worst = float(dist[np.isfinite(dist)].max())
-        logs.append(np.log(np.where(np.isfinite(dist), dist, worst) / lo) if lo > 0 else
-                    np.where(dist <= 0, 0.0, np.inf))
-    if not logs:
-        raise ValueError(f"query {query.clip}[{query.start}..{query.end}] matches no other clip: nothing to rank")
-    score = np.mean(logs, axis=0)
-    order = sorted(range(len(clips)), key=lambda i: (score[i], clips[i]))
-    ranking = [clips[i] for i in order]
-    cut = np.log(cfg.eps_nearest_ratio)
-    return TrialRanking(ranking, [clips[i] for i in order if score[i] <= cut],
-                        {clips[i]: float(score[i]) for i in order}, wins)

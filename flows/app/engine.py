@@ -56,14 +56,9 @@ from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
+from motionweb.tasks.ranking import default_epsilon, nearest_costs
 from motionweb.tasks.register import Registration
-from motionweb.tasks.search import (
-    MatchSearch,
-    SearchParams,
-    default_epsilon,
-    epsilon_from_quantile,
-    nearest_costs,
-)
+from motionweb.tasks.search import MatchSearch, SearchParams, epsilon_from_quantile
 from pydantic import ValidationError
 
 #: bounds on what one request may ask for (design §10: requests are bounded)

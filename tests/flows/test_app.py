@@ -29,7 +29,8 @@ from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import Segment
-from motionweb.tasks.search import MatchSearch, default_epsilon, epsilon_from_quantile, nearest_costs, search
+from motionweb.tasks.ranking import default_epsilon, nearest_costs
+from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
 from typer.testing import CliRunner
 
 QUERY = {"clip": "walk_00", "start": 1.0, "end": 2.5, "quantile": 0.8}

@@ -16,14 +16,12 @@ from motionweb.store.zarr_store import MotionStore, new_id, now_iso
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb.build import build_web_full
 from motionweb.tasks.matchweb.params import MatchWebParams, self_band
+from motionweb.tasks.ranking import default_epsilon, nearest_costs, rank_trials
 from motionweb.tasks.search import (
     MatchSearch,
     SearchParams,
-    default_epsilon,
     epsilon_from_quantile,
-    nearest_costs,
     nearest_matches,
-    rank_trials,
     remove_redundant,
     search,
     walk_graph,
