@@ -23,9 +23,14 @@ from dataclasses import dataclass
 import highspy
 import numpy as np
 from motionweb.tasks.retime.contacts import Contacts
+from motionweb.tasks.retime.simplex import INFEASIBLE, OPTIMAL, UNBOUNDED, DenseLP
 
 N_ROOT = 6
 INF = highspy.kHighsInf
+#: the sweep's directions are turned off the axes by this angle (rad): straight down, up, left and
+#: right would each meet a whole edge of the (p̈, ṗ²) box, and which point of it an LP solver returns
+#: is arbitrary; turned, the optimum is the edge's end, whatever the solver
+TIE_TURN = 0.05
 
 
 @dataclass(frozen=True)
@@ -41,6 +46,7 @@ class PolygonOptions:
     abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
     infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
     carried_max: float = 2.0  # the clip's own unexplained root wrench may scale in [0, carried_max]
+    solver: str = "simplex"  # "simplex" (tasks/retime/simplex.py, HiGHS as fallback) or "highs"
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,7 +79,8 @@ class FeasiblePolygons:
             the residual allowed on each root row in the polygon; infeasible: (F,) no timing has a residual
             below ``infeasible_tol`` of body weight (the contact model cannot explain the frame);
             original_inside: (F,) whether (0, 1) is in the polygon.
-        n_lps: LPs solved; seconds, cpu_seconds: wall and CPU time of this process.
+        n_lps: LPs solved; n_fallback: of them, simplex solves handed to HiGHS (iteration limit,
+            numerical trouble); seconds, cpu_seconds: wall and CPU time of this process.
     """
 
     vertices: list[np.ndarray]
@@ -87,17 +94,20 @@ class FeasiblePolygons:
     n_lps: int
     seconds: float
     cpu_seconds: float
+    n_fallback: int = 0
 
 
 # --------------------------------------------------------------------------- LPs
 
 
 class FrameLP:
-    """One HiGHS model of MPS06 Eqn. 13 for a frame: columns [p̈, ṗ², s, λ], maximize.
+    """One LP of MPS06 Eqn. 13 for a frame: columns [p̈, ṗ², s, λ], maximize.
 
     Rows: root rows −s ≤ A p̈ + B ṗ² − N λ + C ≤ s; joint rows |A p̈ + B ṗ² − N λ + C| ≤ limits
     (left out when ``limits`` is None: they would be free rows), only those of the mask ``rows``
-    (nv − 6,) when given.
+    (nv − 6,) when given. Solved by the dense warm-started simplex of :mod:`.simplex`
+    (``opts.solver == "simplex"``, falling back to HiGHS on an iteration limit or numerical
+    trouble) or by HiGHS (``"highs"``, one instance ``highs`` reused across frames).
     """
 
     def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, N: np.ndarray, limits: np.ndarray | None,
@@ -105,8 +115,6 @@ class FrameLP:
                  rows: np.ndarray | None = None):
         nv, nl = N.shape
         self.nl = nl
-        h = highs or new_highs()  # passModel replaces the previous frame's model
-        lp = highspy.HighsLp()
         ncol = 3 + nl
         keep = np.arange(N_ROOT, nv) if rows is None else N_ROOT + np.flatnonzero(rows)  # joint rows kept
         if limits is None:
@@ -129,12 +137,29 @@ class FrameLP:
         hi = np.concatenate([-C[:N_ROOT], np.full(N_ROOT, INF), lim - C[N_ROOT:N_ROOT + nj]])
         lo[~np.isfinite(lo)] = -INF
         hi[~np.isfinite(hi)] = INF
-        lp.num_col_, lp.num_row_ = ncol, M.shape[0]
-        lp.col_cost_ = np.zeros(ncol)
-        lp.col_lower_ = np.concatenate([[-opts.pdd_max, 0.0, 0.0], np.zeros(nl)])
-        lp.col_upper_ = np.concatenate([[opts.pdd_max, opts.speed_max**2, INF],
-                                        np.full(nl, INF) if lam_upper is None else lam_upper])
-        lp.row_lower_, lp.row_upper_ = lo, hi
+        self.M, self.row_lo, self.row_hi = M, lo, hi
+        self.col_lo = np.concatenate([[-opts.pdd_max, 0.0, 0.0], np.zeros(nl)])
+        self.col_hi = np.concatenate([[opts.pdd_max, opts.speed_max**2, INF],
+                                      np.full(nl, INF) if lam_upper is None else lam_upper])
+        self.cost = np.zeros(ncol)
+        self.opts = opts
+        self._all = np.arange(ncol, dtype=np.int32)
+        self.n_solved = 0
+        self.n_fallback = 0  # simplex solves handed to HiGHS
+        self.highs = highs
+        self.dense = DenseLP(M, self.col_lo, self.col_hi, lo, hi, maximize=True) if opts.solver == "simplex" else None
+        if self.dense is None:
+            self._pass_model()
+
+    def _pass_model(self) -> None:
+        """The LP as it stands into the HiGHS instance (passModel replaces the previous frame's)."""
+        h = self.highs = self.highs or new_highs()
+        lp = highspy.HighsLp()
+        M = self.M
+        lp.num_col_, lp.num_row_ = M.shape[1], M.shape[0]
+        lp.col_cost_ = self.cost.copy()
+        lp.col_lower_, lp.col_upper_ = self.col_lo, self.col_hi
+        lp.row_lower_, lp.row_upper_ = self.row_lo, self.row_hi
         nz = M != 0
         lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
         lp.a_matrix_.start_ = np.concatenate([[0], np.cumsum(nz.sum(axis=0))]).astype(np.int32)
@@ -143,19 +168,37 @@ class FrameLP:
         lp.a_matrix_.value_ = M.T[rows, cols]
         lp.sense_ = highspy.ObjSense.kMaximize
         h.passModel(lp)
-        self.h = h
-        self.opts = opts
-        self._all = np.arange(ncol, dtype=np.int32)
-        self.n_solved = 0
+
+    def _highs_solve(self) -> np.ndarray | None:
+        self.highs.run()
+        if self.highs.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+            return None
+        return np.asarray(self.highs.getSolution().col_value)
 
     def solve(self, cost: np.ndarray) -> np.ndarray | None:
         """Maximize ``cost · x`` (costs of the columns past ``len(cost)`` unchanged); x or None if infeasible."""
-        self.h.changeColsCost(len(cost), self._all[:len(cost)], np.asarray(cost, dtype=float))
-        self.h.run()
+        k = len(cost)
+        self.cost[:k] = cost
         self.n_solved += 1
-        if self.h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        if self.dense is None:
+            self.highs.changeColsCost(k, self._all[:k], np.asarray(cost, dtype=float))
+            return self._highs_solve()
+        self.dense.set_cost(self.cost)
+        st = self.dense.solve()
+        if st == OPTIMAL:
+            return self.dense.solution.copy()
+        if st in (INFEASIBLE, UNBOUNDED):
             return None
-        return np.asarray(self.h.getSolution().col_value)
+        self.n_fallback += 1  # iteration limit or numerical trouble: HiGHS on the same LP
+        self._pass_model()
+        return self._highs_solve()
+
+    def _set_col_bounds(self, j: int, lo: float, hi: float) -> None:
+        self.col_lo[j], self.col_hi[j] = lo, hi
+        if self.dense is None:
+            self.highs.changeColBounds(j, lo, hi)
+        else:
+            self.dense.set_col_bounds(j, lo, hi)
 
     def set_residual_bound(self, upper: float | np.ndarray) -> None:
         """Bound the root residual: |row i| ≤ upper (a scalar, or one bound per root row).
@@ -165,18 +208,23 @@ class FrameLP:
         up = np.broadcast_to(np.asarray(upper, dtype=float), (N_ROOT,))
         top = max(float(up.max()), 1e-300)
         for r in range(N_ROOT):
-            self.h.changeCoeff(r, 2, -up[r] / top)
-            self.h.changeCoeff(N_ROOT + r, 2, up[r] / top)
-        self.h.changeColBounds(2, 0.0, top)
+            for row, v in ((r, -up[r] / top), (N_ROOT + r, up[r] / top)):
+                if self.M[row, 2] != v:
+                    self.M[row, 2] = v
+                    if self.dense is None:
+                        self.highs.changeCoeff(row, 2, v)
+                    else:
+                        self.dense.set_coeff(row, 2, v)
+        self._set_col_bounds(2, 0.0, top)
 
     def fix_timing(self, x: tuple[float, float] | None) -> None:
         o = self.opts
         if x is None:
-            self.h.changeColBounds(0, -o.pdd_max, o.pdd_max)
-            self.h.changeColBounds(1, 0.0, o.speed_max**2)
+            self._set_col_bounds(0, -o.pdd_max, o.pdd_max)
+            self._set_col_bounds(1, 0.0, o.speed_max**2)
         else:
-            self.h.changeColBounds(0, x[0], x[0])
-            self.h.changeColBounds(1, x[1], x[1])
+            self._set_col_bounds(0, x[0], x[0])
+            self._set_col_bounds(1, x[1], x[1])
 
 
 def new_highs() -> highspy.Highs:
@@ -248,7 +296,7 @@ def sweep_polygon(lp: FrameLP, opts: PolygonOptions) -> tuple[np.ndarray, np.nda
     """
     nl = lp.nl
     pts: list[tuple[float, np.ndarray, np.ndarray]] = []
-    angles = -np.pi / 2 + 2 * np.pi * np.arange(opts.directions) / opts.directions
+    angles = -np.pi / 2 + TIE_TURN + 2 * np.pi * np.arange(opts.directions) / opts.directions
     for a in angles:  # λ costs are 0 after the residual LP: change the (p̈, ṗ², s) costs only
         x = lp.solve(np.array([np.cos(a), np.sin(a), 0.0]))
         if x is None:
@@ -437,7 +485,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     res = np.zeros(f)
     tol = np.zeros((f, N_ROOT))
     inside = np.zeros(f, bool)
-    n_lps = 0
+    n_lps = n_fallback = 0
     highs = new_highs()
     for i in range(f):
         cols = contacts.columns(i)
@@ -450,8 +498,9 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
         lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper, rows=~free)
         x = lp.solve(_lp_cost(len(cols), s=-1.0))
         if x is not None and bands.violation(x[:2]) > 0:  # the relaxation's optimum is not the frame's
-            x = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper).solve(_lp_cost(len(cols), s=-1.0))
-            n_lps += 1
+            whole = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper)
+            x = whole.solve(_lp_cost(len(cols), s=-1.0))
+            n_lps, n_fallback = n_lps + 1, n_fallback + whole.n_fallback
             lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper, rows=~free)
         res[i] = x[2] if x is not None else np.inf
         tol[i] = opts.abs_tol * weight
@@ -488,7 +537,9 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
         verts.append(v)
         lams.append(full)
         n_lps += lp.n_solved
+        n_fallback += lp.n_fallback
     infeasible = res > opts.infeasible_tol * weight
     return FeasiblePolygons(vertices=verts, lambdas=lams, center=center, center_lambda=clam, residual=res,
                             tolerance=tol, infeasible=infeasible, original_inside=inside, n_lps=n_lps,
-                            seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
+                            seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,
+                            n_fallback=n_fallback)
