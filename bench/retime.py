@@ -3,9 +3,10 @@
 Per clip (16_16 walk, the paper's Fig. 12 clip, and the 16_06 jump, 16_35 run): ms per frame of the
 dynamics coefficients (Fig. 12 "Force"), of the feasible polygons ("Feasible") and of one objective
 evaluation ("Obj"), each as CPU time of this process and wall time (the machine may be shared:
-the load average is printed), with a baseline measured in the same run — the same polygon sweep
+the load average is printed), with baselines measured in the same run — the same polygons with
+HiGHS solving every LP (``lp_solver: highs``, the previous implementation), the same polygon sweep
 with scipy ``linprog`` building every LP from scratch, and the same objective kernel run by the
-Python interpreter. Then a full retime of a 300-frame clip, and the paper's experiments (MPS06
+Python interpreter. Then a full retime of a 300-frame clip (and with HiGHS's LPs), and the paper's experiments (MPS06
 §4.1-4.2, Figs. 1, 8-11) with what the flight and contact phases did. ``--all-trials``: the share
 of source frames inside their polygon at the original timing for every walk, run and jump of
 subject 16 (manifest.csv), with the frames that are not and why.
@@ -36,6 +37,7 @@ from motionweb.tasks.retime.spline import objective_function
 from scipy.optimize import linprog
 
 OPTS = RetimeParams()
+HIGHS = OPTS.model_copy(update={"lp_solver": "highs"})  # baseline: every polygon LP by HiGHS
 PAPER = {"dyn": 66.0, "poly": 12.0, "obj": 0.0014}  # MPS06 Fig. 12, 16_16 walk, ms/frame
 TARGET = {"dyn": 1.0, "poly": 5.0, "obj": 0.002}
 CMU16 = mocap_root() / "cmu" / "asf_amc" / "16"
@@ -96,9 +98,9 @@ def interpreted_objective(plan: RetimePlan, res: Any, fps: float, duration: floa
 
 def stage_table() -> None:
     print(f"{'clip':6} {'frames':>6} | {'dynamics ms/f':>15} | {'polygons ms/f':>15} {'LPs/f':>5} "
-          f"{'linprog':>8} {'x':>5} | {'objective ms/f':>16} {'python':>7} {'x':>5} | {'half s':>6}")
-    print(f"{'':6} {'':6} | {'cpu':>7} {'wall':>7} | {'cpu':>7} {'wall':>7} {'':5} {'ms/f':>8} {'':5} | "
-          f"{'cpu':>8} {'wall':>7} {'ms/f':>7} {'':5} | {'cpu':>6}")
+          f"{'HiGHS':>6} {'x':>5} {'linprog':>8} {'x':>5} | {'objective ms/f':>16} {'python':>7} {'x':>5} | {'half s':>6}")
+    print(f"{'':6} {'':6} | {'cpu':>7} {'wall':>7} | {'cpu':>7} {'wall':>7} {'':5} {'ms/f':>6} {'':5} {'ms/f':>8} "
+          f"{'':5} | {'cpu':>8} {'wall':>7} {'ms/f':>7} {'':5} | {'cpu':>6}")
     for name in ("16_16", "16_06", "16_35"):
         motion = clip(name)
         f = motion.n_frames
@@ -110,6 +112,7 @@ def stage_table() -> None:
         poly_c = plan.polygons.cpu_seconds
         lps = plan.polygons.n_lps / f
         base_poly = linprog_ms_per_lp(plan, list(range(0, f, max(f // 6, 1)))) * lps
+        highs_poly = prepare(motion, HIGHS).polygons.cpu_seconds / f * 1e3
         (_, res), _, half_c = timed(lambda p=plan, m=motion: retime_plan(p, m.duration / 2, None, OPTS))
         n_s = 4 * f
         fun = objective_function(plan.baked, res.spline, motion.fps, motion.duration / 2, n_s)
@@ -119,25 +122,29 @@ def stage_table() -> None:
         _, _, ref_c = timed(lambda fn=ref: [fn() for _ in range(2)], repeat=2)
         obj_c, obj_w, ref_c = obj_c / 200, obj_w / 200, ref_c / 2
         print(f"{name:6} {f:6d} | {dyn_c / f * 1e3:7.3f} {dyn_w / f * 1e3:7.3f} | {poly_c / f * 1e3:7.2f} "
-              f"{poly_w / f * 1e3:7.2f} {lps:5.1f} {base_poly:8.2f} {base_poly / (poly_c / f * 1e3):5.1f} | "
+              f"{poly_w / f * 1e3:7.2f} {lps:5.1f} {highs_poly:6.2f} {highs_poly / (poly_c / f * 1e3):5.1f} "
+              f"{base_poly:8.2f} {base_poly / (poly_c / f * 1e3):5.1f} | "
               f"{obj_c / f * 1e3:8.5f} {obj_w / f * 1e3:7.5f} {ref_c / f * 1e3:7.4f} {ref_c / obj_c:5.1f} | "
               f"{half_c:6.2f}")
-    print(f"{'MPS06':6} {'':6} | {PAPER['dyn']:7.1f} {'':7} | {PAPER['poly']:7.1f} {'':7} {'':5} {'':8} {'':5} | "
-          f"{PAPER['obj']:8.4f}")
-    print(f"{'target':6} {'':6} | {TARGET['dyn']:7.1f} {'':7} | {TARGET['poly']:7.1f} {'':7} {'':5} {'':8} {'':5} | "
-          f"{TARGET['obj']:8.4f}")
+    pad = f"{'':7} {'':5} {'':6} {'':5} {'':8} {'':5}"
+    print(f"{'MPS06':6} {'':6} | {PAPER['dyn']:7.1f} {'':7} | {PAPER['poly']:7.1f} {pad} | {PAPER['obj']:8.4f}")
+    print(f"{'target':6} {'':6} | {TARGET['dyn']:7.1f} {'':7} | {TARGET['poly']:7.1f} {pad} | {TARGET['obj']:8.4f}")
 
 
 def full_retime() -> None:
     walk = clip("16_16")
     part = replace(walk, root_positions=walk.root_positions[:300], rotations=walk.rotations[:300], name="16_16[:300]")
-    plan, prep_w, prep_c = timed(lambda: prepare(part, OPTS))
-    (_, res), opt_w, opt_c = timed(lambda: retime_plan(plan, 0.8 * part.duration, None, OPTS))
-    stages = ", ".join(f"{k} {v:.2f}" for k, v in plan.timings.items())
     print(f"\nfull retime of a {part.n_frames}-frame clip (16_16's first 300 frames at 120 fps, 0.8 of its length; "
-          f"target <= 2 s): CPU {prep_c + opt_c:.2f} s, wall {prep_w + opt_w:.2f} s "
-          f"(prepare CPU {prep_c:.2f} s [wall: {stages}]; optimize CPU {opt_c:.2f} s, {res.iterations} L-BFGS-B "
-          f"iterations, {res.n_samples} samples)")
+          "target <= 2 s):")
+    for opts in (OPTS, HIGHS):  # warm-up: compiled kernels, imports
+        prepare(replace(part, root_positions=part.root_positions[:60], rotations=part.rotations[:60]), opts)
+    for label, opts in (("simplex LPs", OPTS), ("HiGHS LPs (baseline)", HIGHS)):
+        plan, prep_w, prep_c = timed(lambda o=opts: prepare(part, o))
+        (_, res), opt_w, opt_c = timed(lambda p=plan, o=opts: retime_plan(p, 0.8 * part.duration, None, o))
+        stages = ", ".join(f"{k} {v:.2f}" for k, v in plan.timings.items())
+        print(f"  {label:20} CPU {prep_c + opt_c:.2f} s, wall {prep_w + opt_w:.2f} s (prepare CPU {prep_c:.2f} s "
+              f"[wall: {stages}; polygons CPU {plan.polygons.cpu_seconds:.2f}]; optimize CPU {opt_c:.2f} s, "
+              f"{res.iterations} L-BFGS-B iterations, {res.n_samples} samples)")
 
 
 def describe(plan: RetimePlan, res: Any) -> str:

@@ -94,6 +94,9 @@ class RetimeParams(Params):
     #: initial sweep directions and the LP budget per frame of the polygon sweep
     directions: int = 8
     max_lps: int = 16
+    #: solver of the polygon LPs: the dense warm-started simplex (tasks/retime/simplex.py, HiGHS
+    #: where it reports trouble) or HiGHS throughout (the reference, ~4x slower)
+    lp_solver: Literal["simplex", "highs"] = "simplex"
     #: knots of the monotone timing spline p(t) per second of output
     knots_per_second: float = 8.0
 
@@ -110,7 +113,7 @@ def contact_rule(params: RetimeParams, clip: str | None = None) -> ContactRule:
 def polygon_options(params: RetimeParams) -> PolygonOptions:
     """The polygon sweep's settings of a retiming's parameters."""
     return PolygonOptions(pdd_max=params.pdd_max, speed_max=params.speed_max, directions=params.directions,
-                          max_lps=params.max_lps, abs_tol=params.root_tolerance)
+                          max_lps=params.max_lps, abs_tol=params.root_tolerance, solver=params.lp_solver)
 
 
 @dataclass(frozen=True, eq=False)

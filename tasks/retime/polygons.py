@@ -147,6 +147,8 @@ class FrameLP:
         self.n_solved = 0
         self.n_fallback = 0  # simplex solves handed to HiGHS
         self.highs = highs
+        if opts.solver not in ("simplex", "highs"):
+            raise ValueError(f"unknown LP solver {opts.solver!r} (simplex or highs)")
         self.dense = DenseLP(M, self.col_lo, self.col_hi, lo, hi, maximize=True) if opts.solver == "simplex" else None
         if self.dense is None:
             self._pass_model()
