@@ -12,16 +12,18 @@ of the kick trials. Relevant trials: the other trials of the query's category (t
 trial is left out of every ranking).
 
 * motionweb: the default trial ranking (``tasks.ranking.rank_trials``: per query window the
-  nearest matches, ε = 2 × the nearest, a match graph of ``window_tiers`` tiers through the
-  matches within ε, trials by their mean log distance ratio), one tier and tiered; with
-  ``--quantiles`` also KG04's tiered search with ε as a quantile of the query's webs (slow).
+  nearest matches, ε = 2 × the nearest, a match graph of ``window_tiers`` tiers through each
+  tier's ``window_nodes`` nearest clips with bottleneck distances, trials by their mean log
+  distance ratio, found = mean ≤ log 2), one tier and tiered; with ``--quantiles`` also KG04's
+  tiered search with ε as a quantile of the query's webs (slow).
 * baseline: ``dtaidistance.subsequence.dtw.subsequence_alignment`` (C, ``use_c=True``) of the
   query's joint positions in the root heading frame (metres, 30 Hz) against every trial, trials
   ranked by ``best_match().value``; no index, no threshold.
 
 Prints mean average precision (AP) per category and overall, precision and recall of the set a
 method returns (motionweb: the trials it finds; DTW returns a ranking only, so its figures are at
-the top R, R = number of relevant trials), and time per query (warm).
+the top R, R = number of relevant trials), time per query (warm), and what the tiers add to the
+found set per query (same category vs others, with the manifest's descriptions).
 """
 
 from __future__ import annotations
@@ -210,26 +212,53 @@ def print_rows(rows: list[dict], queries: list[Segment], lib: Library) -> None:
               f"{r['ms']:8.1f} {r['ms_max']:7.1f}")
 
 
-def tier_examples(queries: list[Segment], lib: Library, ms: MatchSearch) -> None:
-    """Queries where tiers find same-category trials that one tier does not, and what else they add."""
-    print("\ntiers vs one tier (trials found only through tiers, by category; found = geometric mean "
-          "distance ratio to the windows' nearest matches ≤ eps_nearest_ratio):")
-    gained = {"same": 0, "other": 0}
+def manifest_descriptions(root: Path) -> dict[str, str]:
+    """{relative path: the manifest's description} (e.g. "forward jump", "high jump")."""
+    with open(root / "manifest.csv", newline="") as fh:
+        return {row["path"]: row["description"] for row in csv.DictReader(fh)}
+
+
+def tier_examples(queries: list[Segment], lib: Library, ms: MatchSearch, described: dict[str, str]) -> None:
+    """Per query, the trials found with tiers and not at one tier, split into the query's category
+    and the others; a table per category, then the queries with gains (those gaining only their own
+    category first)."""
+    tiers = ms.cfg.window_tiers
+    print(f"\ntiers vs one tier: trials found with {tiers} tiers and not with one (found = geometric mean over "
+          "the query's windows of distance / the window's nearest match ≤ eps_nearest_ratio)")
+    rows: dict[str, list[int]] = {c: [0, 0, 0, 0] for c in CATEGORIES}  # queries, clean, same, other
+    clean, mixed = [], []
     for q in queries:
         one = set(rank_trials(ms, q, tiers=1).found)
-        many = rank_trials(ms, q)
-        extra = [c for c in many.found if c not in one and c != q.clip]
-        if not extra:
-            continue
+        extra = [c for c in rank_trials(ms, q).found if c not in one and c != q.clip]
         cat = lib.category[q.clip]
         same = [c for c in extra if lib.category[c] == cat]
         other = [c for c in extra if lib.category[c] != cat]
-        gained["same"] += len(same)
-        gained["other"] += len(other)
-        print(f"  {q.clip}[{q.start}..{q.end}] ({cat}): +{len(same)} same "
-              f"({', '.join(Path(c).stem for c in same)}), +{len(other)} other "
-              f"({', '.join(f'{Path(c).stem}:{lib.category[c]}' for c in other)})")
-    print(f"  in all: {gained['same']} same-category trials gained, {gained['other']} of other categories")
+        row = rows[cat]
+        row[0] += 1
+        row[1] += bool(same) and not other
+        row[2] += len(same)
+        row[3] += len(other)
+        if not extra:
+            continue
+        name = f"{Path(q.clip).stem}[{q.start}..{q.end}] {cat} ({described.get(q.clip, '')})"
+        gained = f"+{len(same)} {cat}: " + (", ".join(f"{Path(c).stem} ({described.get(c, '')})" for c in same) or "-")
+        if other:
+            kinds: dict[str, int] = {}
+            for c in other:
+                kinds[lib.category[c]] = kinds.get(lib.category[c], 0) + 1
+            gained += f"; +{len(other)} other: " + ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
+            mixed.append(f"    {name}: {gained}")
+        else:
+            clean.append(f"    {name}: {gained}")
+    print(f"  {'category':9s} {'queries':>7s} {'same only':>9s} {'same gained':>11s} {'other gained':>12s}")
+    for c, (n, ok, same, other) in rows.items():
+        print(f"  {c:9s} {n:7d} {ok:9d} {same:11d} {other:12d}")
+    print(f"  {'all':9s} {sum(r[0] for r in rows.values()):7d} {sum(r[1] for r in rows.values()):9d} "
+          f"{sum(r[2] for r in rows.values()):11d} {sum(r[3] for r in rows.values()):12d}")
+    print("  queries whose tier gains are all of their own category:")
+    print("\n".join(clean) or "    none")
+    print("  queries whose tier gains include other categories:")
+    print("\n".join(mixed) or "    none")
 
 
 def main() -> None:
@@ -258,7 +287,7 @@ def main() -> None:
         return run
 
     rows.append(evaluate("motionweb default, one tier", mw(1), queries, lib))
-    rows.append(evaluate("motionweb default, tiered", mw(None), queries, lib))
+    rows.append(evaluate(f"motionweb default, {scfg.window_tiers} tiers", mw(None), queries, lib))
     for qv in args.quantiles:
         def run_q(q: Segment, qv: float = qv) -> tuple[list[str], list[str]]:
             from motionweb.tasks.search import epsilon_from_quantile
@@ -274,7 +303,7 @@ def main() -> None:
     rows.append(evaluate("subsequence DTW (dtaidistance, C)", lambda q: (dtw_rank(q, lib), None), queries, lib))
     print()
     print_rows(rows, queries, lib)
-    tier_examples(queries, lib, ms)
+    tier_examples(queries, lib, ms, manifest_descriptions(root))
 
 
 if __name__ == "__main__":

@@ -70,21 +70,32 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
     """Clips ranked for ``query`` by a match graph per query window (KG04 §3.3 tiers; design §5).
 
     The query is cut into half-overlapping windows of ``SearchParams.window_s``. For each window
-    w: its nearest match in every clip (:func:`nearest_matches`, one per web), n_w the least of
-    them, ε_w = ``eps_nearest_ratio`` × n_w (the default ε rule). Tier 1: the best match per clip
-    with cost ≤ ε_w (and the slope and length rules of :meth:`MatchSearch.matches`), at most
-    ``window_nodes`` of them, become nodes; tier k + 1 queries the nodes of tier k in turn and
-    adds, for clips without a node, the best matches whose bottleneck distance (the largest edge
-    cost on the path to w) is ≤ ε_w; up to ``tiers`` tiers (default ``window_tiers``). A clip's
-    distance to w is the least bottleneck distance of its matches to w or to any node; a clip
-    with no match counts as the window's worst. Score = the mean over windows of
-    log(distance / n_w): scale-free per window, so every part of the query counts alike.
+    w: its nearest match in every clip (:func:`nearest_matches`, one per web, with the slope and
+    length rules of :meth:`MatchSearch.matches`), n_w the least of them, ε_w =
+    ``eps_nearest_ratio`` × n_w (the default ε rule). Tier 1: the ``window_nodes`` clips with
+    the least distance become nodes (their nearest matches are the node segments); tier k + 1
+    queries the nodes of tier k in turn, a clip's distance through a node being the bottleneck
+    (the largest edge cost on the path to w), and the ``window_nodes`` clips whose distance tier
+    k + 1 lowered become its nodes, least distance first, with the match that lowered it (a node
+    of an earlier tier again when a chain reached it with a better match); up to ``tiers`` tiers
+    (default ``window_tiers``). A clip's distance to w is the least bottleneck
+    distance of its matches to w or to any node; a clip with no match counts as the window's
+    worst. Score = the mean over windows of log(distance / n_w): scale-free per window, so every
+    part of the query counts alike. ``found`` = the clips with score ≤ log(``eps_nearest_ratio``),
+    whose distance is within ε_w on average (geometric mean over the windows); a bottleneck
+    within ε_w means every edge of the chain is, as for KG04's tiers at the default ε. ``found``
+    is a prefix of ``ranking``.
 
     Why windows: a clip shorter than the query, or whose web holds no walk across all its rows,
-    still ranks by the parts it matches. Why the bottleneck and ε_w: a chain of matches each as
-    good as the query's nearest one stays logically similar, while a sum would punish long
-    chains and a looser ε would let tiers drift into other motions.
-    Cost: one :func:`nearest_matches` per window and per node (≤ windows × (1 + tiers' nodes)).
+    still ranks by the parts it matches. Why the bottleneck: a chain of matches each as good as
+    the query's nearest one stays logically similar, while a sum would punish long chains. Why
+    the nearest clips as nodes rather than those within ε_w: a node's distance is part of every
+    bottleneck through it, so a node beyond ε_w adds no clip within ε_w, yet it ranks the clips
+    it is close to ahead of those close to nothing; and when one clip is a near copy of the query
+    (n_w tiny), ε_w admits that copy alone and the rest of the library would rank by direct
+    distance only.
+    Cost: one :func:`nearest_matches` per window and per node (≤ windows × (1 + (tiers − 1) ×
+    ``window_nodes``)).
     """
     g = ms.check(query)
     cfg = ms.cfg
@@ -114,14 +125,13 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
         if not np.isfinite(dist).any():
             continue
         lo = float(dist.min())
-        eps = cfg.eps_nearest_ratio * lo
-        frontier = [(i, int(c[i]), int(d[i]), float(dist[i])) for i in np.argsort(dist, kind="stable")]
-        noded = np.zeros(len(clips), bool)
+        frontier = [(i, int(c[i]), int(d[i]), float(dist[i])) for i in np.argsort(dist, kind="stable")
+                    if np.isfinite(dist[i])]
         for _ in range(2, tiers + 1):
-            nodes = []
-            for i, ci, di, cost in frontier:
-                if cost <= eps and not noded[i] and len(nodes) < cfg.window_nodes:
-                    noded[i] = True
+            nodes, noded = [], set()
+            for i, ci, di, cost in frontier:  # least distance first: a clip's first entry is its best
+                if i not in noded and len(nodes) < cfg.window_nodes:
+                    noded.add(i)
                     nodes.append((i, ci, di, cost))
             frontier = []
             for i, ci, di, cost in nodes:

@@ -75,7 +75,7 @@ class SearchParams(Params):
     eps_nearest_ratio: float = 2.0
     #: trial ranking (``tasks.ranking.rank_trials``): window length, tiers, nodes per tier per window
     window_s: float = 0.5
-    window_tiers: int = 2
+    window_tiers: int = 3
     window_nodes: int = 5
 
 

@@ -5,7 +5,8 @@ are planted inside clips of other categories, each copy time-warped by a known r
 warp (local speed 0.7x-1.5x), turned to a random heading, with small pose noise
 (``store.demo.perturb.pose_noise``).
 :func:`variant_chain`: progressively more different variants of the query clip (each close to the
-previous one, the last far from the query), for tiered search. :class:`CorpusWebs` builds every
+previous one, the last far from the query), for tiered search; :func:`near_copy_chain` adds a near
+copy of the query and a variant bent the other way. :class:`CorpusWebs` builds every
 web of a corpus on demand (features + coarse-to-fine webs, no store, no Prefect).
 
 Everything is generated at the web rate (30 Hz), so frames of clips are frames of the webs.
@@ -118,15 +119,9 @@ def variant_chain(seed: int = 0, n_variants: int = 5, step_deg: float = 6.0, noi
     rng = np.random.default_rng(seed + 100)
     source, query = _query_clip(seed)
     pc = PlantedCorpus(RATE, query, {query.clip: source}, {query.clip: "kick"})
-    sk = source.skeleton
-    joints = [sk.index(n) for n in ("Spine1", "Spine2", "LeftArm", "RightArm")]
-    signs = np.array([1.0, 1.0, -1.0, 1.0])
     n_in = source.n_frames
     for k in range(1, n_variants + 1):
-        ang = np.zeros((n_in, sk.n_joints, 3))
-        ang[:, joints[:2], 1] = k * step_deg  # spine bends forward (about x, Euler order ZXY)
-        ang[:, joints[2:], 0] = signs[2:] * k * step_deg  # arms raised sideways (about z)
-        v = replace(source, rotations=quat_mul(source.rotations, quat_from_euler(ang, "ZXY")))
+        v = _bent(source, k * step_deg)
         n_out = round((n_in - 1) / rng.uniform(0.95, 1.05)) + 1
         warp = random_warp(n_out, n_in, rng, (0.8, 1.25))
         v = pose_noise(time_warp_clip(v, warp), rng, noise_deg)
@@ -140,6 +135,32 @@ def variant_chain(seed: int = 0, n_variants: int = 5, step_deg: float = 6.0, noi
         key = f"{c}/{c}_00"
         pc.clips[key] = generate_clip(c, 0, seed + 2, fps=RATE)[0]
         pc.categories[key] = c
+    return pc
+
+
+def _bent(motion: Motion, deg: float) -> Motion:
+    """The clip with its spine bent forward and both arms raised sideways by ``deg`` (backward and
+    lowered for ``deg`` < 0) at every frame."""
+    sk = motion.skeleton
+    joints = [sk.index(n) for n in ("Spine1", "Spine2", "LeftArm", "RightArm")]
+    ang = np.zeros((motion.n_frames, sk.n_joints, 3))
+    ang[:, joints[:2], 1] = deg  # spine (about x, Euler order ZXY)
+    ang[:, joints[2:], 0] = np.array([-1.0, 1.0]) * deg  # arms (about z)
+    return replace(motion, rotations=quat_mul(motion.rotations, quat_from_euler(ang, "ZXY")))
+
+
+def near_copy_chain(seed: int = 0, step_deg: float = 6.0, noise_deg: float = 0.3) -> PlantedCorpus:
+    """:func:`variant_chain` plus two clips: ``kick/copy``, the query clip with pose noise only (a
+    near copy: its match is ~30× closer than V1's), and ``kick/side``, the query clip bent the other
+    way by 2·``step_deg`` (directly as close to the query as V2, far from every Vk). ``expected``
+    lists the copy, then V1..V5 in chain order; the side variant is not in it."""
+    pc = variant_chain(seed, step_deg=step_deg, noise_deg=noise_deg)
+    rng = np.random.default_rng(seed + 200)
+    source = pc.clips[pc.query.clip]
+    pc.clips["kick/copy"] = replace(pose_noise(source, rng, noise_deg), name="copy")
+    pc.clips["kick/side"] = replace(pose_noise(_bent(source, -2 * step_deg), rng, noise_deg), name="side")
+    pc.categories.update({"kick/copy": "kick", "kick/side": "kick"})
+    pc.expected = {"kick/copy": Segment("kick/copy", pc.query.start, pc.query.end), **pc.expected}
     return pc
 
 

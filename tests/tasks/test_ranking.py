@@ -1,0 +1,36 @@
+"""Trial ranking (tasks/ranking.py, KG04 §3.3 tiers per query window): synthetic ground truth where
+the query's nearest match is a near copy, so the default ε admits that copy alone."""
+
+from __future__ import annotations
+
+import pytest
+from motionweb.tasks.ranking import nearest_costs, rank_trials
+from motionweb.tasks.search import MatchSearch, SearchParams
+from planted import CorpusWebs, PlantedCorpus, near_copy_chain
+
+
+@pytest.fixture(scope="module")
+def near_copy() -> tuple[PlantedCorpus, CorpusWebs]:
+    pc = near_copy_chain(seed=0)
+    return pc, CorpusWebs(pc.clips)
+
+
+def test_a_near_copy_does_not_stop_the_tiers(near_copy) -> None:
+    """The copy is ≥ 10× closer than V1, so ε = 2 × the nearest admits the copy alone; ``side`` is
+    directly about as close as V2 and nearer than V3..V5. The tiers still chain V1 → V2 → … and rank
+    the whole chain ahead of ``side`` (with nodes only within ε, ``side`` stayed ahead of V2); the
+    found set stays the copy (every chain to a variant has an edge beyond ε)."""
+    pc, webs = near_copy
+    ms = MatchSearch(webs, SearchParams())
+    near = nearest_costs(ms, pc.query)
+    variants = [c for c in pc.expected if c != "kick/copy"]
+    assert 10 * near["kick/copy"] <= near[variants[0]]
+    assert near["kick/side"] < min(near[c] for c in variants[2:])
+    one = rank_trials(ms, pc.query, tiers=1)
+    assert one.ranking.index("kick/side") < one.ranking.index(variants[1])
+    r = rank_trials(ms, pc.query)
+    assert ms.cfg.window_tiers == 3
+    assert r.ranking[:len(pc.expected)] == list(pc.expected)  # copy, then V1..V5 in chain order
+    assert r.ranking[len(pc.expected)] == "kick/side"
+    assert r.found == ["kick/copy"] and r.found == r.ranking[:len(r.found)]
+    assert all(r.score[c] <= one.score[c] + 1e-12 for c in r.score)  # more tiers only shorten distances
