@@ -137,6 +137,38 @@ def test_path_derivatives_fit_a_quadratic_exactly_and_reduce_to_central_differen
         np.testing.assert_allclose(d2[i], (fwd + bwd) / h**2, atol=1e-6)
 
 
+def test_path_derivatives_keep_a_full_window_at_the_clip_ends() -> None:
+    """Within m frames of an end the fit uses the 2m + 1 frames nearest it (scipy's savgol_filter
+    mode="interp", the reference here): q'' there is as noisy as in the interior, where a window
+    cut at the end would extrapolate a quadratic fitted to m + 1 frames (26x the variance)."""
+    from dataclasses import replace
+
+    from scipy.signal import savgol_filter
+
+    motion, _ = synthetic_jump(fps=120)
+    f, h, w = motion.n_frames, 1 / motion.fps, 10
+    t = np.arange(f) * h
+    rng = np.random.default_rng(3)
+    rot = np.repeat(motion.rotations[:1], f, axis=0)
+    rot[:, 0] = [1.0, 0.0, 0.0, 0.0]  # root not turning: its tangent offsets are the world translations
+    body = body_model_for(motion)
+    err_end, err_mid = [], []
+    for _ in range(4):
+        root = np.stack([0.5 * t, 0.9 + 0.3 * t - 2.0 * t * t, 0.1 * t * t], axis=1) + rng.normal(0, 1e-3, (f, 3))
+        q = configurations(body, replace(motion, root_positions=root * body.scale ** -1, rotations=rot))
+        d1, d2 = path_derivatives(body, q, motion.fps, smoothing_s=w * h)
+        ref = q[:, :3]
+        np.testing.assert_allclose(d2[:, :3], savgol_filter(ref, 2 * w + 1, 2, deriv=2, delta=h, axis=0, mode="interp"),
+                                   atol=1e-6)
+        np.testing.assert_allclose(d1[:, :3], savgol_filter(ref, 2 * w + 1, 2, deriv=1, delta=h, axis=0, mode="interp"),
+                                   atol=1e-8)
+        truth = np.array([0.0, -4.0, 0.2])
+        err_end.append(np.r_[d2[:w, :3], d2[-w:, :3]] - truth)
+        err_mid.append(d2[w:-w, :3] - truth)
+    ratio = np.std(np.concatenate(err_end)) / np.std(np.concatenate(err_mid))
+    assert 0.5 < ratio < 1.6, ratio
+
+
 def test_table_body_model_gives_an_adult_its_segment_masses() -> None:
     motion, _ = synthetic_jump()
     body = body_model_for(motion, kind="table", total_mass=70.0)
