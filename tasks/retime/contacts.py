@@ -1,9 +1,11 @@
 """Foot contacts and their friction-pyramid force bases (design §8, MPS06 §3.2).
 
-Each foot in contact is a rectangle whose 4 corners each carry a 4-edge friction pyramid
+Each foot in contact is a sole rectangle whose 4 corners each carry a 4-edge friction pyramid
 inscribed in the Coulomb cone of coefficient μ (MPS06 Fig. 3): 16 basis forces per foot with
 magnitudes λ ≥ 0, mapped to generalized forces by the corners' Jacobians, f_q = Jᵀ P λ = N λ
-(MPS06 Eqn. 11). Contacts are detected per foot end (toe, heel) from its height above the clip's
+(MPS06 Eqn. 11). A foot with a toe segment has 2 more corners across the ball of the foot (the toe
+joint): a foot up on its toes then stands on the forefoot patch from the ball to the toe tips, not on
+the line of its tips (24 basis forces). Contacts are detected per foot end (toe, heel) from its height above the clip's
 own floor and its speed, with hysteresis and minimum durations (:class:`ContactRule`); intervals
 can be given per clip instead.
 
@@ -20,12 +22,14 @@ from motionweb.store.motion import Skeleton
 from motionweb.tasks.retime.dynamics import BodyModel
 
 EDGES_PER_CORNER = 4
-CORNERS = 4
+#: sole corners: toe tips 0-1, heel 2-3, and (feet with a toe segment) the ball of the foot 4-5
+TOE, HEEL, BALL = (0, 1), (2, 3), (4, 5)
 
 
 @dataclass(frozen=True)
 class Foot:
-    """A foot: skeleton joint ``joint`` and its sole rectangle ``corners`` (4, 3), joint frame, m."""
+    """A foot: skeleton joint ``joint`` and its sole ``corners`` (K, 3), joint frame, m: toe tips,
+    heel and, K = 6, the ball of the foot (:data:`TOE`, :data:`HEEL`, :data:`BALL`)."""
 
     joint: int
     name: str
@@ -39,11 +43,11 @@ class Contacts:
     Attributes:
         feet: the feet considered.
         active: (F, n_feet) bool, foot in contact.
-        basis: (F, nv, n_feet * 16) generalized force of a unit λ on each basis edge
-            (columns of inactive feet are still filled; use ``active`` to select).
-        corner_positions: (F, n_feet, 4, 3) world positions of the sole corners, m.
+        basis: (F, nv, n_feet * K * 4) generalized force of a unit λ on each basis edge, K corners
+            per foot (columns of inactive feet are still filled; use ``active`` to select).
+        corner_positions: (F, n_feet, K, 3) world positions of the sole corners, m.
         ground: ground (floor) height, m. friction: μ. detected: False when intervals were given.
-        corner_active: (F, n_feet, 4) sole corners that may push (toe or heel down), None: all
+        corner_active: (F, n_feet, K) sole corners that may push (toe or heel down), None: all
             corners of an active foot.
         carried: the basis has one more column past the feet's, the clip's own unexplained root
             wrench, active in every frame (:meth:`carrying`).
@@ -65,9 +69,14 @@ class Contacts:
         col[:, :wrench.shape[1], 0] = wrench
         return replace(self, basis=np.concatenate([self.basis, col], axis=2), carried=True)
 
+    @property
+    def corners(self) -> int:
+        """Sole corners per foot, K."""
+        return self.corner_positions.shape[2]
+
     def columns(self, frame: int) -> np.ndarray:
         """Indices of the λ columns of the feet (and sole corners) in contact at ``frame``."""
-        per = CORNERS * EDGES_PER_CORNER
+        per = self.corners * EDGES_PER_CORNER
         feet = np.flatnonzero(self.active[frame])
         cols = (feet[:, None] * per + np.arange(per)[None]).reshape(-1)
         if self.corner_active is not None:
@@ -96,8 +105,10 @@ def find_feet(skeleton: Skeleton, scale: float, up_axis: int = 1,
 
     A leaf in the lowest 20 % of the rest pose is a foot tip; when its parent is also that low
     (ankle → toe) the parent is the foot joint. The sole spans from 25 % behind the joint to the
-    tip, 0.4 × its length wide, flattened to the tip's height. Leaves with no bone get a
-    0.2 × 0.1 m square at the joint.
+    tip, 0.4 × its length wide, flattened to the tip's height; the toe joint between (the ball of
+    the foot) adds a corner pair across the sole there (:data:`BALL`). Leaves with no bone get a
+    0.2 × 0.1 m square at the joint. All feet of a skeleton get the same number of corners (the
+    ball pair only when every foot has a toe joint ahead of the ankle).
     """
     if foot_corners:
         return tuple(Foot(j, skeleton.names[j], np.asarray(c, dtype=float)) for j, c in foot_corners.items())
@@ -122,6 +133,7 @@ def find_feet(skeleton: Skeleton, scale: float, up_axis: int = 1,
         if p > 0 and rest[p][up_axis] <= low and len(skeleton.children(p)) == 1:
             joint = p
         tip = ends[leaf] - rest[joint]
+        ball = rest[leaf] - rest[joint]  # the toe joint (zero when the leaf is the foot joint)
         horiz = tip - (tip @ up) * up
         length = float(np.linalg.norm(horiz))
         if length < 1e-3:
@@ -138,7 +150,13 @@ def find_feet(skeleton: Skeleton, scale: float, up_axis: int = 1,
             drop = (tip @ up) * up
             heel = -0.25 * length * fwd + drop
             corners = np.array([tip + w * side, tip - w * side, heel - w * side, heel + w * side])
+            along = float(ball @ fwd)
+            if joint != leaf and 0.2 * length < along < 0.95 * length:
+                mid = along * fwd + drop
+                corners = np.vstack([corners, [mid - w * side, mid + w * side]])
         feet.append(Foot(joint, skeleton.names[joint], corners))
+    if len({len(f.corners) for f in feet}) > 1:  # one layout for every foot: drop the ball pairs
+        feet = [replace(f, corners=f.corners[:4]) for f in feet]
     return tuple(feet)
 
 
@@ -169,9 +187,11 @@ def contact_bases(body: BodyModel, q: np.ndarray, feet: tuple[Foot, ...], mu: fl
     up[body.up_axis] = 1.0
     edges = pyramid(up, mu)  # (3, 4)
     f, nv = q.shape[0], m.nv
-    nf = len(feet)
-    basis = np.zeros((f, nv, nf * CORNERS * EDGES_PER_CORNER))
-    pos = np.zeros((f, nf, CORNERS, 3))
+    nf, nc = len(feet), len(feet[0].corners)
+    if any(len(ft.corners) != nc for ft in feet):
+        raise ValueError(f"every foot needs the same number of sole corners, got {[len(ft.corners) for ft in feet]}")
+    basis = np.zeros((f, nv, nf * nc * EDGES_PER_CORNER))
+    pos = np.zeros((f, nf, nc, 3))
     lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
     for i in range(f):
         pin.computeJointJacobians(m, d, q[i])
@@ -179,7 +199,7 @@ def contact_bases(body: BodyModel, q: np.ndarray, feet: tuple[Foot, ...], mu: fl
         for k, fid in enumerate(fids):
             jac = pin.getFrameJacobian(m, d, fid, lwa)[:3]  # (3, nv)
             basis[i, :, k * EDGES_PER_CORNER:(k + 1) * EDGES_PER_CORNER] = jac.T @ edges
-            pos[i, k // CORNERS, k % CORNERS] = d.oMf[fid].translation
+            pos[i, k // nc, k % nc] = d.oMf[fid].translation
     return basis, pos
 
 
@@ -252,10 +272,13 @@ def one_sided_speed(step: np.ndarray, n_frames: int) -> np.ndarray:
 
 def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactRule | None = None
                     ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Contact flags per foot (F, n_feet) and per sole corner (F, n_feet, 4), and the floor used.
+    """Contact flags per foot (F, n_feet) and per sole corner (F, n_feet, K), and the floor used.
 
-    See :class:`ContactRule`. Speeds: the smaller one-sided speed (:func:`one_sided_speed`). In a frame where a foot is in
-    contact by gap closing only, all its corners may push. O(F · n_feet).
+    See :class:`ContactRule`; ``corner_positions`` (F, n_feet, K, 3). Speeds: the smaller one-sided
+    speed (:func:`one_sided_speed`). The ball corners (K = 6) push with the toe end: a foot whose toe
+    tips are down and heel up pivots on its ball, and a flat foot has all three down; a heel alone
+    down (heel strike, toes up) pushes with the heel corners. In a frame where a foot is in contact
+    by gap closing only, all its corners may push. O(F · n_feet).
     """
     rule = rule or ContactRule()
     f, nf = corner_positions.shape[:2]
@@ -263,12 +286,13 @@ def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 
     h = corner_positions[..., up_axis] - floor  # (F, nf, 4)
     step = np.diff(corner_positions, axis=0) * fps  # (F-1, nf, 4, 3): velocity between frames i and i+1
     act = np.zeros((f, nf), bool)
-    corner = np.zeros((f, nf, CORNERS), bool)
+    nc = corner_positions.shape[2]
+    corner = np.zeros((f, nf, nc), bool)
     min_gap = int(round(rule.min_gap_s * fps))
     min_contact = int(round(rule.min_contact_s * fps))
     for k in range(nf):
         ends = []
-        for pair in ((0, 1), (2, 3)):
+        for pair in (TOE, HEEL):
             hp = h[:, k, pair].min(axis=1)
             vp = one_sided_speed(step[:, k, pair].mean(axis=1), f)
             ground = hp <= rule.height_ground
@@ -284,8 +308,10 @@ def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 
         act[:, k] = a
         toe, heel = ends[0] & a, ends[1] & a
         neither = a & ~toe & ~heel
-        corner[:, k, 0:2] = (toe | neither)[:, None]
-        corner[:, k, 2:4] = (heel | neither)[:, None]
+        corner[:, k, list(TOE)] = (toe | neither)[:, None]
+        corner[:, k, list(HEEL)] = (heel | neither)[:, None]
+        if nc > 4:
+            corner[:, k, list(BALL)] = (toe | neither)[:, None]
     return act, corner, floor
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from motionweb.tasks.retime.contacts import Contacts, pyramid
+from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
 from motionweb.tasks.retime.objective import contact_lambda
 from motionweb.tasks.retime.pipeline import RetimePlan
 from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, closest_point
@@ -188,7 +188,8 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         forces = {}
         for fi, foot in enumerate(cont.feet):
             if cont.active[i, fi]:
-                lf = lam[fi * 16:(fi + 1) * 16].reshape(4, 4)
+                per = cont.corners * EDGES_PER_CORNER
+                lf = lam[fi * per:(fi + 1) * per].reshape(cont.corners, EDGES_PER_CORNER)
                 forces[foot.name] = (edges @ lf.sum(axis=0)).round(4).tolist()
         feasible = dist <= 1e-3 * (1 + np.abs(x).max())
         if not feasible:
