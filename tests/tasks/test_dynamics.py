@@ -107,6 +107,44 @@ def test_pyramid_is_inscribed_and_feet_have_four_corners() -> None:
     assert all(f.corners.shape == (4, 3) for f in feet)
 
 
+def test_feet_with_toes_stand_on_a_forefoot_patch_when_the_heel_is_up() -> None:
+    """A foot joint with a toe segment gets a corner pair across the ball (the toe joint): with the
+    heel up the toe tips and the ball push — a patch from the ball to the tips — not the line of
+    the tips; a heel alone down pushes with the heel."""
+    from motionweb.store.motion import Skeleton
+    from motionweb.tasks.retime.contacts import BALL, HEEL, TOE
+
+    base = jumper_skeleton()
+    names = base.names + ("l_toes", "r_toes")
+    parents = np.append(base.parents, [4, 7])
+    toe = np.array([0.0, -0.04, 0.12])  # ankle -> ball of the foot
+    offsets = np.vstack([base.offsets, toe, toe])
+    ends = {1: base.end_sites[1], 8: np.array([0.0, 0.0, 0.06]), 9: np.array([0.0, 0.0, 0.06])}
+    sk = Skeleton(names, parents, offsets, base.channels + (base.channels[1],) * 2, ends)
+    feet = find_feet(sk, 1.0)
+    assert [f.name for f in feet] == ["l_ankle", "r_ankle"] and all(f.corners.shape == (6, 3) for f in feet)
+    c = feet[0].corners
+    along = c[:, 2]
+    np.testing.assert_allclose(along[list(TOE)], 0.18)  # the toe tips
+    np.testing.assert_allclose(along[list(BALL)], 0.12)  # the toe joint
+    np.testing.assert_allclose(along[list(HEEL)], -0.25 * 0.18)
+    assert np.ptp(c[:, 1]) < 1e-12  # one sole plane
+    fps = 120.0
+    track = np.repeat(np.repeat(c[None, None], 60, axis=0), 1, axis=1)  # (F, 1, 6, 3), standing still
+    track[..., 1] -= c[:, 1].min()
+    up = track.copy()
+    up[:, :, list(HEEL), 1] = 0.1  # heel raised: on the ball and the toes
+    act, corner, _ = detect_contacts(up, fps, rule=ContactRule(floor=0.0))
+    assert act.all() and corner[:, 0, list(TOE) + list(BALL)].all() and not corner[:, 0, list(HEEL)].any()
+    heel = track.copy()
+    heel[:, :, list(TOE) + list(BALL), 1] = 0.1  # toes raised (heel strike): the heel only
+    act, corner, _ = detect_contacts(heel, fps, rule=ContactRule(floor=0.0))
+    assert act.all() and corner[:, 0, list(HEEL)].all() and not corner[:, 0, list(TOE) + list(BALL)].any()
+    # the support of the forefoot: a patch as long as the toes, where the tips alone gave a line
+    pts = c[list(TOE) + list(BALL)][:, [0, 2]]
+    assert np.ptp(pts[:, 1]) == pytest.approx(0.06) and np.ptp(pts[:, 0]) > 0.05
+
+
 def test_unknown_unit_is_a_clear_error() -> None:
     motion, _ = synthetic_jump(fps=20)
     from dataclasses import replace
