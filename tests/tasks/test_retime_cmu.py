@@ -166,10 +166,12 @@ def test_fig10_gravity_to_the_left_favours_the_left_leg(walk) -> None:
     assert left > 1.2 and right < 0.8, ph
 
 
-@pytest.mark.xfail(strict=True, reason="MPS06 Fig. 11 not reproduced: with the left femur x10 the torques depart "
-                   "most from the target while standing on the left leg (static deviation 5.3e-3 vs 1.2e-3 in right "
-                   "stance, limit-normalized), and at a fixed length the integral of the torque term moves time away "
-                   "from those frames: the left single stance shortens (1.50 -> ~1.38 s; 'minimize' likewise)")
+@pytest.mark.xfail(strict=True, reason="MPS06 Fig. 11 not reproduced: with the left femur x10 the torques of the "
+                   "original timing do depart least from the target while standing on the left foot (1.6e-3 vs 6.5e-3 "
+                   "in right stance, limit-normalized: the paper's 'heavy thigh over the supporting foot'), but the "
+                   "63 kg extra thigh makes every change of playback speed cost hip torque (A p'' = M q' p'' along its "
+                   "swing): with the torque term alone the timing stays uniform (left x1.01, right x1.00) and with the "
+                   "feasibility term the left single stance shortens (1.50 -> ~1.38 s)")
 def test_fig11_a_heavy_left_femur_favours_standing_on_the_left(walk) -> None:
     ph, left, right = _left_stance(walk, mass={"lfemur": 10.0})
     assert left > 1.1 and left > right, ph
