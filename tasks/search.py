@@ -16,8 +16,8 @@ a..b finds, for every terminal cell (the last cell of a row-b run), the walk of 
 value exactly, by Dinkelbach's parametric method: a walk with average ≤ λ exists iff the least
 total of ``value − λ`` is ≤ 0, a plain shortest-path DP. λ = ε decides which terminals match;
 each match is then refined with λ ← average of its current walk until the average stops
-decreasing (a few passes). Cost of one query on one clip: O(P) to find the paths crossing row a
-(P paths in all its webs) plus, per start, O(R log R) for the R states reachable in the band of
+decreasing (a few passes). Cost of one query on one clip: per start (the earliest row-a cell of
+a path, read from a table built when packing), O(R) for the R states reachable in the band of
 rows a..b, and O(R) per refinement pass of a kept match — linear in the size of the webs searched,
 as KG04 §3.4 reports. The trivial identity match of a self web cannot occur: self webs mask the
 band |i − j| ≤ ``self_band_s`` (``tasks.matchweb.minima.mask_self_band``), and a match overlapping the
@@ -91,16 +91,18 @@ INF = np.inf
 class WalkGraph:
     """The webs of one clip (its frames are the rows) packed into one DAG of cells (KG04 §3.3).
 
-    State s is a cell ``(rows[s], cols[s])`` of web ``web_of[s]`` with value ``values[s]``.
-    Path cells come first, in path order; bridge interiors follow. ``nxt[s]`` is the next cell
-    along the same path or bridge (the last interior cell of a bridge continues onto the cell it
-    joins; −1 at a path's end); ``branch_to[branch_off[s]:branch_off[s + 1]]`` are the bridges
-    leaving path cell s (their first interior cell, or the joined cell for a two-cell bridge).
-    Path p spans states ``path_first[p]..path_last[p]``. ``others[w]`` is the columns clip of web w.
-    ``row_order`` lists the states by (web, row, col) — per web a topological order, as every
-    step advances the row or the column — and the states of web w in rows a..b are
-    ``row_order[web_rows[w, a]:web_rows[w, b + 1]]``; its paths are ``web_paths[w]..web_paths[w + 1]``.
-    The work buffers are reused by every query (one query at a time per graph).
+    State s is a cell ``(rows[s], cols[s])`` with value ``values[s]``: the cells of the paths and
+    the bridge interiors of every web (a bridge's first and last cells are the path cells it
+    joins), numbered by (web, row, col) — per web a topological order, as every step advances the
+    row or the column — so the states of web w in rows a..b are ``web_rows[w, a]..web_rows[w, b + 1] − 1``
+    (``web_rows`` is (W, F + 1)). ``nxt[s]`` is the next cell along the same path or bridge (the
+    last interior cell of a bridge continues onto the cell it joins; −1 at a path's end);
+    ``branch_to[branch_off[s]:branch_off[s + 1]]`` are the bridges leaving path cell s (their first
+    interior cell, or the joined cell for a two-cell bridge). The walks of rows a.. start at the
+    earliest row-a cell of each path crossing row a: for web w these are
+    ``starts[start_off[w·F + a]:start_off[w·F + a + 1]]``, in path order. ``others[w]`` is the
+    columns clip of web w. The work buffers of :func:`find_matches` are allocated on first use and
+    reused by every query (one query at a time per graph).
     """
 
     rate: float
@@ -109,35 +111,33 @@ class WalkGraph:
     rows: np.ndarray
     cols: np.ndarray
     values: np.ndarray
-    web_of: np.ndarray
     nxt: np.ndarray
     branch_off: np.ndarray
     branch_to: np.ndarray
-    path_first: np.ndarray
-    path_last: np.ndarray
-    work: tuple[np.ndarray, ...] = field(repr=False, default=())
+    web_rows: np.ndarray
+    start_off: np.ndarray
+    starts: np.ndarray
     clip_names: list[str] = field(init=False, repr=False)
     clip_rank: np.ndarray = field(init=False, repr=False)
-    row_order: np.ndarray = field(init=False, repr=False)
-    web_rows: np.ndarray = field(init=False, repr=False)
-    web_paths: np.ndarray = field(init=False, repr=False)
+    _work: tuple[np.ndarray, ...] = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
         self.clip_names = sorted(set(self.others))
         self.clip_rank = np.searchsorted(self.clip_names, self.others).astype(np.int64)
-        n_webs = len(self.others)
-        self.row_order = np.lexsort((self.cols, self.rows, self.web_of)).astype(np.int64)
-        key = self.web_of[self.row_order].astype(np.int64) * (self.n_frames + 1) + self.rows[self.row_order]
-        want = np.arange(n_webs)[:, None] * (self.n_frames + 1) + np.arange(self.n_frames + 1)[None, :]
-        self.web_rows = np.searchsorted(key, want).astype(np.int64)
-        self.web_paths = np.searchsorted(self.web_of[self.path_first], np.arange(n_webs + 1)).astype(np.int64)
-        n = len(self.rows)
-        self.work = (np.full(n, -1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
-                     np.empty(n, np.float64), np.empty(n, np.float64), np.empty(n, np.int64), np.empty(n, np.int64))
 
     @property
     def n_states(self) -> int:
         return len(self.rows)
+
+    @property
+    def work(self) -> tuple[np.ndarray, ...]:
+        """The work buffers of :func:`_walk` (7 arrays of ``n_states``)."""
+        if not self._work:
+            n = self.n_states
+            self._work = (np.full(n, -1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
+                          np.empty(n, np.float64), np.empty(n, np.float64), np.empty(n, np.int64),
+                          np.empty(n, np.int64))
+        return self._work
 
 
 def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
@@ -171,30 +171,63 @@ def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
 
 
 def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
-    """Pack the webs of one clip (each with that clip as rows) into a :class:`WalkGraph`. O(cells)."""
+    """Pack the webs of one clip (each with that clip as rows) into a :class:`WalkGraph`.
+    O(cells · log cells) (one sort into (web, row, col) order)."""
     if not webs:
         raise ValueError("no match webs to search")
     rates = {float(w.rate) for _, w in webs}
     frames = {int(w.shape[0]) for _, w in webs}
     if len(rates) != 1 or len(frames) != 1:
         raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
+    n_frames = frames.pop()
     parts, base = [], 0
     for _, w in webs:
         s = _web_states(w, base)
         parts.append(s)
         base += len(s["cells"])
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    web_of = np.concatenate([np.full(len(p["cells"]), i, np.int32) for i, p in enumerate(parts)])
-    order = np.argsort(cat["branch_from"], kind="stable")
+    web_of = np.concatenate([np.full(len(p["cells"]), i, np.int64) for i, p in enumerate(parts)])
+    rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
+    # renumber the states by (web, row, col); ties keep the packing order
+    order = np.lexsort((cols, rows, web_of))
+    new = np.empty(base, np.int64)
+    new[order] = np.arange(base)
+    nxt = cat["nxt"][order]
+    nxt = np.where(nxt >= 0, new[np.maximum(nxt, 0)], -1)
+    by_from = np.argsort(new[cat["branch_from"]], kind="stable")  # bridges by new from-state, packing order kept
     branch_off = np.zeros(base + 1, np.int64)
-    np.cumsum(np.bincount(cat["branch_from"], minlength=base), out=branch_off[1:])
+    np.cumsum(np.bincount(new[cat["branch_from"]], minlength=base), out=branch_off[1:])
+    # the earliest row-r cell of each path crossing row r: a path cell whose predecessor on the path
+    # lies in a lower row (or that starts the path) starts the rows above that predecessor's up to its own
+    first, last = cat["path_first"], cat["path_last"]
+    first, last = first[last >= first], last[last >= first]
+    is_path = np.zeros(base, bool)
+    is_path[np.repeat(first, last - first + 1) + _ranges(last - first + 1)] = True
+    prev_row = np.full(base, -1, np.int64)
+    prev_row[1:] = rows[:-1]
+    prev_row[first] = rows[first] - 1
+    entry = np.nonzero(is_path & (rows > prev_row))[0]
+    n_rows = rows[entry] - prev_row[entry]
+    e_state = np.repeat(entry, n_rows)
+    e_row = rows[e_state] - _ranges(n_rows)
+    e_key = web_of[e_state] * n_frames + e_row
+    e_order = np.lexsort((e_state, e_key))  # by (web, row), then packing (= path) order
+    start_off = np.searchsorted(e_key[e_order], np.arange(len(webs) * n_frames + 1)).astype(np.int64)
+    key = web_of[order] * (n_frames + 1) + rows[order]
+    want = np.arange(len(webs))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
     return WalkGraph(
-        rate=rates.pop(), n_frames=frames.pop(), others=tuple(o for o, _ in webs),
-        rows=np.ascontiguousarray(cat["cells"][:, 0]), cols=np.ascontiguousarray(cat["cells"][:, 1]),
-        values=cat["values"], web_of=web_of, nxt=cat["nxt"], branch_off=branch_off,
-        branch_to=np.ascontiguousarray(cat["branch_to"][order]),
-        path_first=cat["path_first"].astype(np.int64), path_last=cat["path_last"].astype(np.int64),
+        rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs),
+        rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
+        values=cat["values"][order], nxt=nxt, branch_off=branch_off,
+        branch_to=new[cat["branch_to"][by_from]], web_rows=np.searchsorted(key, want).astype(np.int64),
+        start_off=start_off, starts=new[e_state[e_order]],
     )
+
+
+def _ranges(n: np.ndarray) -> np.ndarray:
+    """0..n[0]−1, 0..n[1]−1, … concatenated."""
+    n = np.asarray(n, np.int64)
+    return np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -286,151 +319,153 @@ def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, leng
 
 
 @njit(cache=True)
-def _row_start(rows, f, e, a):
-    """The earliest cell of the path whose cells are f..e in row a, or -1 when the path does not
-    cross row a (rows never decrease along a path: binary search)."""
-    if rows[f] > a or rows[e] < a:
-        return -1
-    while f < e:
-        mid = (f + e) // 2
-        if rows[mid] < a:
-            f = mid + 1
-        else:
-            e = mid
-    return f
-
-
-@njit(cache=True)
-def _walk(rows, cols, values, nxt, boff, bto, path_first, path_last, a, b, eps,
+def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frames, a, b, eps,
           local, reach, stack, cost, total, length, pred):
     """Every match of rows a..b with average ≤ eps, per (start path, terminal cell), each with its
-    least-average walk. Returns (start paths, c, d, averages, cells (K, 2), offsets)."""
-    o_path = []
+    least-average walk, start paths in path order. Returns (webs, c, d, averages, cells (K, 2),
+    offsets)."""
+    o_web = []
     o_c = []
     o_d = []
     o_avg = []
     o_cells = []
-    for p in range(path_first.shape[0]):
-        s0 = _row_start(rows, path_first[p], path_last[p], a)
-        if s0 < 0:
-            continue
-        n = _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack)
-        _dp(n, reach, rows, values, nxt, boff, bto, b, local, eps, cost, total, length, pred)
-        terms = []
-        first = []
-        for q in range(n):
-            s = reach[q]
-            # average ≤ eps ⟺ total − eps·length ≤ 0 (relative round-off allowed for ties)
-            if rows[s] == b and _n_succ(s, rows, nxt, boff, b) == 0 and cost[q] <= 1e-12 * (total[q] + eps * length[q]):
-                terms.append(q)
-                first.append(total[q] / length[q])
-        for u in range(len(terms)):
-            q = terms[u]
-            lam = first[u]
-            while True:  # Dinkelbach: the walk of least average ending at q
-                _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred)
-                avg = total[q] / length[q]
-                if avg < lam - 1e-12 * max(abs(lam), 1e-30):
-                    lam = avg
-                else:
-                    break
-            m = length[q]
-            cells = np.empty((m, 2), np.int32)
-            r = q
-            for w in range(m - 1, -1, -1):
-                cells[w, 0] = rows[reach[r]]
-                cells[w, 1] = cols[reach[r]]
-                r = pred[r]
-            o_path.append(p)
-            o_c.append(cols[s0])
-            o_d.append(cols[reach[q]])
-            o_avg.append(avg)
-            o_cells.append(cells)
-        for q in range(n):
-            local[reach[q]] = -1
-    k = len(o_path)
+    for w in range(n_webs):
+        for e in range(start_off[w * n_frames + a], start_off[w * n_frames + a + 1]):
+            s0 = starts[e]
+            n = _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack)
+            _dp(n, reach, rows, values, nxt, boff, bto, b, local, eps, cost, total, length, pred)
+            terms = []
+            first = []
+            for q in range(n):
+                s = reach[q]
+                # average ≤ eps ⟺ total − eps·length ≤ 0 (relative round-off allowed for ties)
+                if rows[s] == b and _n_succ(s, rows, nxt, boff, b) == 0 and cost[q] <= 1e-12 * (total[q] + eps * length[q]):
+                    terms.append(q)
+                    first.append(total[q] / length[q])
+            for u in range(len(terms)):
+                q = terms[u]
+                lam = first[u]
+                while True:  # Dinkelbach: the walk of least average ending at q
+                    _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred)
+                    avg = total[q] / length[q]
+                    if avg < lam - 1e-12 * max(abs(lam), 1e-30):
+                        lam = avg
+                    else:
+                        break
+                m = length[q]
+                cells = np.empty((m, 2), np.int32)
+                r = q
+                for i in range(m - 1, -1, -1):
+                    cells[i, 0] = rows[reach[r]]
+                    cells[i, 1] = cols[reach[r]]
+                    r = pred[r]
+                o_web.append(w)
+                o_c.append(cols[s0])
+                o_d.append(cols[reach[q]])
+                o_avg.append(avg)
+                o_cells.append(cells)
+            for q in range(n):
+                local[reach[q]] = -1
+    k = len(o_web)
     off = np.zeros(k + 1, np.int64)
     for u in range(k):
         off[u + 1] = off[u] + o_cells[u].shape[0]
     flat = np.empty((off[k], 2), np.int32)
     for u in range(k):
         flat[off[u]:off[u + 1]] = o_cells[u]
-    paths = np.empty(k, np.int64)
+    webs = np.empty(k, np.int64)
     cs = np.empty(k, np.int64)
     ds = np.empty(k, np.int64)
     avgs = np.empty(k, np.float64)
     for u in range(k):
-        paths[u] = o_path[u]
+        webs[u] = o_web[u]
         cs[u] = o_c[u]
         ds[u] = o_d[u]
         avgs[u] = o_avg[u]
-    return paths, cs, ds, avgs, flat, off
+    return webs, cs, ds, avgs, flat, off
 
 
 @njit(cache=True)
-def _nearest(rows, cols, values, nxt, boff, bto, path_first, path_last, web_paths, order, web_rows, a, b,
-             min_span, slope_k, cost, total, length, src):
+def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a, b, min_span, slope_k):
     """Per web, the least average value of a walk across rows a..b (KG04 §3.3 walks, from the
     earliest row-a cell of any path to the last cell of a row-b run), with the first and last
     columns of that walk: (averages (W,), c (W,), d (W,)); ∞ and −1 for a web with no walk.
 
     All starts of a web at once, by Dinkelbach's method: λ ← the least average found so far
     (λ = 0 at first), one shortest-path pass of (value − λ) over the web's states of rows a..b in
-    (row, col) order, until the average stops falling. Cost O(S · passes) for the S states of
-    all webs in rows a..b (two to four passes), independent of how many paths cross row a."""
-    n_webs = web_paths.shape[0] - 1
+    (row, col) order — the contiguous states ``web_rows[w, a]..web_rows[w, b + 1] − 1`` — until the
+    average stops falling. Cost O(S · passes) for the S states of all webs in rows a..b (two to
+    four passes), independent of how many paths cross row a."""
+    n_webs, n_frames = web_rows.shape[0], web_rows.shape[1] - 1
     best = np.full(n_webs, INF)
     bc = np.full(n_webs, -1, np.int64)
     bd = np.full(n_webs, -1, np.int64)
-    starts = np.empty(path_first.shape[0], np.int64)
+    band = 0
     for w in range(n_webs):
-        n_starts = 0
-        for p in range(web_paths[w], web_paths[w + 1]):
-            u = _row_start(rows, path_first[p], path_last[p], a)
-            if u < 0:
-                continue
-            starts[n_starts] = u
-            n_starts += 1
-        if n_starts == 0:
+        band = max(band, web_rows[w, b + 1] - web_rows[w, a])
+    cost = np.empty(band, np.float64)  # per web, indexed by state − web_rows[w, a]
+    total = np.empty(band, np.float64)
+    length = np.empty(band, np.int64)
+    src = np.empty(band, np.int64)
+    rows_ab = b - a + 1
+    for w in range(n_webs):
+        e0 = start_off[w * n_frames + a]
+        e1 = start_off[w * n_frames + a + 1]
+        if e0 == e1:
             continue
         lo = web_rows[w, a]
         hi = web_rows[w, b + 1]
         lam = 0.0
         first = True
         while True:
-            for q in range(lo, hi):
-                cost[order[q]] = INF
-            for k in range(n_starts):
-                s0 = starts[k]
-                cost[s0] = values[s0] - lam
-                total[s0] = values[s0]
-                length[s0] = 1
-                src[s0] = cols[s0]
-            for q in range(lo, hi):
-                s = order[q]
-                if cost[s] == INF:
+            cost[:hi - lo] = INF
+            for e in range(e0, e1):
+                s0 = starts[e]
+                cost[s0 - lo] = values[s0] - lam
+                total[s0 - lo] = values[s0]
+                length[s0 - lo] = 1
+                src[s0 - lo] = cols[s0]
+            bw = best[w]
+            for s in range(lo, hi):  # successors as in _n_succ / _succ, written out: calls here cost 5x
+                u = s - lo
+                cu = cost[u]
+                if cu == INF:
                     continue
-                n = _n_succ(s, rows, nxt, boff, b)
-                if n == 0:
-                    span = cols[s] - src[s]
-                    if (rows[s] == b and total[s] / length[s] < best[w]  # a terminal: last cell of a row-b run
-                            and span >= min_span and b - a + 1 <= slope_k * (span + 1) and span + 1 <= slope_k * (b - a + 1)):
-                        best[w] = total[s] / length[s]
-                        bc[w] = src[s]
+                t = nxt[s]
+                k0 = k1 = 0
+                if rows[s] < b:
+                    k0, k1 = boff[s], boff[s + 1]
+                elif t < 0 or rows[t] != b:  # a terminal: the last cell of a row-b run
+                    span = cols[s] - src[u]
+                    if (rows[s] == b and total[u] / length[u] < bw and span >= min_span
+                            and rows_ab <= slope_k * (span + 1) and span + 1 <= slope_k * rows_ab):
+                        bw = total[u] / length[u]
+                        bc[w] = src[u]
                         bd[w] = cols[s]
                     continue
-                for k in range(n):
-                    t = _succ(s, k, nxt, boff, bto)
-                    c = cost[s] + values[t] - lam
-                    if c < cost[t]:
-                        cost[t] = c
-                        total[t] = total[s] + values[t]
-                        length[t] = length[s] + 1
-                        src[t] = src[s]
-            if best[w] == INF or not (first or best[w] < lam - 1e-12 * max(abs(lam), 1e-30)):
+                if 0 <= t < hi:  # states past row b are never part of a walk of rows a..b
+                    v = t - lo
+                    c = cu + values[t] - lam
+                    if c < cost[v]:
+                        cost[v] = c
+                        total[v] = total[u] + values[t]
+                        length[v] = length[u] + 1
+                        src[v] = src[u]
+                for k in range(k0, k1):
+                    t = bto[k]
+                    if t < hi:
+                        v = t - lo
+                        c = cu + values[t] - lam
+                        if c < cost[v]:
+                            cost[v] = c
+                            total[v] = total[u] + values[t]
+                            length[v] = length[u] + 1
+                            src[v] = src[u]
+            best[w] = bw
+            if bw == INF or not (first or bw < lam - 1e-12 * max(abs(lam), 1e-30)):
                 break
             first = False
-            lam = best[w]
+            lam = bw
     return best, bc, bd
 
 
@@ -459,16 +494,16 @@ def _walk_arrays(graph: WalkGraph, a: int, b: int, eps: float):
     """:func:`_walk` on ``graph``, one entry per (clip, c, d) kept: the least average, the first
     such walk found on ties (KG04 §3.3). Returns (clip ranks, c, d, averages, cells, offsets,
     entries) with ``entries`` indexing the walk outputs in the order each key first appears."""
-    paths, cs, ds, avgs, flat, off = _walk(
-        graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.path_first,
-        graph.path_last, int(a), int(b), float(eps), *graph.work)
-    rank = graph.clip_rank[graph.web_of[graph.path_first[paths]]]
-    order = np.lexsort((np.arange(len(paths)), avgs, ds, cs, rank))
+    webs, cs, ds, avgs, flat, off = _walk(
+        graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.start_off,
+        graph.starts, len(graph.others), graph.n_frames, int(a), int(b), float(eps), *graph.work)
+    rank = graph.clip_rank[webs]
+    order = np.lexsort((np.arange(len(webs)), avgs, ds, cs, rank))
     new = np.ones(len(order), bool)
     new[1:] = (np.diff(rank[order]) != 0) | (np.diff(cs[order]) != 0) | (np.diff(ds[order]) != 0)
     group = np.cumsum(new) - 1
     chosen = order[new]  # first least average per key
-    first = np.full(len(chosen), len(paths), np.int64)
+    first = np.full(len(chosen), len(webs), np.int64)
     np.minimum.at(first, group, order)  # where each key first appears
     chosen = chosen[np.argsort(first, kind="stable")]
     return rank, cs, ds, avgs, flat, off, chosen
@@ -701,7 +736,5 @@ def nearest_matches(graph: WalkGraph, a: int, b: int, min_span: int = 0, slope_k
     best valid walk its passes meet: exact without the rules (the defaults), with them an upper
     bound (a valid walk is missed only when an invalid one beats it at its terminal in every
     pass). Cost: see :func:`_nearest`."""
-    work = graph.work
     return _nearest(graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to,
-                    graph.path_first, graph.path_last, graph.web_paths, graph.row_order, graph.web_rows,
-                    int(a), int(b), int(min_span), int(slope_k), work[3], work[4], work[1], work[2])
+                    graph.web_rows, graph.start_off, graph.starts, int(a), int(b), int(min_span), int(slope_k))

@@ -70,6 +70,33 @@ def ref_matches(web: MatchWeb, a: int, b: int, max_sequences: int | None = None
     return {k: (v[0], v[2]) for k, v in best.items()}
 
 
+def ref_walk_steps(web: MatchWeb) -> list[tuple[tuple[int, int], tuple[int, int], float]]:
+    """Every step a walk can take in ``web`` (KG04 §3.3), as (cell, next cell, next cell's value):
+    along each path, and from a path cell through a bridge's interior onto the path cell it joins."""
+    out = []
+    for p in range(web.n_paths):
+        cells, vals = web.path(p)
+        out += [(tuple(cells[i]), tuple(cells[i + 1]), float(vals[i + 1])) for i in range(len(cells) - 1)]
+    for bi, (p, i, q, j) in enumerate(web.bridges.tolist()):
+        cells, vals = web.bridge(bi)
+        vals = [*vals[:-1], web.path(q)[1][j]]  # the joined cell keeps its path value
+        cells = [tuple(web.path(p)[0][i]), *map(tuple, cells[1:-1]), tuple(web.path(q)[0][j])]
+        out += [(cells[k], cells[k + 1], float(vals[k + 1])) for k in range(len(cells) - 1)]
+    return [((int(a), int(b)), (int(c), int(d)), v) for (a, b), (c, d), v in out]
+
+
+def ref_row_starts(web: MatchWeb, a: int) -> list[tuple[int, int]]:
+    """The cells where the walks of rows a.. start (KG04 §3.3): the earliest row-a cell of each
+    path that has one, in path order."""
+    out = []
+    for p in range(web.n_paths):
+        cells, _ = web.path(p)
+        hit = np.nonzero(cells[:, 0] == a)[0]
+        if len(hit):
+            out.append((int(cells[hit[0], 0]), int(cells[hit[0], 1])))
+    return out
+
+
 def slow_grid(fa: np.ndarray, fb: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Reference: explicit best 2-D alignment of every pair of clouds, one pair at a time."""
     out = np.empty((len(fa), len(fb)))

@@ -27,7 +27,7 @@ from motionweb.tasks.search import (
     walk_graph,
     walk_web,
 )
-from naive import ref_matches, ref_remove_redundant
+from naive import ref_matches, ref_remove_redundant, ref_row_starts, ref_walk_steps
 from planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
 
 TOL = 3  # frames at 30 Hz
@@ -49,6 +49,27 @@ def tangled_web() -> MatchWeb:
                          self_pair=False)
     assert web.n_bridges >= 15 and web.n_paths >= 5
     return web
+
+
+def test_walk_graph_packs_every_step_and_start(tangled_web) -> None:
+    """The packed graph (states renumbered by web, row, col) holds exactly the web's steps and, per
+    row, the earliest row-a cell of every path, in path order."""
+    web = tangled_web
+    g = walk_graph([("other", web), ("self", web)])
+    steps = sorted(ref_walk_steps(web))
+    for w in range(2):
+        lo, hi = g.web_rows[w, 0], g.web_rows[w, g.n_frames]
+        keys = g.rows[lo:hi].astype(np.int64) * 1000 + g.cols[lo:hi]
+        assert np.all(np.diff(keys) >= 0)
+        got = []
+        for s in range(lo, hi):
+            succ = ([g.nxt[s]] if g.nxt[s] >= 0 else []) + list(g.branch_to[g.branch_off[s]:g.branch_off[s + 1]])
+            assert all(lo <= t < hi for t in succ)
+            got += [((int(g.rows[s]), int(g.cols[s])), (int(g.rows[t]), int(g.cols[t])), float(g.values[t])) for t in succ]
+        assert sorted(got) == steps
+        for a in range(g.n_frames):
+            st = g.starts[g.start_off[w * g.n_frames + a]:g.start_off[w * g.n_frames + a + 1]]
+            assert [(int(g.rows[s]), int(g.cols[s])) for s in st] == ref_row_starts(web, a)
 
 
 def test_walk_is_the_brute_force_enumeration(tangled_web) -> None:
