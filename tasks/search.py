@@ -236,30 +236,14 @@ def _ranges(n: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _n_succ(s, rows, nxt, boff, b) -> int:
-    """Successors of state s: in row b only the next cell of the same path/bridge if still in
-    row b (the walk ends at the last cell of its row-b run); below row b the next cell and every
-    bridge leaving s."""
-    if rows[s] >= b:
-        t = nxt[s]
-        return 1 if t >= 0 and rows[t] == b else 0
-    return (1 if nxt[s] >= 0 else 0) + boff[s + 1] - boff[s]
-
-
-@njit(cache=True)
-def _succ(s, k, nxt, boff, bto) -> int:
-    """The k-th successor of s (k < _n_succ): the next cell first when there is one."""
-    if nxt[s] >= 0:
-        if k == 0:
-            return nxt[s]
-        k -= 1
-    return bto[boff[s] + k]
-
-
-@njit(cache=True)
 def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
     """States reachable from s0 within rows ≤ b, sorted by row + col (a topological order);
-    ``local[s]`` is set to each state's position in ``reach``. Returns their count."""
+    ``local[s]`` is set to each state's position in ``reach``. Returns their count.
+
+    The successors of state s (here, in :func:`_dp` and :func:`_nearest`, written out in each:
+    numba calls in these loops cost several times the loop): below row b the next cell of its
+    path or bridge (``nxt[s]``, when there is one) then every bridge leaving s; in row b only the
+    next cell, when it is still in row b (a walk ends at the last cell of its row-b run)."""
     n = 1
     reach[0] = s0
     local[s0] = 0
@@ -268,8 +252,20 @@ def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
     while sp > 0:
         sp -= 1
         s = stack[sp]
-        for k in range(_n_succ(s, rows, nxt, boff, b)):
-            t = _succ(s, k, nxt, boff, bto)
+        t = nxt[s]
+        k0 = k1 = 0
+        if rows[s] < b:
+            k0, k1 = boff[s], boff[s + 1]
+        elif t >= 0 and rows[t] != b:
+            t = -1
+        if t >= 0 and local[t] < 0:
+            local[t] = n
+            reach[n] = t
+            n += 1
+            stack[sp] = t
+            sp += 1
+        for k in range(k0, k1):
+            t = bto[k]
             if local[t] < 0:
                 local[t] = n
                 reach[n] = t
@@ -307,10 +303,25 @@ def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, leng
     pred[0] = -1
     for q in range(n):
         s = reach[q]
-        for k in range(_n_succ(s, rows, nxt, boff, b)):
-            t = _succ(s, k, nxt, boff, bto)
+        cq = cost[q]
+        t = nxt[s]
+        k0 = k1 = 0
+        if rows[s] < b:
+            k0, k1 = boff[s], boff[s + 1]
+        elif t >= 0 and rows[t] != b:
+            t = -1
+        if t >= 0:
             r = local[t]
-            c = cost[q] + values[t] - lam
+            c = cq + values[t] - lam
+            if c < cost[r]:
+                cost[r] = c
+                total[r] = total[q] + values[t]
+                length[r] = length[q] + 1
+                pred[r] = q
+        for k in range(k0, k1):
+            t = bto[k]
+            r = local[t]
+            c = cq + values[t] - lam
             if c < cost[r]:
                 cost[r] = c
                 total[r] = total[q] + values[t]
@@ -339,7 +350,8 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
             for q in range(n):
                 s = reach[q]
                 # average ≤ eps ⟺ total − eps·length ≤ 0 (relative round-off allowed for ties)
-                if rows[s] == b and _n_succ(s, rows, nxt, boff, b) == 0 and cost[q] <= 1e-12 * (total[q] + eps * length[q]):
+                if (rows[s] == b and (nxt[s] < 0 or rows[nxt[s]] != b)  # the last cell of a row-b run
+                        and cost[q] <= 1e-12 * (total[q] + eps * length[q])):
                     terms.append(q)
                     first.append(total[q] / length[q])
             for u in range(len(terms)):
@@ -426,7 +438,7 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
                 length[s0 - lo] = 1
                 src[s0 - lo] = cols[s0]
             bw = best[w]
-            for s in range(lo, hi):  # successors as in _n_succ / _succ, written out: calls here cost 5x
+            for s in range(lo, hi):  # successors: see _collect
                 u = s - lo
                 cu = cost[u]
                 if cu == INF:
@@ -632,6 +644,12 @@ class MatchSearch:
         chain length, and with an overall slope within [1/k, k] (the slope rule of KG04 §3.1 for
         the whole match: a walk joining paths through bridges restarts the rule at each junction
         and could otherwise shrink a match, and tier after tier a query, to a few frames)."""
+        g, arrays, kept = self._kept(query, eps)
+        return _as_matches(g, arrays, kept)
+
+    def _kept(self, query: Segment, eps: float) -> tuple[WalkGraph, tuple, np.ndarray]:
+        """:meth:`matches` as arrays: (the query clip's graph, the :func:`_walk_arrays` output,
+        the positions of the kept matches in it, best first)."""
         g = self.graph(query.clip)
         b = min(query.end, g.n_frames - 1)
         rows, k = b - query.start + 1, self.web_cfg.slope_k
@@ -642,57 +660,97 @@ class MatchSearch:
         ok = (span >= need) & (rows <= k * (span + 1)) & (span + 1 <= k * rows)
         entries = arrays[-1][ok]
         keep = _redundant_order(rank[ok], cs[ok], ds[ok], avgs[ok], self.cfg.overlap_redundant)
-        return _as_matches(g, arrays, entries[keep])
+        return g, arrays, entries[keep]
 
     def search(self, query: Segment, eps: float) -> MatchGraph:
-        """The tiered search from ``query`` (KG04 §3.3): a match graph, nodes sorted by distance."""
+        """The tiered search from ``query`` (KG04 §3.3): a match graph, nodes sorted by distance.
+
+        Each query node's matches are placed in one compiled pass (:func:`place_matches`); cost: one
+        :meth:`matches` per node plus O(matches × nodes) for placing."""
         if not (np.isfinite(eps) and eps >= 0):
             raise ValueError(f"threshold ε must be finite and ≥ 0, got {eps}")
         g = self.check(query)
+        ids = {query.clip: 0}  # clip -> a number, for the compiled placement
         nodes = [MatchNode(query, tier=0, cost=0.0, distance=0.0)]
-        by_clip = {query.clip: ([0], np.array([[query.start], [query.end]], np.int64))}
-        edges: dict[tuple[int, int], MatchEdge] = {}
+        where = np.zeros((3, 64), np.int64)  # per node: clip number, start, end (grown as needed)
+        where[:, 0] = 0, query.start, query.end
+        edges: dict[tuple[int, int], tuple[int, int, float, np.ndarray]] = {}  # (u, v, cost, cells)
         frontier = [0]
         for tier in range(1, self.cfg.max_tiers + 1):
             added = []
             for qi in frontier:
-                for m in self.matches(nodes[qi].segment, eps):
-                    v, new = self._place(nodes, by_clip, m, tier)
-                    if v is None or v == qi:
-                        continue
-                    if new:
-                        added.append(v)
+                gq, (rank, cs, ds, avgs, flat, off, _), kept = self._kept(nodes[qi].segment, eps)
+                names = gq.clip_names
+                number = np.array([ids.setdefault(c, len(ids)) for c in names], np.int64)
+                n = len(nodes)
+                if where.shape[1] < n + len(kept):
+                    where = np.concatenate([where, np.zeros((3, n + len(kept)), np.int64)], axis=1)
+                node, new, moved = place_matches(number[rank[kept]], cs[kept], ds[kept], where, n,
+                                          self.cfg.new_node_below, self.cfg.merge_above)
+                for u in np.nonzero(new)[0].tolist():
+                    m = kept[u]
+                    nodes.append(MatchNode(Segment(names[rank[m]], int(cs[m]), int(ds[m])), tier=tier,
+                                           cost=float(avgs[m])))
+                    added.append(int(node[u]))
+                # one edge per node pair, the cheaper kept (the earlier on ties): matches come best
+                # first, so a node's first match in the list is its cheapest
+                ok = np.nonzero((node >= 0) & (node != qi))[0]
+                _, first = np.unique(node[ok], return_index=True)
+                firsts = ok[np.sort(first)]
+                for v, m in zip(node[firsts].tolist(), kept[firsts].tolist()):
                     key = (min(qi, v), max(qi, v))
-                    if key not in edges or m.cost < edges[key].cost:
-                        edges[key] = MatchEdge(qi, v, m.cost, m.cells)
+                    cost = float(avgs[m])
+                    if key not in edges or cost < edges[key][2]:
+                        edges[key] = (qi, v, cost, flat[off[m]:off[m + 1]].copy())
+                for v in np.unique(moved[moved >= 0]).tolist():
+                    old = nodes[v].segment
+                    nodes[v].segment = Segment(old.clip, int(where[1, v]), int(where[2, v]))
             if not added:
                 break
             frontier = added
-        return _finish(g.rate, nodes, list(edges.values()))
+        return _finish(g.rate, nodes, [MatchEdge(*e) for e in edges.values()])
 
-    def _place(self, nodes: list[MatchNode], by_clip: dict[str, tuple[list[int], np.ndarray]], m: WebMatch,
-               tier: int) -> tuple[int | None, bool]:
-        """Dedup a match against the graph (KG04 §3.3): (its node index or None when discarded,
-        whether the node is new). Only nodes of the same clip can overlap: ``by_clip[clip]`` =
-        (their indices, their (start, end) as a (2, n) array)."""
-        same, ends = by_clip.setdefault(m.clip, ([], np.zeros((2, 0), np.int64)))
-        if same:  # the largest Segment.overlap with a node of the clip, the first on ties
-            shared = np.minimum(m.end, ends[1]) - np.maximum(m.start, ends[0]) + 1
-            ov = np.maximum(shared, 0) / np.minimum(m.end - m.start + 1, ends[1] - ends[0] + 1)
-            k = int(np.argmax(ov))
-        if not same or ov[k] < self.cfg.new_node_below:
-            nodes.append(MatchNode(m.segment, tier=tier, cost=m.cost))
-            same.append(len(nodes) - 1)
-            by_clip[m.clip] = (same, np.concatenate([ends, [[m.start], [m.end]]], axis=1))
-            return len(nodes) - 1, True
-        best = same[k]
-        if ov[k] > self.cfg.merge_above:
+
+@njit(cache=True)
+def place_matches(clip, start, end, where, n, new_below, merge_above):
+    """Dedup matches of one query node against the graph, in order (KG04 §3.3): per match the
+    largest ``Segment.overlap`` m with a node of its clip (the first node on ties); m <
+    ``new_below`` (or no node of the clip): a new node; m > ``merge_above``: that node, whose
+    interval is averaged with the match's (rounded half to even; the query node 0 is never
+    changed); otherwise discarded. ``where`` (3, ≥ n + matches) holds per node (clip, start,
+    end), ``n`` nodes so far; new nodes are appended. Returns per match (its node or −1, whether
+    it is new, the node it moved or −1). O(matches × nodes)."""
+    m = clip.shape[0]
+    node = np.full(m, -1, np.int64)
+    new = np.zeros(m, np.bool_)
+    moved = np.full(m, -1, np.int64)
+    for u in range(m):
+        best = -1
+        top = -1.0
+        for v in range(n):
+            if where[0, v] != clip[u]:
+                continue
+            shared = min(end[u], where[2, v]) - max(start[u], where[1, v]) + 1
+            ov = max(shared, 0) / min(end[u] - start[u] + 1, where[2, v] - where[1, v] + 1)
+            if ov > top:
+                top = ov
+                best = v
+        if best < 0 or top < new_below:
+            where[0, n], where[1, n], where[2, n] = clip[u], start[u], end[u]
+            node[u] = n
+            new[u] = True
+            n += 1
+        elif top > merge_above:
+            node[u] = best
             if best != 0:
-                old = nodes[best].segment
-                nodes[best].segment = Segment(old.clip, round((old.start + m.start) / 2), round((old.end + m.end) / 2))
-                ends[:, k] = nodes[best].segment.start, nodes[best].segment.end
-            return best, False
-        return None, False
+                for r, x in ((1, start[u]), (2, end[u])):
+                    t = where[r, best] + x  # Python's round(t / 2): half to even
+                    h = t // 2
+                    if t % 2 == 1 and h % 2 == 1:
+                        h += 1
+                    where[r, best] = h
+                moved[u] = best
+    return node, new, moved
 
 
 def _finish(rate: float, nodes: list[MatchNode], edges: list[MatchEdge]) -> MatchGraph:

@@ -492,3 +492,27 @@ def ref_remove_redundant(matches, overlap: float) -> list:
         if all(m.segment.overlap(k.segment) <= overlap for k in kept):
             kept.append(m)
     return kept
+
+
+def ref_place(nodes: list, matches: list, new_below: float, merge_above: float) -> list:
+    """KG04 §3.3 dedup of matches (``Segment``) against graph nodes (``Segment``, ``nodes[0]`` the
+    query), one match at a time: the largest ``Segment.overlap`` with a node (the first on ties);
+    below ``new_below`` a new node, above ``merge_above`` the node's interval averaged with the
+    match's (the query node kept), otherwise discarded. Updates ``nodes``; returns per match its
+    node or None."""
+    from motionweb.tasks.matchgraph import Segment
+
+    out = []
+    for m in matches:
+        ov = [m.overlap(n) for n in nodes]
+        k = int(np.argmax(ov))
+        if nodes[k].clip != m.clip or ov[k] < new_below:
+            nodes.append(m)
+            out.append(len(nodes) - 1)
+        elif ov[k] > merge_above:
+            if k != 0:
+                nodes[k] = Segment(m.clip, round((nodes[k].start + m.start) / 2), round((nodes[k].end + m.end) / 2))
+            out.append(k)
+        else:
+            out.append(None)
+    return out

@@ -22,12 +22,13 @@ from motionweb.tasks.search import (
     SearchParams,
     epsilon_from_quantile,
     nearest_matches,
+    place_matches,
     remove_redundant,
     search,
     walk_graph,
     walk_web,
 )
-from naive import ref_matches, ref_remove_redundant, ref_row_starts, ref_walk_steps
+from naive import ref_matches, ref_place, ref_remove_redundant, ref_row_starts, ref_walk_steps
 from planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
 
 TOL = 3  # frames at 30 Hz
@@ -317,6 +318,31 @@ def test_dedup_new_node_merge_and_discard() -> None:
     assert len(graph.edges) == len(pairs)  # one edge per node pair
     for e in graph.edges:  # cells are (frame of u's clip, frame of v's clip)
         assert e.cells[0, 0] == 10 or graph.nodes[e.u].segment.clip != "A"
+
+
+def test_placement_is_the_one_at_a_time_dedup() -> None:
+    """The compiled placement of a batch of matches = placing them one at a time with
+    ``Segment.overlap`` (random overlapping intervals on three clips, merges rounding half to even)."""
+    rng = np.random.default_rng(5)
+    for trial in range(30):
+        new_below, merge_above = [(0.2, 0.8), (0.5, 0.5), (0.1, 0.6)][trial % 3]
+        nodes = [Segment("c0", 40, 60)]
+        where = np.zeros((3, 400), np.int64)
+        where[:, 0] = 0, 40, 60
+        n = 1
+        for _ in range(4):  # batches, as one per query node
+            clip = rng.integers(0, 3, 60)
+            start = rng.integers(0, 90, 60)
+            end = start + rng.integers(0, 25, 60)
+            ref = ref_place(nodes, [Segment(f"c{c}", int(a), int(b)) for c, a, b in zip(clip, start, end)],
+                            new_below, merge_above)
+            node, new, _ = place_matches(clip, start, end, where, n, new_below, merge_above)
+            assert [None if v < 0 else v for v in node.tolist()] == ref
+            assert np.nonzero(new)[0].tolist() == [u for u, v in enumerate(ref) if v is not None and v >= n
+                                                   and v not in ref[:u]]
+            n += int(new.sum())
+            assert n == len(nodes)
+            assert [(f"c{c}", a, b) for c, a, b in where[:, :n].T.tolist()] == [(x.clip, x.start, x.end) for x in nodes]
 
 
 def test_matches_too_short_or_too_steep_are_not_kept() -> None:
