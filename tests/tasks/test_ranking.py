@@ -1,5 +1,6 @@
 """Trial ranking (tasks/ranking.py, KG04 §3.3 tiers per query window): synthetic ground truth where
-the query's nearest match is a near copy, so the default ε admits that copy alone."""
+the query's nearest match is a near copy, so the default ε admits that copy alone; and CMU subject
+16's jumps among walks and runs (real data, skipped without it)."""
 
 from __future__ import annotations
 
@@ -34,3 +35,34 @@ def test_a_near_copy_does_not_stop_the_tiers(near_copy) -> None:
     assert r.ranking[len(pc.expected)] == "kick/side"
     assert r.found == ["kick/copy"] and r.found == r.ranking[:len(r.found)]
     assert all(r.score[c] <= one.score[c] + 1e-12 for c in r.score)  # more tiers only shorten distances
+
+
+JUMPS = ("01", "02", "03", "04", "05", "06", "07", "09", "10")  # jump, high jump, forward jump
+OTHERS = ("11", "17", "33", "34", "08", "57")  # walks; runs (16_08 and 16_57 end in a sudden stop)
+
+
+@pytest.fixture(scope="module")
+def cmu_jumps(cmu_dir) -> CorpusWebs:
+    """Subject 16's nine jumps with four walks and two runs (CMU, manifest categories)."""
+    from motionweb.store.formats import read_motion
+
+    return CorpusWebs({n: read_motion(cmu_dir / "asf_amc" / "16" / f"16_{n}.amc") for n in JUMPS + OTHERS})
+
+
+def test_tiers_find_the_other_jumps_and_only_them(cmu_jumps) -> None:
+    """KG04 §3.3's purpose on real data: a forward jump's query finds the plain and high jumps
+    through tiers. 16_10[32..62] (1 s at 30 Hz) finds one jump directly and all eight with tiers,
+    no walk or run; for 16_06[60..90], whose near copy 16_05 sets ε alone, one tier ranks walks
+    between the jumps and three tiers rank the eight jumps first."""
+    from motionweb.tasks.matchgraph import Segment
+
+    ms = MatchSearch(cmu_jumps, SearchParams())
+    q = Segment("10", 32, 62)
+    one, tiered = rank_trials(ms, q, tiers=1), rank_trials(ms, q)
+    others = set(JUMPS) - {"10"}
+    assert len(one.found) < 3 and set(tiered.found) == others
+    q = Segment("06", 60, 90)
+    one, tiered = rank_trials(ms, q, tiers=1), rank_trials(ms, q)
+    others = set(JUMPS) - {"06"}
+    assert set(one.ranking[:len(others)]) != others
+    assert set(tiered.ranking[:len(others)]) == others
