@@ -14,7 +14,7 @@ trial is left out of every ranking).
 * motionweb: the default trial ranking (``tasks.ranking.rank_trials``: per query window the
   nearest matches, ε = 2 × the nearest, a match graph of ``window_tiers`` tiers through each
   tier's ``window_nodes`` nearest clips with bottleneck distances, trials by their mean log
-  distance ratio, found = mean ≤ log 2), one tier and tiered; with ``--quantiles`` also KG04's
+  distance ratio weighted by each window's information, found = mean ≤ log 2), one tier and tiered; with ``--quantiles`` also KG04's
   tiered search with ε as a quantile of the query's webs (slow).
 * baseline: ``dtaidistance.subsequence.dtw.subsequence_alignment`` (C, ``use_c=True``) of the
   query's joint positions in the root heading frame (metres, 30 Hz) against every trial, trials
@@ -223,8 +223,8 @@ def tier_examples(queries: list[Segment], lib: Library, ms: MatchSearch, describ
     and the others; a table per category, then the queries with gains (those gaining only their own
     category first)."""
     tiers = ms.cfg.window_tiers
-    print(f"\ntiers vs one tier: trials found with {tiers} tiers and not with one (found = geometric mean over "
-          "the query's windows of distance / the window's nearest match ≤ eps_nearest_ratio)")
+    print(f"\ntiers vs one tier: trials found with {tiers} tiers and not with one (found = weighted geometric "
+          "mean over the query's windows of distance / the window's nearest match ≤ eps_nearest_ratio)")
     rows: dict[str, list[int]] = {c: [0, 0, 0, 0] for c in CATEGORIES}  # queries, clean, same, other
     clean, mixed = [], []
     for q in queries:

@@ -53,12 +53,35 @@ def query_windows(query: Segment, frames: int) -> list[Segment]:
     return [Segment(query.clip, a, a + frames - 1) for a in starts]
 
 
+def window_scores(direct: np.ndarray, tiered: np.ndarray, ratio: float) -> np.ndarray:
+    """Per clip, the weighted mean over the query's windows of log(distance / the window's nearest).
+
+    ``direct`` (W, C): each window's nearest match per clip (tier 1; ∞ where none, at least one
+    finite per window); ``tiered`` (W, C): the distances through the match graph (≤ ``direct``).
+    A clip with no distance in a window counts as that window's worst. Window w weighs
+    log(C / m_w), m_w the clips directly within ``ratio`` × its nearest: a window that most of the
+    library matches about as well as its nearest one (standing still, the cluster of walks) says
+    little about which clip matches, one that few clips match says much (its information, as in
+    inverse document frequency). Equal weights when every window is matched by every clip.
+    Returns (C,)."""
+    lo = direct.min(axis=1, keepdims=True)
+    worst = np.where(np.isfinite(tiered), tiered, -np.inf).max(axis=1, keepdims=True)
+    d = np.where(np.isfinite(tiered), tiered, worst)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logs = np.where(lo > 0, np.log(d / np.where(lo > 0, lo, 1.0)), np.where(d <= 0, 0.0, np.inf))
+    weight = np.log(direct.shape[1] / (direct <= ratio * lo).sum(axis=1))
+    if weight.sum() <= 0:
+        weight = np.ones(len(weight))
+    return weight @ logs / weight.sum()
+
+
 @dataclass
 class TrialRanking:
     """Trials ranked for a query (best first): ``ranking`` every clip with a web to the query's
-    clip but the query's own, ``score`` per clip (mean over the query's windows of log(graph
-    distance / the window's nearest match)), ``found`` the clips scoring ≤ log(ratio) (their
-    matches are on average within ``ratio`` × the nearest), ``windows`` the query's windows."""
+    clip but the query's own, ``score`` per clip (:func:`window_scores`: the weighted mean over the
+    query's windows of log(graph distance / the window's nearest match)), ``found`` the clips
+    scoring ≤ log(ratio) (their matches are on average within ``ratio`` × the nearest),
+    ``windows`` the query's windows."""
 
     ranking: list[str]
     found: list[str]
@@ -80,9 +103,10 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
     of an earlier tier again when a chain reached it with a better match); up to ``tiers`` tiers
     (default ``window_tiers``). A clip's distance to w is the least bottleneck
     distance of its matches to w or to any node; a clip with no match counts as the window's
-    worst. Score = the mean over windows of log(distance / n_w): scale-free per window, so every
-    part of the query counts alike. ``found`` = the clips with score ≤ log(``eps_nearest_ratio``),
-    whose distance is within ε_w on average (geometric mean over the windows); a bottleneck
+    worst. Score = the mean over windows of log(distance / n_w) (:func:`window_scores`):
+    scale-free per window, each window weighted by how few clips match it directly within ε_w.
+    ``found`` = the clips with score ≤ log(``eps_nearest_ratio``), whose distance is within ε_w
+    on average (weighted geometric mean over the windows); a bottleneck
     within ε_w means every edge of the chain is, as for KG04's tiers at the default ε. ``found``
     is a prefix of ``ranking``.
 
@@ -93,7 +117,9 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
     bottleneck through it, so a node beyond ε_w adds no clip within ε_w, yet it ranks the clips
     it is close to ahead of those close to nothing; and when one clip is a near copy of the query
     (n_w tiny), ε_w admits that copy alone and the rest of the library would rank by direct
-    distance only.
+    distance only. Why the weights: a query that is half kick, half standing still is matched by
+    every standing part of the library in its standing windows; the kick windows, which few clips
+    match, decide which clips are found.
     Cost: one :func:`nearest_matches` per window and per node (≤ windows × (1 + (tiers − 1) ×
     ``window_nodes``)).
     """
@@ -107,7 +133,7 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
     need = min_chain_extent(ms.web_cfg, g.rate)
     k = ms.web_cfg.slope_k
     wins = query_windows(query, max(need + 1, round(cfg.window_s * g.rate) + 1))
-    logs = []
+    direct, tiered = [], []
 
     def reach(seg: Segment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cost, c, d) per clip of ``clips`` of the nearest match of ``seg``."""
@@ -124,7 +150,7 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
         dist, c, d = reach(win)
         if not np.isfinite(dist).any():
             continue
-        lo = float(dist.min())
+        direct.append(dist)
         frontier = [(i, int(c[i]), int(d[i]), float(dist[i])) for i in np.argsort(dist, kind="stable")
                     if np.isfinite(dist[i])]
         for _ in range(2, tiers + 1):
@@ -143,12 +169,10 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
             frontier.sort(key=lambda x: x[3])
             if not frontier:
                 break
-        worst = float(dist[np.isfinite(dist)].max())
-        logs.append(np.log(np.where(np.isfinite(dist), dist, worst) / lo) if lo > 0 else
-                    np.where(dist <= 0, 0.0, np.inf))
-    if not logs:
+        tiered.append(dist)
+    if not direct:
         raise ValueError(f"query {query.clip}[{query.start}..{query.end}] matches no other clip: nothing to rank")
-    score = np.mean(logs, axis=0)
+    score = window_scores(np.array(direct), np.array(tiered), cfg.eps_nearest_ratio)
     order = sorted(range(len(clips)), key=lambda i: (score[i], clips[i]))
     ranking = [clips[i] for i in order]
     cut = np.log(cfg.eps_nearest_ratio)

@@ -66,3 +66,23 @@ def test_tiers_find_the_other_jumps_and_only_them(cmu_jumps) -> None:
     others = set(JUMPS) - {"06"}
     assert set(one.ranking[:len(others)]) != others
     assert set(tiered.ranking[:len(others)]) == others
+
+
+def test_window_scores_weigh_windows_by_how_few_clips_match_them() -> None:
+    """Closed form: window 0 has 2 of 4 clips within 2 × its nearest (weight log 2), window 1 one
+    (weight log 4 = 2 log 2); a clip missing from a window counts as its worst; a window every
+    clip matches within the ratio weighs nothing; if every window is such, the plain mean."""
+    import numpy as np
+    from motionweb.tasks.ranking import window_scores
+
+    inf = np.inf
+    direct = np.array([[1.0, 1.5, 4.0, inf], [1.0, 8.0, 8.0, 8.0]])
+    tiered = np.array([[1.0, 1.5, 2.0, inf], [1.0, 8.0, 2.0, 8.0]])
+    row0 = np.log([1.0, 1.5, 2.0, 2.0])
+    row1 = np.log([1.0, 8.0, 2.0, 8.0])
+    assert window_scores(direct, tiered, 2.0) == pytest.approx((row0 + 2 * row1) / 3)
+    flat = np.array([[3.0, 4.0, 5.0, 6.0]])  # all within 2 × 3
+    with_flat = window_scores(np.vstack([direct, flat]), np.vstack([tiered, flat]), 2.0)
+    assert with_flat == pytest.approx(window_scores(direct, tiered, 2.0))
+    both_flat = np.vstack([flat, 2 * flat])
+    assert window_scores(both_flat, both_flat, 2.0) == pytest.approx(np.log(flat[0] / 3))
