@@ -152,6 +152,8 @@ class FrameLP:
         self.dense = DenseLP(M, self.col_lo, self.col_hi, lo, hi, maximize=True) if opts.solver == "simplex" else None
         if self.dense is None:
             self._pass_model()
+        else:
+            self.cost = self.dense.cost  # one cost vector for both
 
     def _pass_model(self) -> None:
         """The LP as it stands into the HiGHS instance (passModel replaces the previous frame's)."""
@@ -185,15 +187,37 @@ class FrameLP:
         if self.dense is None:
             self.highs.changeColsCost(k, self._all[:k], np.asarray(cost, dtype=float))
             return self._highs_solve()
-        self.dense.set_cost(self.cost)
         st = self.dense.solve()
         if st == OPTIMAL:
             return self.dense.solution.copy()
         if st in (INFEASIBLE, UNBOUNDED):
             return None
-        self.n_fallback += 1  # iteration limit or numerical trouble: HiGHS on the same LP
+        return self._fallback()
+
+    def _fallback(self) -> np.ndarray | None:
+        """The LP as it stands by HiGHS (the simplex hit its iteration limit or numerical trouble)."""
+        self.n_fallback += 1
         self._pass_model()
         return self._highs_solve()
+
+    def solve_many(self, costs: np.ndarray, stop_at_none: bool = False) -> list[np.ndarray | None]:
+        """:meth:`solve` for each row of ``costs`` (B, k) in turn, each from the previous basis (the
+        simplex runs them in one compiled call); stops after the first None when ``stop_at_none``."""
+        if self.dense is None:
+            out: list[np.ndarray | None] = []
+            for c in costs:
+                out.append(self.solve(c))
+                if stop_at_none and out[-1] is None:
+                    break
+            return out
+        X, status = self.dense.solve_sequence(costs, stop_at_none)
+        self.n_solved += len(X)
+        out = [x if st == OPTIMAL else None for x, st in zip(X, status)]
+        if len(status) and status[-1] not in (OPTIMAL, INFEASIBLE, UNBOUNDED):
+            out[-1] = self._fallback()
+            if len(out) < len(costs) and not (stop_at_none and out[-1] is None):
+                out += self.solve_many(costs[len(out):], stop_at_none)
+        return out
 
     def _set_col_bounds(self, j: int, lo: float, hi: float) -> None:
         self.col_lo[j], self.col_hi[j] = lo, hi
@@ -279,58 +303,67 @@ def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Conta
     return OriginalForces(tau=tau, lam=lam, residual=res, limits=limits)
 
 
-def _dedupe(points: list[tuple[float, np.ndarray, np.ndarray]], tol: float) -> list[tuple[float, np.ndarray, np.ndarray]]:
-    out: list[tuple[float, np.ndarray, np.ndarray]] = []
+def _dedupe(points: list[tuple[float, float, np.ndarray]], tol: float) -> list[tuple[float, float, np.ndarray]]:
+    """Points (x, y, λ) without those within ``tol`` of the last kept one (and of the first, cyclically)."""
+    out: list[tuple[float, float, np.ndarray]] = []
     for p in points:
-        if not out or math.dist(p[1], out[-1][1]) > tol:
+        if not out or math.hypot(p[0] - out[-1][0], p[1] - out[-1][1]) > tol:
             out.append(p)
-    if len(out) > 1 and math.dist(out[0][1], out[-1][1]) <= tol:
+    if len(out) > 1 and math.hypot(out[0][0] - out[-1][0], out[0][1] - out[-1][1]) <= tol:
         out.pop()
     return out
+
+
+def _points(xs: list[np.ndarray | None]) -> list[tuple[float, float, np.ndarray]]:
+    return [(float(x[0]), float(x[1]), x[3:]) for x in xs if x is not None]
 
 
 def sweep_polygon(lp: FrameLP, opts: PolygonOptions) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (K, 2) counter-clockwise and their λ (K, nλ) by direction sweep + refinement.
 
-    Directions start straight down (−ṗ²) and turn counter-clockwise (MPS06 Fig. 4); an edge
-    longer than ``edge_tol`` is probed along its outward normal, and the new vertex is kept when
-    it lies beyond the edge. The polygon found is inside the true projection. O(max_lps) LPs.
+    Directions start straight down (−ṗ², turned by ``TIE_TURN``) and turn counter-clockwise (MPS06
+    Fig. 4), solved in one :meth:`FrameLP.solve_many`; then in rounds, every edge longer than
+    ``edge_tol`` is probed along its outward normal (one ``solve_many`` per round), and the new
+    vertex is kept when it lies beyond the edge. The polygon found is inside the true projection.
+    O(max_lps) LPs.
     """
     nl = lp.nl
-    pts: list[tuple[float, np.ndarray, np.ndarray]] = []
     angles = -np.pi / 2 + TIE_TURN + 2 * np.pi * np.arange(opts.directions) / opts.directions
-    for a in angles:  # λ costs are 0 after the residual LP: change the (p̈, ṗ², s) costs only
-        x = lp.solve(np.array([np.cos(a), np.sin(a), 0.0]))
-        if x is None:
-            return np.zeros((0, 2)), np.zeros((0, nl))
-        pts.append((float(a), x[:2].copy(), x[3:].copy()))
+    # λ costs are 0 after the residual LP: change the (p̈, ṗ², s) costs only
+    xs = lp.solve_many(np.stack([np.cos(angles), np.sin(angles), np.zeros(len(angles))], axis=1), stop_at_none=True)
+    if len(xs) < opts.directions or xs[-1] is None:
+        return np.zeros((0, 2)), np.zeros((0, nl))
     tol = 1e-7 * (opts.pdd_max + opts.speed_max**2)
-    pts = _dedupe(pts, tol)
+    pts = _dedupe(_points(xs), tol)
     budget = opts.max_lps - opts.directions
     changed = True
     while changed and budget > 0 and len(pts) > 1:
         changed = False
-        new = []
+        probes: list[tuple[float, float, float, float]] = []  # edge start, outward unit normal
         for k in range(len(pts)):
-            _a0, v0, _ = pts[k]
-            _a1, v1, _ = pts[(k + 1) % len(pts)]
-            ex, ey = float(v1[0] - v0[0]), float(v1[1] - v0[1])
+            x0, y0, _ = pts[k]
+            x1, y1, _ = pts[(k + 1) % len(pts)]
+            ex, ey = x1 - x0, y1 - y0
             length = math.hypot(ex, ey)
-            if length <= opts.edge_tol or budget <= 0:
+            if length <= opts.edge_tol:
                 continue
-            n = np.array([ey / length, -ex / length, 0.0])  # outward unit normal of a counter-clockwise edge
-            an = math.atan2(n[1], n[0])
-            x = lp.solve(n)
-            budget -= 1
-            if x is not None and n[:2] @ (x[:2] - v0) > 1e-6 * (1 + np.abs(v0).max()):
-                new.append((an, x[:2].copy(), x[3:].copy()))
-                changed = True
+            if len(probes) == budget:
+                break
+            probes.append((x0, y0, ey / length, -ex / length))  # the normal of a counter-clockwise edge
+        if not probes:
+            break
+        budget -= len(probes)
+        xs = lp.solve_many(np.array([(nx, ny, 0.0) for _, _, nx, ny in probes]))
+        new = [x for (x0, y0, nx, ny), x in zip(probes, xs)
+               if x is not None and nx * (x[0] - x0) + ny * (x[1] - y0) > 1e-6 * (1 + max(abs(x0), abs(y0)))]
         if new:
-            allp = pts + new
-            c = np.mean([p[1] for p in allp], axis=0)
-            allp.sort(key=lambda p: np.arctan2(p[1][1] - c[1], p[1][0] - c[0]))
+            changed = True
+            allp = pts + _points(new)
+            cx = sum(p[0] for p in allp) / len(allp)
+            cy = sum(p[1] for p in allp) / len(allp)
+            allp.sort(key=lambda p: math.atan2(p[1] - cy, p[0] - cx))
             pts = _dedupe(allp, tol)
-    verts = np.array([p[1] for p in pts])
+    verts = np.array([(p[0], p[1]) for p in pts]).reshape(len(pts), 2)
     lams = np.array([p[2] for p in pts]).reshape(len(pts), nl)
     if len(verts) >= 3:
         c = verts.mean(axis=0)
@@ -343,14 +376,14 @@ def polygon_area(v: np.ndarray) -> float:
     if len(v) < 3:
         return 0.0
     x, y = v[:, 0], v[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+    return 0.5 * float(x[:-1] @ y[1:] - x[1:] @ y[:-1] + x[-1] * y[0] - x[0] * y[-1])
 
 
 def closest_point(v: np.ndarray, x: np.ndarray) -> np.ndarray:
     """The point of convex polygon ``v`` (K, 2, counter-clockwise) closest to ``x`` (2,)."""
     if len(v) == 1:
         return v[0].copy()
-    e = np.roll(v, -1, axis=0) - v
+    e = np.concatenate([v[1:], v[:1]]) - v
     if len(v) >= 3 and polygon_area(v) > 1e-12:
         cross = e[:, 0] * (x[1] - v[:, 1]) - e[:, 1] * (x[0] - v[:, 0])
         if np.all(cross >= 0):
@@ -514,7 +547,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
             v, lv = bands.clip(*sweep_polygon(lp, opts))
         o = np.array([0.0, 1.0])
         cp = closest_point(v, o) if len(v) else o
-        inside[i] = bool(len(v) and np.allclose(cp, o))
+        inside[i] = bool(len(v) and abs(cp[0]) <= 1e-8 and abs(cp[1] - 1.0) <= 1e-8 + 1e-5)  # np.allclose(cp, o)
         xc = None
         if not inside[i] and bands.violation(o) <= 0:  # the sweep's inner hull may miss the original timing
             lp.fix_timing((0.0, 1.0))

@@ -334,6 +334,33 @@ def simplex(M: np.ndarray, lo: np.ndarray, hi: np.ndarray, cost: np.ndarray, hea
     return ITERATION_LIMIT, it
 
 
+@njit(cache=True)
+def simplex_sequence(M: np.ndarray, lo: np.ndarray, hi: np.ndarray, cost: np.ndarray, sign: float, costs: np.ndarray,
+                     head: np.ndarray, state: np.ndarray, x: np.ndarray, Binv: np.ndarray, pivots: np.ndarray,
+                     max_iter: int, stop_at_first: bool, out: np.ndarray, status: np.ndarray) -> int:
+    """:func:`simplex` for each row of ``costs`` in turn, each from the previous one's basis.
+
+    Row b's (k,) costs replace cost[:k] (kept in ``cost`` afterwards); the objective is
+    sign · cost. Writes the column values of solve b into out[b] (B, n) and its status into
+    status[b]. Stops after an iteration limit or numerical trouble, and after the first solve that
+    is not optimal when ``stop_at_first``. Returns the number of solves run; ``x`` and the basis
+    are those of the last.
+    """
+    n = M.shape[1]
+    k = costs.shape[1]
+    signed = np.empty(n)
+    for b in range(costs.shape[0]):
+        cost[:k] = costs[b]
+        for j in range(n):
+            signed[j] = sign * cost[j]
+        st, _ = simplex(M, lo, hi, signed, head, state, x, Binv, pivots, max_iter)
+        status[b] = st
+        out[b] = x[:n]
+        if st == ITERATION_LIMIT or st == NUMERICAL or (stop_at_first and st != OPTIMAL):
+            return b + 1
+    return costs.shape[0]
+
+
 class DenseLP:
     """An LP  min/max c · x  s.t. row_lo ≤ M x ≤ row_hi, col_lo ≤ x ≤ col_hi  kept with its basis.
 
@@ -390,11 +417,30 @@ class DenseLP:
         st, it = simplex(self.M, self.lo, self.hi, self.sign * self.cost, self.head, self.state, self.x, self.Binv,
                          self.pivots, self.max_iter)
         if st in (ITERATION_LIMIT, NUMERICAL):  # next time, start over from the slack basis
-            m, n = self.M.shape
-            _slack_basis(n, m, self.lo, self.hi, self.head, self.state, self.Binv)
-            self.pivots[0] = 0
+            self._restart()
         self.status, self.iterations = int(st), int(it)
         return self.status
+
+    def solve_sequence(self, costs: np.ndarray, stop_at_first: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Optimize for each row of ``costs`` (B, k) — the costs of columns 0..k−1, the others kept —
+        in turn, each from the previous basis. Returns (x (b, n), status (b,)) of the b ≤ B solves
+        run: the sequence stops after an iteration limit or numerical trouble (the basis then
+        restarts from the slacks), and at the first non-optimal solve when ``stop_at_first``."""
+        costs = np.ascontiguousarray(costs, dtype=float)
+        out = np.empty((len(costs), self.M.shape[1]))
+        status = np.empty(len(costs), np.int64)
+        b = simplex_sequence(self.M, self.lo, self.hi, self.cost, self.sign, costs, self.head, self.state, self.x,
+                             self.Binv, self.pivots, self.max_iter, stop_at_first, out, status)
+        if b and status[b - 1] in (ITERATION_LIMIT, NUMERICAL):
+            self._restart()
+        if b:
+            self.status = int(status[b - 1])
+        return out[:b], status[:b]
+
+    def _restart(self) -> None:
+        m, n = self.M.shape
+        _slack_basis(n, m, self.lo, self.hi, self.head, self.state, self.Binv)
+        self.pivots[0] = 0
 
     @property
     def solution(self) -> np.ndarray:
