@@ -31,6 +31,7 @@ INF = highspy.kHighsInf
 #: right would each meet a whole edge of the (p̈, ṗ²) box, and which point of it an LP solver returns
 #: is arbitrary; turned, the optimum is the edge's end, whatever the solver
 TIE_TURN = 0.05
+_ROOT_TWICE = np.tile(np.arange(N_ROOT), 2)  # the root rows' two sides
 
 
 @dataclass(frozen=True)
@@ -119,22 +120,22 @@ class FrameLP:
         keep = np.arange(N_ROOT, nv) if rows is None else N_ROOT + np.flatnonzero(rows)  # joint rows kept
         if limits is None:
             keep = keep[:0]
-        nj = len(keep)
         lim = np.zeros(0) if limits is None else limits[keep]
-        A, B, C, N = (np.concatenate([x[:N_ROOT], x[keep]]) for x in (A, B, C, N))
         # dense constraint matrix: root upper (6), root lower (6), joints
-        M = np.zeros((2 * N_ROOT + nj, ncol))
-        for blk, sgn in ((0, -1.0), (N_ROOT, 1.0)):
-            M[blk:blk + N_ROOT, 0] = A[:N_ROOT]
-            M[blk:blk + N_ROOT, 1] = B[:N_ROOT]
-            M[blk:blk + N_ROOT, 2] = sgn
-            M[blk:blk + N_ROOT, 3:] = -N[:N_ROOT]
-        if nj:
-            M[2 * N_ROOT:, 0] = A[N_ROOT:]
-            M[2 * N_ROOT:, 1] = B[N_ROOT:]
-            M[2 * N_ROOT:, 3:] = -N[N_ROOT:]
-        lo = np.concatenate([np.full(N_ROOT, -INF), -C[:N_ROOT], -lim - C[N_ROOT:N_ROOT + nj]])
-        hi = np.concatenate([-C[:N_ROOT], np.full(N_ROOT, INF), lim - C[N_ROOT:N_ROOT + nj]])
+        r = np.concatenate([_ROOT_TWICE, keep])
+        M = np.empty((len(r), ncol))
+        M[:, 0] = A[r]
+        M[:, 1] = B[r]
+        M[:, 2] = 0.0
+        M[:N_ROOT, 2] = -1.0
+        M[N_ROOT:2 * N_ROOT, 2] = 1.0
+        M[:, 3:] = -N[r]
+        lo = -C[r]
+        hi = lo.copy()
+        lo[:N_ROOT] = -INF
+        hi[N_ROOT:2 * N_ROOT] = INF
+        lo[2 * N_ROOT:] -= lim
+        hi[2 * N_ROOT:] += lim
         lo[~np.isfinite(lo)] = -INF
         hi[~np.isfinite(hi)] = INF
         self.M, self.row_lo, self.row_hi = M, lo, hi
@@ -154,6 +155,16 @@ class FrameLP:
             self._pass_model()
         else:
             self.cost = self.dense.cost  # one cost vector for both
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The simplex's current basis (None with HiGHS), to start an LP of the same shape from."""
+        return None if self.dense is None else self.dense.basis()
+
+    def start_from(self, basis: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """Start the next solve from ``basis`` (:meth:`basis` of a like LP: the previous frame's with the
+        same contacts and rows); ignored with HiGHS, when None or when the shapes differ."""
+        if self.dense is not None and basis is not None:
+            self.dense.start_from(basis)
 
     def _pass_model(self) -> None:
         """The LP as it stands into the HiGHS instance (passModel replaces the previous frame's)."""
@@ -284,12 +295,15 @@ def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Conta
     res = np.zeros(f)
     big = 1e3 / max(weight, 1e-9)  # W·s dominates Σλ
     highs = new_highs()
+    prev = None
     for i in range(f):
         cols = contacts.columns(i)
         N = contacts.basis[i][:, cols]
         lp = FrameLP(A[i], B[i], C[i], N, None, opts, highs)
         lp.fix_timing((0.0, 1.0))
+        lp.start_from(prev)  # the previous frame's optimal basis (when its contacts were the same)
         x = lp.solve(_lp_cost(len(cols), s=-big * weight, lam=-1.0))
+        prev = lp.basis()
         if x is None:  # cannot happen with a free residual; keep zeros
             continue
         res[i] = x[2]
@@ -522,6 +536,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     inside = np.zeros(f, bool)
     n_lps = n_fallback = 0
     highs = new_highs()
+    prev = None
     for i in range(f):
         cols = contacts.columns(i)
         N = contacts.basis[i][:, cols]
@@ -531,7 +546,9 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
         free = ~(N[N_ROOT:] != 0).any(axis=1)  # joint rows no contact force enters: bands, cut exactly
         bands = HalfPlanes.of(A[i], B[i], C[i], limits, free)
         lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper, rows=~free)
+        lp.start_from(prev)  # the previous frame's residual LP's optimal basis (when of the same shape)
         x = lp.solve(_lp_cost(len(cols), s=-1.0))
+        prev = lp.basis()
         if x is not None and bands.violation(x[:2]) > 0:  # the relaxation's optimum is not the frame's
             whole = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper)
             x = whole.solve(_lp_cost(len(cols), s=-1.0))

@@ -437,6 +437,19 @@ class DenseLP:
             self.status = int(status[b - 1])
         return out[:b], status[:b]
 
+    def basis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(head, state) copies of the current basis."""
+        return self.head.copy(), self.state.copy()
+
+    def start_from(self, basis: tuple[np.ndarray, np.ndarray]) -> None:
+        """Start the next solve from ``basis`` of an LP of the same shape (ignored otherwise); its
+        inverse is computed then, and a basis singular here is replaced by the slacks."""
+        head, state = basis
+        if head.shape == self.head.shape and state.shape == self.state.shape:
+            self.head[:] = head
+            self.state[:] = state
+            self.pivots[0] = -1
+
     def _restart(self) -> None:
         m, n = self.M.shape
         _slack_basis(n, m, self.lo, self.hi, self.head, self.state, self.Binv)

@@ -158,6 +158,30 @@ def test_warm_started_sweep_matches_fresh_solves() -> None:
     assert np.median(iters[1:]) < cold.iterations  # warm starts pivot less than a cold start
 
 
+def test_start_from_another_lps_basis() -> None:
+    """A frame starts from the previous frame's basis: same optimum as a cold start, also when that
+    basis is singular for the new matrix (replaced by the slacks)."""
+    rng = np.random.default_rng(8)
+    for k in range(60):
+        c, M, clo, chi, rlo, rhi = random_lp(rng, "feasible")
+        first = DenseLP(M, clo, chi, rlo, rhi)
+        first.set_cost(c)
+        first.solve()
+        M2 = M + 0.05 * rng.normal(size=M.shape) * (M != 0)
+        if k % 4 == 0:  # a basic column of the first LP is zero in the second: its basis is singular there
+            basic = first.head[first.head < M.shape[1]]
+            if len(basic):
+                M2[:, basic[0]] = 0.0
+        status, fun = reference(c, M2, clo, chi, rlo, rhi)
+        second = DenseLP(M2, clo, chi, rlo, rhi)
+        second.set_cost(c)
+        second.start_from(first.basis())
+        assert second.solve() == status
+        if status == OPTIMAL:
+            assert abs(second.objective - fun) <= 1e-9 * (1 + abs(fun))
+            check_solution(second, M2, clo, chi, rlo, rhi)
+
+
 def test_iteration_limit_reported_and_frame_lp_falls_back_to_highs(jump) -> None:
     plan, i = jump, 10
     cols = plan.contacts.columns(i)
