@@ -1,13 +1,15 @@
-"""Feasible (p̈, ṗ²) polygons of every frame by HiGHS LPs (design §8, MPS06 §3.2-3.4).
+"""Feasible (p̈, ṗ²) polygons of every frame by small LPs (design §8, MPS06 §3.2-3.4).
 
 * :func:`original_forces` — contact forces λ₀ and torques τ₀ of the original timing (p̈, ṗ²) = (0, 1)
   from an LP minimizing Σλ (root rows relaxed by the smallest residual that works); joint
   torque limits are τ₀'s peaks times a margin (MPS06 §4: limits observed from the motion).
 * :func:`feasible_polygons` — per frame, the projection onto (p̈, ṗ²) of the polytope of MPS06
   Eqn. 13 by LPs maximizing a sweep of directions, refined where edges are long (MPS06 §3.3,
-  Fig. 4), root rows bounded per row by the original timing's own residual. One HiGHS
-  instance for all frames; only the objective changes between directions (primal simplex).
-  Joint rows no contact force enters are 2-D bands in (p̈, ṗ²), cut from the swept polygon
+  Fig. 4), root rows bounded per row by the original timing's own residual. Only the
+  objective changes between directions: the dense bounded simplex of :mod:`.simplex` re-solves
+  from the previous direction's basis (a frame's first LP from the previous frame's), a few
+  pivots each, HiGHS taking over where it reports trouble (``PolygonOptions.solver = "highs"``:
+  HiGHS throughout, the reference). Joint rows no contact force enters are 2-D bands in (p̈, ṗ²), cut from the swept polygon
   exactly (:class:`HalfPlanes`) rather than carried through every LP.
 
 Cost: O(F · n_LP) LPs of (3 + nλ) columns and 12 + (joint rows a contact reaches) rows, plus
