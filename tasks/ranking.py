@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb.params import min_chain_extent
-from motionweb.tasks.search import INF, MatchSearch, nearest_matches
+from motionweb.tasks.search import INF, MatchSearch, nearest_by_clip, nearest_matches
 
 
 def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
@@ -135,16 +135,14 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
     wins = query_windows(query, max(need + 1, round(cfg.window_s * g.rate) + 1))
     direct, tiered = [], []
 
+    slots: dict[str, np.ndarray] = {}  # per clip searched: its webs' positions in ``clips``
+
     def reach(seg: Segment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cost, c, d) per clip of ``clips`` of the nearest match of ``seg``."""
         gg = ms.graph(seg.clip)
-        cost, c, d = nearest_matches(gg, seg.start, min(seg.end, gg.n_frames - 1), need, k)
-        out = np.full(len(clips), INF), np.full(len(clips), -1, np.int64), np.full(len(clips), -1, np.int64)
-        for w, other in enumerate(gg.others):
-            i = index.get(other)
-            if i is not None and other != seg.clip and cost[w] < out[0][i]:
-                out[0][i], out[1][i], out[2][i] = cost[w], c[w], d[w]
-        return out
+        if seg.clip not in slots:
+            slots[seg.clip] = np.array([-1 if o == seg.clip else index.get(o, -1) for o in gg.others], np.int64)
+        return nearest_by_clip(gg, seg.start, min(seg.end, gg.n_frames - 1), slots[seg.clip], len(clips), need, k)
 
     for win in wins:
         dist, c, d = reach(win)

@@ -398,10 +398,12 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
 
 
 @njit(cache=True)
-def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a, b, min_span, slope_k):
+def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a, b, min_span, slope_k, slots, n_slots):
     """Per web, the least average value of a walk across rows a..b (KG04 §3.3 walks, from the
     earliest row-a cell of any path to the last cell of a row-b run), with the first and last
-    columns of that walk: (averages (W,), c (W,), d (W,)); ∞ and −1 for a web with no walk.
+    columns of that walk, reduced over the webs of each slot: per slot s the least over the webs
+    w with ``slots[w] == s`` (the first such web on ties; webs with a negative slot are not
+    searched): (averages (n_slots,), c, d); ∞ and −1 for a slot with no walk.
 
     All starts of a web at once, by Dinkelbach's method: λ ← the least average found so far
     (λ = 0 at first), one shortest-path pass of (value − λ) over the web's states of rows a..b in
@@ -409,12 +411,13 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
     average stops falling. Cost O(S · passes) for the S states of all webs in rows a..b (two to
     four passes), independent of how many paths cross row a."""
     n_webs, n_frames = web_rows.shape[0], web_rows.shape[1] - 1
-    best = np.full(n_webs, INF)
-    bc = np.full(n_webs, -1, np.int64)
-    bd = np.full(n_webs, -1, np.int64)
+    best = np.full(n_slots, INF)
+    bc = np.full(n_slots, -1, np.int64)
+    bd = np.full(n_slots, -1, np.int64)
     band = 0
     for w in range(n_webs):
-        band = max(band, web_rows[w, b + 1] - web_rows[w, a])
+        if slots[w] >= 0:
+            band = max(band, web_rows[w, b + 1] - web_rows[w, a])
     cost = np.empty(band, np.float64)  # per web, indexed by state − web_rows[w, a]
     total = np.empty(band, np.float64)
     length = np.empty(band, np.int64)
@@ -423,12 +426,13 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
     for w in range(n_webs):
         e0 = start_off[w * n_frames + a]
         e1 = start_off[w * n_frames + a + 1]
-        if e0 == e1:
+        if e0 == e1 or slots[w] < 0:
             continue
         lo = web_rows[w, a]
         hi = web_rows[w, b + 1]
         lam = 0.0
         first = True
+        bw, bcw, bdw = INF, -1, -1
         while True:
             cost[:hi - lo] = INF
             for e in range(e0, e1):
@@ -437,7 +441,6 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
                 total[s0 - lo] = values[s0]
                 length[s0 - lo] = 1
                 src[s0 - lo] = cols[s0]
-            bw = best[w]
             for s in range(lo, hi):  # successors: see _collect
                 u = s - lo
                 cu = cost[u]
@@ -452,8 +455,8 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
                     if (rows[s] == b and total[u] / length[u] < bw and span >= min_span
                             and rows_ab <= slope_k * (span + 1) and span + 1 <= slope_k * rows_ab):
                         bw = total[u] / length[u]
-                        bc[w] = src[u]
-                        bd[w] = cols[s]
+                        bcw = src[u]
+                        bdw = cols[s]
                     continue
                 if 0 <= t < hi:  # states past row b are never part of a walk of rows a..b
                     v = t - lo
@@ -473,11 +476,12 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
                             total[v] = total[u] + values[t]
                             length[v] = length[u] + 1
                             src[v] = src[u]
-            best[w] = bw
             if bw == INF or not (first or bw < lam - 1e-12 * max(abs(lam), 1e-30)):
                 break
             first = False
             lam = bw
+        if bw < best[slots[w]]:
+            best[slots[w]], bc[slots[w]], bd[slots[w]] = bw, bcw, bdw
     return best, bc, bd
 
 
@@ -794,5 +798,15 @@ def nearest_matches(graph: WalkGraph, a: int, b: int, min_span: int = 0, slope_k
     best valid walk its passes meet: exact without the rules (the defaults), with them an upper
     bound (a valid walk is missed only when an invalid one beats it at its terminal in every
     pass). Cost: see :func:`_nearest`."""
+    n = len(graph.others)
+    return nearest_by_clip(graph, a, b, np.arange(n), n, min_span, slope_k)
+
+
+def nearest_by_clip(graph: WalkGraph, a: int, b: int, slots: np.ndarray, n_slots: int, min_span: int = 0,
+                    slope_k: int = 1 << 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`nearest_matches` reduced to ``n_slots`` slots (e.g. clips): per slot s, the least
+    average over the webs w with ``slots[w] == s`` (the first such web on ties), with its c and
+    d; ∞ / −1 where none. Webs with ``slots[w] < 0`` (e.g. the query's own clip) are not searched."""
     return _nearest(graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to,
-                    graph.web_rows, graph.start_off, graph.starts, int(a), int(b), int(min_span), int(slope_k))
+                    graph.web_rows, graph.start_off, graph.starts, int(a), int(b), int(min_span), int(slope_k),
+                    np.asarray(slots, np.int64), int(n_slots))

@@ -21,6 +21,7 @@ from motionweb.tasks.search import (
     MatchSearch,
     SearchParams,
     epsilon_from_quantile,
+    nearest_by_clip,
     nearest_matches,
     place_matches,
     remove_redundant,
@@ -392,6 +393,25 @@ def test_nearest_match_is_the_least_average_walk(tangled_web) -> None:
             else:
                 assert not ok or min(ok.values()) > least
     assert n > 100  # the rules rarely cost the exact answer
+
+
+def test_nearest_by_clip_is_the_least_over_each_clips_webs(tangled_web) -> None:
+    """The per-clip reduction in the kernel = the least of :func:`nearest_matches` over each slot's
+    webs (the first web on ties), skipped webs never counted."""
+    web = tangled_web
+    g = walk_graph([("a", web), ("b", transpose(web)), ("a", transpose(web)), ("c", web)])
+    for slots in ([0, 1, 0, 2], [1, -1, 1, 0], [-1, -1, -1, -1]):
+        for a, b in [(0, 20), (5, 30), (12, 40), (30, 49)]:
+            per_web = nearest_matches(g, a, b, 6, 3)
+            ref = np.full(3, np.inf), np.full(3, -1), np.full(3, -1)
+            for w, s in enumerate(slots):
+                if s >= 0 and per_web[0][w] < ref[0][s]:
+                    for k in range(3):
+                        ref[k][s] = per_web[k][w]
+            got = nearest_by_clip(g, a, b, np.array(slots), 3, 6, 3)
+            for x, y in zip(got, ref):
+                assert np.array_equal(x, y)
+    assert np.isfinite(nearest_by_clip(g, 5, 30, np.array([0, 1, 0, 2]), 3)[0]).all()
 
 
 def test_default_epsilon_and_ranking_find_the_planted_copies(planted) -> None:
