@@ -184,11 +184,12 @@ def evaluate(name: str, fn: Callable[[Segment], tuple[list[str], list[str] | Non
     """Run ``fn`` (query -> (ranking of trials, returned set or None)) on every query, warm."""
     fn(queries[0])
     aps: dict[str, list[float]] = {}
-    prec, rec, times = [], [], []
+    prec, rec, times, cpu = [], [], [], []
     for q in queries:
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         ranking, returned = fn(q)
         times.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
         cat = lib.category[q.clip]
         relevant = {c for c in lib.clips if lib.category[c] == cat and c != q.clip}
         full = full_ranking(ranking, lib, q.clip)
@@ -198,7 +199,9 @@ def evaluate(name: str, fn: Callable[[Segment], tuple[list[str], list[str] | Non
         rec.append(len(got & relevant) / len(relevant))
     row = {"name": name, "ap": {c: float(np.mean(v)) for c, v in aps.items()},
            "all": float(np.mean([x for v in aps.values() for x in v])), "precision": float(np.mean(prec)),
-           "recall": float(np.mean(rec)), "ms": 1e3 * float(np.mean(times)), "ms_max": 1e3 * float(np.max(times))}
+           "recall": float(np.mean(rec)), "ms": 1e3 * float(np.mean(times)), "ms_max": 1e3 * float(np.max(times)),
+           "ms_p90": 1e3 * float(np.quantile(times, 0.9)), "cpu": 1e3 * float(np.mean(cpu)),
+           "cpu_p90": 1e3 * float(np.quantile(cpu, 0.9)), "cpu_max": 1e3 * float(np.max(cpu))}
     return row
 
 
@@ -210,6 +213,34 @@ def print_rows(rows: list[dict], queries: list[Segment], lib: Library) -> None:
         aps = " ".join(f"{r['ap'].get(c, float('nan')):9.3f}" for c in CATEGORIES)
         print(f"{r['name']:34s} {aps} {r['all']:6.3f} {r['precision']:6.3f} {r['recall']:6.3f} "
               f"{r['ms']:8.1f} {r['ms_max']:7.1f}")
+    print(f"\ntime per query, ms (wall; CPU of this process, the machine being shared): "
+          f"mean / p90 / max, load {os.getloadavg()[0]:.1f}")
+    for r in rows:
+        print(f"  {r['name']:34s} wall {r['ms']:7.1f} / {r['ms_p90']:7.1f} / {r['ms_max']:7.1f}   "
+              f"CPU {r['cpu']:7.1f} / {r['cpu_p90']:7.1f} / {r['cpu_max']:7.1f}")
+
+
+def kernel_cost(queries: list[Segment], ms: MatchSearch) -> None:
+    """CPU per call of the nearest-match kernel over the queries' windows (one tier's work)."""
+    from motionweb.tasks.matchweb.params import min_chain_extent
+    from motionweb.tasks.ranking import query_windows
+    from motionweb.tasks.search import nearest_by_clip
+
+    calls = []
+    for q in queries:
+        g = ms.graph(q.clip)
+        need = min_chain_extent(ms.web_cfg, g.rate)
+        slots = np.array([-1 if o == q.clip else 0 for o in g.others], np.int64)
+        wins = query_windows(q, max(need + 1, round(ms.cfg.window_s * g.rate) + 1))
+        for w in wins:
+            nearest_by_clip(g, w.start, w.end, slots, 1, need, ms.web_cfg.slope_k)  # warm
+            c = time.process_time()
+            for _ in range(5):
+                nearest_by_clip(g, w.start, w.end, slots, 1, need, ms.web_cfg.slope_k)
+            calls.append((time.process_time() - c) / 5)
+    print(f"nearest-match kernel (nearest_by_clip) per query window: {1e3 * np.mean(calls):.3f} ms CPU mean, "
+          f"{1e3 * np.quantile(calls, 0.9):.3f} p90, {1e3 * np.max(calls):.3f} max over {len(calls)} windows "
+          f"({len(calls) / len(queries):.1f} per query)")
 
 
 def manifest_descriptions(root: Path) -> dict[str, str]:
@@ -303,6 +334,7 @@ def main() -> None:
     rows.append(evaluate("subsequence DTW (dtaidistance, C)", lambda q: (dtw_rank(q, lib), None), queries, lib))
     print()
     print_rows(rows, queries, lib)
+    kernel_cost(queries, ms)
     tier_examples(queries, lib, ms, manifest_descriptions(root))
 
 

@@ -149,8 +149,9 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
         if not np.isfinite(dist).any():
             continue
         direct.append(dist)
-        frontier = [(i, int(c[i]), int(d[i]), float(dist[i])) for i in np.argsort(dist, kind="stable")
-                    if np.isfinite(dist[i])]
+        near = np.argsort(dist, kind="stable")
+        near = near[np.isfinite(dist[near])]
+        frontier = list(zip(near.tolist(), c[near].tolist(), d[near].tolist(), dist[near].tolist()))
         for _ in range(2, tiers + 1):
             nodes, noded = [], set()
             for i, ci, di, cost in frontier:  # least distance first: a clip's first entry is its best
@@ -163,7 +164,8 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
                 hop = np.maximum(hop, cost)
                 better = hop < dist
                 dist = np.where(better, hop, dist)
-                frontier += [(j, int(hc[j]), int(hd[j]), float(hop[j])) for j in np.nonzero(better)[0]]
+                j = np.nonzero(better)[0]
+                frontier += zip(j.tolist(), hc[j].tolist(), hd[j].tolist(), hop[j].tolist())
             frontier.sort(key=lambda x: x[3])
             if not frontier:
                 break

@@ -411,9 +411,12 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
     average stops falling. Cost O(S · passes) for the S states of all webs in rows a..b (two to
     four passes), independent of how many paths cross row a."""
     n_webs, n_frames = web_rows.shape[0], web_rows.shape[1] - 1
-    best = np.full(n_slots, INF)
-    bc = np.full(n_slots, -1, np.int64)
-    bd = np.full(n_slots, -1, np.int64)
+    best = np.empty(n_slots)  # (np.full with a dtype costs a Python call per use in numba)
+    bc = np.empty(n_slots, np.int64)
+    bd = np.empty(n_slots, np.int64)
+    best[:] = INF
+    bc[:] = -1
+    bd[:] = -1
     band = 0
     for w in range(n_webs):
         if slots[w] >= 0:
