@@ -38,11 +38,10 @@ BLAND_AFTER = 30  # consecutive degenerate pivots before switching to Bland's ru
 @njit(cache=True)
 def _column(M: np.ndarray, j: int, out: np.ndarray) -> None:
     """Column j of [M, −I] into out (m,)."""
-    n = M.shape[1]
-    if j < n:
-        out[:] = M[:, j]
-    else:
-        out[:] = 0.0
+    m, n = M.shape
+    for i in range(m):
+        out[i] = M[i, j] if j < n else 0.0
+    if j >= n:
         out[j - n] = -1.0
 
 
@@ -54,10 +53,11 @@ def _invert(M: np.ndarray, head: np.ndarray, Binv: np.ndarray) -> bool:
     col = np.zeros(m)
     for k in range(m):
         _column(M, head[k], col)
-        B[:, k] = col
-    Binv[:, :] = 0.0
+        for i in range(m):
+            B[i, k] = col[i]
     for i in range(m):
-        Binv[i, i] = 1.0
+        for c in range(m):
+            Binv[i, c] = 1.0 if i == c else 0.0
     for k in range(m):
         p, best = k, abs(B[k, k])
         for i in range(k + 1, m):
@@ -67,8 +67,12 @@ def _invert(M: np.ndarray, head: np.ndarray, Binv: np.ndarray) -> bool:
             return False
         if p != k:
             for c in range(m):
-                B[k, c], B[p, c] = B[p, c], B[k, c]
-                Binv[k, c], Binv[p, c] = Binv[p, c], Binv[k, c]
+                t = B[k, c]
+                B[k, c] = B[p, c]
+                B[p, c] = t
+                t = Binv[k, c]
+                Binv[k, c] = Binv[p, c]
+                Binv[p, c] = t
         piv = B[k, k]
         for c in range(m):
             B[k, c] /= piv
@@ -126,9 +130,9 @@ def _slack_basis(n: int, m: int, lo: np.ndarray, hi: np.ndarray, head: np.ndarra
     for i in range(m):
         head[i] = n + i
         state[n + i] = BASIC
-    Binv[:, :] = 0.0
     for i in range(m):
-        Binv[i, i] = -1.0
+        for c in range(m):
+            Binv[i, c] = -1.0 if i == c else 0.0
 
 
 @njit(cache=True)
@@ -350,12 +354,14 @@ def simplex_sequence(M: np.ndarray, lo: np.ndarray, hi: np.ndarray, cost: np.nda
     k = costs.shape[1]
     signed = np.empty(n)
     for b in range(costs.shape[0]):
-        cost[:k] = costs[b]
+        for j in range(k):
+            cost[j] = costs[b, j]
         for j in range(n):
             signed[j] = sign * cost[j]
         st, _ = simplex(M, lo, hi, signed, head, state, x, Binv, pivots, max_iter)
         status[b] = st
-        out[b] = x[:n]
+        for j in range(n):
+            out[b, j] = x[j]
         if st == ITERATION_LIMIT or st == NUMERICAL or (stop_at_first and st != OPTIMAL):
             return b + 1
     return costs.shape[0]
