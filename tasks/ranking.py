@@ -149,9 +149,11 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
         if not np.isfinite(dist).any():
             continue
         direct.append(dist)
-        near = np.argsort(dist, kind="stable")
-        near = near[np.isfinite(dist[near])]
-        frontier = list(zip(near.tolist(), c[near].tolist(), d[near].tolist(), dist[near].tolist()))
+        frontier = []
+        if tiers > 1:
+            near = np.argsort(dist, kind="stable")
+            near = near[np.isfinite(dist[near])]
+            frontier = list(zip(near.tolist(), c[near].tolist(), d[near].tolist(), dist[near].tolist()))
         for _ in range(2, tiers + 1):
             nodes, noded = [], set()
             for i, ci, di, cost in frontier:  # least distance first: a clip's first entry is its best

@@ -430,15 +430,15 @@ def dynamics_terms(body: BodyModel, motion: Motion, smoothing_s: float = 0.0) ->
     q = configurations(body, motion)
     dq, ddq = path_derivatives(body, q, motion.fps, smoothing_s)
     f, nv, nb = q.shape[0], m.nv, body.n_bodies
-    pi = body.params[:, :, None]  # (B, 10, 1)
+    pi = body.params  # (B, 10)
     zero = np.zeros(nv)
     reg = pin.computeJointTorqueRegressor
     a = np.empty((f, nv, nb))
     b = np.empty((f, nv, nb))
     m.gravity = pin.Motion.Zero()
-    for i in range(f):  # (nv, B, 1, 10) @ (B, 10, 1): each body's 10 columns with its own parameters
-        a[i] = (reg(m, d, q[i], zero, dq[i]).reshape(nv, nb, 1, 10) @ pi)[:, :, 0, 0]
-        b[i] = (reg(m, d, q[i], dq[i], ddq[i]).reshape(nv, nb, 1, 10) @ pi)[:, :, 0, 0]
+    for i in range(f):  # (nv, B, 10) · (B, 10): each body's 10 columns with its own parameters
+        np.einsum("vbk,bk->vb", reg(m, d, q[i], zero, dq[i]).reshape(nv, nb, 10), pi, out=a[i])
+        np.einsum("vbk,bk->vb", reg(m, d, q[i], dq[i], ddq[i]).reshape(nv, nb, 10), pi, out=b[i])
     m.gravity = pin.Motion(np.concatenate([body.default_gravity(), np.zeros(3)]))
     return DynamicsTerms(q=q, dq=dq, ddq=ddq, a=a, b=b, c=gravity_terms(body, q), fps=float(motion.fps))
 
