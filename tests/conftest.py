@@ -16,21 +16,23 @@ def mocap_dir() -> Path:
     return root
 
 
+def _real_set(root: Path, name: str, marker: str, what: str) -> Path:
+    """The set ``root / name`` of the real data, skipping the test where its ``marker`` file is absent."""
+    d = root / name
+    if not (d / marker).is_file():
+        pytest.skip(f"{what} not found under {d} (set {ENV_VAR})")
+    return d
+
+
 @pytest.fixture(scope="session")
 def deepmimic_dir(mocap_dir: Path) -> Path:
-    d = mocap_dir / "deepmimic"
-    if not (d / "humanoid.urdf").is_file():
-        pytest.skip(f"DeepMimic clips not found under {d} (set {ENV_VAR})")
-    return d
+    return _real_set(mocap_dir, "deepmimic", "humanoid.urdf", "DeepMimic clips")
 
 
 @pytest.fixture(scope="session")
 def cmu_dir(mocap_dir: Path) -> Path:
     """The CMU folder of the real data (``manifest.csv``, ``asf_amc/``, ``bvh/``)."""
-    d = mocap_dir / "cmu"
-    if not (d / "manifest.csv").is_file():
-        pytest.skip(f"CMU files not found under {d} (set {ENV_VAR})")
-    return d
+    return _real_set(mocap_dir, "cmu", "manifest.csv", "CMU files")
 
 
 @pytest.fixture(scope="session")
