@@ -516,3 +516,33 @@ def ref_place(nodes: list, matches: list, new_below: float, merge_above: float) 
         else:
             out.append(None)
     return out
+
+
+def in_convex(v: np.ndarray, pt: np.ndarray, tol: float = 1e-9) -> bool:
+    """Whether ``pt`` lies in the convex counter-clockwise polygon ``v`` (K, 2), a segment or a point."""
+    if len(v) == 1:
+        return bool(np.abs(v[0] - pt).max() <= tol)
+    if len(v) == 2 or abs((v[1, 0] - v[0, 0]) * (v[2, 1] - v[0, 1]) - (v[1, 1] - v[0, 1]) * (v[2, 0] - v[0, 0])) < 1e-15:
+        a, b = v[0], v[-1]
+        t = np.clip(np.dot(pt - a, b - a) / max(np.dot(b - a, b - a), 1e-300), 0, 1)
+        return bool(np.linalg.norm(a + t * (b - a) - pt) <= tol)
+    nxt = np.roll(v, -1, axis=0)
+    cross = (nxt[:, 0] - v[:, 0]) * (pt[1] - v[:, 1]) - (nxt[:, 1] - v[:, 1]) * (pt[0] - v[:, 0])
+    return bool((cross >= -tol).all())
+
+
+def grid_fastest(vertices: list[np.ndarray], fps: float, grid: np.ndarray) -> float:
+    """The shortest duration over every profile of ṗ² values on ``grid`` at each frame (exhaustive):
+    frame i's (p̈, ṗ²) = ((x_{i+1} − x_i) fps / 2, x_i) must lie in its polygon, the last frame's
+    ṗ² within its polygon's range of ṗ². O(F · G²) pairs, combined exhaustively (G^F profiles)."""
+    f, d = len(vertices), 1.0 / fps
+    ok = [np.array([[in_convex(vertices[i], np.array([(b - a) / (2 * d), a])) for b in grid] for a in grid])
+          for i in range(f - 1)]
+    last = (grid >= vertices[-1][:, 1].min()) & (grid <= vertices[-1][:, 1].max())
+    best = np.inf
+    for prof in itertools.product(range(len(grid)), repeat=f):
+        if not last[prof[-1]] or not all(ok[i][prof[i], prof[i + 1]] for i in range(f - 1)):
+            continue
+        s = np.sqrt(grid[list(prof)])
+        best = min(best, float((2 * d / (s[1:] + s[:-1])).sum()))
+    return best

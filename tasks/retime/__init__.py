@@ -6,6 +6,7 @@
 * :mod:`.objective` — the fan-baked objective of MPS06 Eqn. 14 and its compiled kernels (§3.4, §3.6);
 * :mod:`.spline` — the monotone timing spline p(t) and its L-BFGS-B optimizer (MPS06 §3.5-3.6);
 * :mod:`.pipeline` — :class:`RetimeParams`, :func:`prepare` and :func:`retime_plan` end to end;
+* :mod:`.reachable` — the shortest timing inside every polygon (TOPP-RA reachability on the path);
 * :mod:`.report` — flights, contact phases, feasibility and the shortest reachable duration.
 
 The names below are the public API used by the flows and the benchmarks.

@@ -13,6 +13,7 @@ from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
 from motionweb.tasks.retime.objective import contact_lambda
 from motionweb.tasks.retime.pipeline import RetimePlan
 from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, closest_point
+from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.spline import RetimeResult
 
 #: a joint turning faster than this within a frame's derivative window is named as a likely capture
@@ -22,18 +23,13 @@ GLITCH_DEG_PER_S = 5000.0
 
 
 def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
-    """A lower bound on the duration of any timing that stays inside every polygon (MPS06 §3.3).
-
-    Each frame's polygon bounds ṗ² from above; playing every source interval at the largest ṗ
-    its two end frames allow (trapezoid rule on 1/ṗ_max) ignores the coupling through p̈, so
-    no feasible timing is shorter (``inf`` when some frame allows no motion). A requested
-    duration below it must leave the polygons somewhere. O(Σ K).
+    """The shortest duration of any timing that stays inside every polygon (MPS06 §3.3), exact for
+    the polygons (:func:`.reachable.fastest_timing`); ``inf`` when no timing stays inside them all
+    (an empty polygon, or a frame no timing can leave inside). A requested duration below it must
+    leave the polygons somewhere. O(F · K).
     """
-    top = np.array([v[:, 1].max() if len(v) else 0.0 for v in polys.vertices])
-    if np.any(top <= 0):
-        return float("inf")
-    inv = 1.0 / np.sqrt(top)
-    return float(0.5 * (inv[1:] + inv[:-1]).sum() / fps)
+    fastest = fastest_timing(polys, fps)
+    return fastest.duration if fastest.inside else float("inf")
 
 
 def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:
@@ -150,14 +146,22 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
 def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str, Any]:
     """Whether the requested timing was met, with the shortest duration reachable inside the polygons.
 
-    A duration below :func:`shortest_duration` cannot stay inside the feasible polygons; the
-    optimum then leaves them (``outside`` output frames) and the message says so.
+    A duration below the shortest (:func:`.reachable.fastest_timing`) cannot stay inside the
+    feasible polygons; the optimum then leaves them (``outside`` output frames) and the message
+    says so. Where no timing stays inside every polygon, the message names the frames where the
+    chain breaks and ``shortest_feasible_duration`` is None. Met: not shorter than the shortest,
+    and ≤ 10 % of the output frames outside their polygon.
     """
-    bound = shortest_duration(plan.polygons, plan.motion.fps)
+    fastest = fastest_timing(plan.polygons, plan.motion.fps)
+    bound = fastest.duration
     dur = float(res.t[-1])
     n = len(res.t)
     met = dur >= bound and outside <= 0.1 * n
-    if dur < bound:
+    if not fastest.inside:
+        where = ", ".join(str(i) for i in fastest.broken[:5]) + (" ..." if len(fastest.broken) > 5 else "")
+        msg = (f"no timing stays inside every polygon (no way on inside from source frames {where}); "
+               f"{outside} of {n} output frames lie outside theirs")
+    elif dur < bound:
         msg = (f"unreachable: {dur:.3f} s is shorter than the shortest duration any timing inside the feasible "
                f"polygons can reach, {bound:.3f} s; the result leaves its polygons on {outside} of {n} frames")
     elif not met:
@@ -165,7 +169,8 @@ def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str,
                f"(no timing inside them is shorter than {bound:.3f} s)")
     else:
         msg = f"met: {n - outside} of {n} output frames inside their polygon (shortest reachable {bound:.3f} s)"
-    return {"met": bool(met), "requested_duration": dur, "shortest_feasible_duration": bound, "message": msg}
+    return {"met": bool(met), "requested_duration": dur,
+            "shortest_feasible_duration": bound if fastest.inside else None, "message": msg}
 
 
 def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
@@ -207,6 +212,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         flights.append({"source": [s0, s1], "output": [o0, o1], "source_duration": s1 - s0,
                         "output_duration": o1 - o0, "ratio": (o1 - o0) / (s1 - s0)})
     polys = plan.polygons
+    reach = reachability(plan, res, len(outside))
     return {
         "clip": m.name, "frames_in": m.n_frames, "frames_out": len(res.t), "fps": m.fps,
         "duration_in": m.duration, "duration_out": float(res.t[-1]),
@@ -216,7 +222,6 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "objective": float(res.objective), "converged": res.converged, "iterations": res.iterations,
         "contacts": cont.intervals(m.fps), "contacts_detected": cont.detected, "flights": flights,
         "phase_seconds": {k: {"source": s, "output": o} for k, (s, o) in phase_times(cont, res, m.fps).items()},
-        "shortest_feasible_duration": shortest_duration(polys, m.fps),
         "infeasible_source_frames": np.flatnonzero(polys.infeasible).tolist(),
         "original_timing_outside_polygon": np.flatnonzero(~polys.original_inside).tolist(),
         "infeasible_output_frames": outside,
@@ -225,7 +230,8 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
                               "source": plan.limit_sources.get(n, "")}
                           for j, n in enumerate(plan.body.skeleton.names) if j},
         "original_timing": original_feasibility(plan),
-        "reachable": reachability(plan, res, len(outside)),
+        "shortest_feasible_duration": reach["shortest_feasible_duration"],
+        "reachable": reach,
         "timings_s": {**plan.timings, "optimize": res.seconds},
         "frames": frames,
     }

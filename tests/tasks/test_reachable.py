@@ -1,0 +1,77 @@
+"""The shortest timing inside the feasible polygons (TOPP-RA): a closed form, broken chains and an
+exhaustive reference (tests/naive.py); 16_06 (MPS06 Fig. 1) is in test_retime_cmu.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from motionweb.tasks.retime.polygons import FeasiblePolygons
+from motionweb.tasks.retime.reachable import fastest_timing
+from motionweb.tasks.retime.report import shortest_duration
+from naive import grid_fastest, in_convex
+
+
+def polygons(vertices: list[np.ndarray]) -> FeasiblePolygons:
+    f = len(vertices)
+    return FeasiblePolygons(vertices=vertices, lambdas=[np.zeros((len(v), 1)) for v in vertices],
+                            center=np.tile([0.0, 1.0], (f, 1)), center_lambda=np.zeros((f, 1)), residual=np.zeros(f),
+                            tolerance=np.zeros((f, 6)), infeasible=np.zeros(f, bool),
+                            original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0)
+
+
+def box(amax: float, x0: float, x1: float) -> np.ndarray:
+    return np.array([[-amax, x0], [amax, x0], [amax, x1], [-amax, x1]])
+
+
+def test_bang_bang_between_two_normal_speed_frames() -> None:
+    """|p̈| ≤ a, ṗ² ≤ X, first and last frame at ṗ = 1: accelerate at a, cruise at √X, brake at a
+    (the continuous bang-bang solution, exact when the switches fall on frames)."""
+    fps, a, X, f = 100.0, 5.0, 4.0, 301
+    verts = [box(a, 1.0, 1.0)] + [box(a, 0.0, X)] * (f - 2) + [box(a, 1.0, 1.0)]
+    t = fastest_timing(polygons(verts), fps)
+    u = np.arange(f) / fps
+    want = np.minimum.reduce([np.full(f, X), 1 + 2 * a * u, 1 + 2 * a * (u[-1] - u)])
+    np.testing.assert_allclose(t.x, want, atol=1e-9)
+    ramp = (np.sqrt(X) - 1) / a  # each ramp: (X − 1) / 2a = 0.3 s of source, 30 frames
+    assert t.duration == pytest.approx(2 * ramp + (u[-1] - (X - 1) / a) / np.sqrt(X), rel=1e-9)
+    assert t.inside and not len(t.broken)
+
+
+def test_an_unreachable_frame_breaks_the_chain() -> None:
+    """A frame that must play at ṗ² ≥ 9 right after one capped at 1 with |p̈| ≤ 1 cannot be
+    reached inside; an empty polygon neither: both are named and the duration is inf."""
+    fps = 100.0
+    verts = [box(1.0, 0.5, 1.0)] * 5 + [box(1.0, 9.0, 9.5)] + [box(1.0, 0.5, 1.0)] * 5
+    t = fastest_timing(polygons(verts), fps)
+    assert not t.inside and 4 in t.broken.tolist()
+    assert shortest_duration(polygons(verts), fps) == np.inf
+    empty = [box(1.0, 0.5, 1.0)] * 4 + [np.zeros((0, 2))] + [box(1.0, 0.5, 1.0)] * 4
+    t = fastest_timing(polygons(empty), fps)
+    assert not t.inside and 4 in t.broken.tolist()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_polygons_against_an_exhaustive_search(seed: int) -> None:
+    """Random convex polygons (and a thin sliver): the profile lies in every polygon, is no longer
+    than the best of all ṗ² profiles on a grid and no shorter than every frame at its top speed."""
+    rng = np.random.default_rng(seed)
+    fps, f = 10.0, 4
+    verts = []
+    for i in range(f):
+        if i == 2 and seed % 2:  # a thin flight-like sliver
+            c = rng.uniform(0.8, 2.0)
+            verts.append(np.array([[-0.3, c - 0.2], [0.3, c], [0.3, c + 0.2], [-0.3, c]]))
+            continue
+        ang = np.sort(rng.uniform(0, 2 * np.pi, 7))
+        pts = np.stack([rng.uniform(2, 6) * np.cos(ang), 1.5 + rng.uniform(0.5, 1.4) * np.sin(ang)], axis=1)
+        verts.append(pts)
+    t = fastest_timing(polygons(verts), fps)
+    assert t.inside
+    for i in range(f - 1):
+        assert in_convex(verts[i], np.array([(t.x[i + 1] - t.x[i]) * fps / 2, t.x[i]]), tol=1e-7), i
+    assert verts[-1][:, 1].min() - 1e-9 <= t.x[-1] <= verts[-1][:, 1].max() + 1e-9
+    grid = np.linspace(0.05, 3.0, 16)
+    best = grid_fastest(verts, fps, grid)
+    assert np.isfinite(best) and t.duration <= best + 1e-9
+    top = np.sqrt([v[:, 1].max() for v in verts])  # each frame at its own top speed: a lower bound
+    assert t.duration >= (2 / fps / (top[1:] + top[:-1])).sum() - 1e-12
