@@ -28,6 +28,7 @@ from motionweb.tasks.retime.dynamics import (
     mass_factors,
 )
 from motionweb.tasks.retime.errors import RetimeError
+from motionweb.tasks.retime.glitches import Glitch, repair_glitches
 from motionweb.tasks.retime.limits import table_limits
 from motionweb.tasks.retime.objective import BakedObjective, bake
 from motionweb.tasks.retime.polygons import (
@@ -71,6 +72,9 @@ class RetimeParams(Params):
     #: per joint name, a limit (N·m) overriding the table
     torque_limits: dict[str, float] = Field(default_factory=dict)
     torque_margin: float = 1.5
+    #: mend capture glitches (one-frame joint turns faster than glitches.GLITCH_DEG_PER_S: spikes,
+    #: steps at a clip end) in the path the dynamics are computed from; the output keeps them
+    repair_glitches: bool = True
     #: half-width (s) of the local quadratic fit giving q', q'' (dynamics.path_derivatives); at
     #: 120 fps ±10 frames (q'' gain halves at ~5.5 Hz), at 30 fps ±2 frames
     smoothing_s: float = 0.08
@@ -121,7 +125,8 @@ class RetimePlan:
     """Everything precomputed for one clip and one physics setting (reused across timings).
 
     ``A, B, C`` are the recombined path-dynamics terms under the new gravity / masses; ``original``
-    the forces of the unmodified clip (targets of the 'match' objective and torque limits).
+    the forces of the unmodified clip (targets of the 'match' objective and torque limits);
+    ``glitches`` the capture glitches mended in the path the dynamics are computed from.
     """
 
     motion: Motion
@@ -138,6 +143,7 @@ class RetimePlan:
     baked: BakedObjective
     timings: dict[str, float]
     limit_sources: dict[str, str] = field(default_factory=dict)
+    glitches: list[Glitch] = field(default_factory=list)
 
 
 def humanoid_foot_corners(humanoid: Any, skeleton: Skeleton) -> dict[int, np.ndarray]:
@@ -167,7 +173,8 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up,
                           humanoid=humanoid)
     factors = mass_factors(body, mass or {})
-    terms = dynamics_terms(body, motion, opts.smoothing_s)
+    path, glitches = repair_glitches(motion) if opts.repair_glitches else (motion, [])
+    terms = dynamics_terms(body, path, opts.smoothing_s)
     tm["dynamics"] = time.perf_counter() - t
     t = time.perf_counter()
     corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
@@ -208,7 +215,7 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     tm["bake"] = time.perf_counter() - t
     return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors, A=A, B=B,
                       C=C, original=original, polygons=polys, baked=baked, timings=tm,
-                      limit_sources=sources)
+                      limit_sources=sources, glitches=glitches)
 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,

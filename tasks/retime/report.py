@@ -10,16 +10,12 @@ from typing import Any
 
 import numpy as np
 from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
+from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
 from motionweb.tasks.retime.pipeline import RetimePlan
 from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, closest_point
 from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.spline import RetimeResult
-
-#: a joint turning faster than this within a frame's derivative window is named as a likely capture
-#: glitch in the report (subject 16's toes and hands peak at ~2,900 °/s; the arm glitches at the
-#: starts of 16_15, 16_23, 16_28 turn 10,000-11,300 °/s, e.g. 16_28's rhumerus 84° in one frame)
-GLITCH_DEG_PER_S = 5000.0
 
 
 def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
@@ -85,9 +81,7 @@ def largest_step(rotations: np.ndarray, frame: int, half: int) -> tuple[float, i
     lo, hi = max(frame - half, 0), min(frame + half, len(rotations) - 1)
     if hi <= lo:
         return 0.0, frame
-    q = rotations[lo:hi + 1]
-    dot = np.abs(np.sum(q[1:] * q[:-1], axis=-1)) / (np.linalg.norm(q[1:], axis=-1) * np.linalg.norm(q[:-1], axis=-1))
-    ang = 2.0 * np.degrees(np.arccos(np.clip(dot, 0.0, 1.0)))
+    ang = step_degrees(rotations[lo:hi + 1])
     k = int(np.argmax(ang))
     return float(ang[k]), lo + k + 1
 
@@ -224,6 +218,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "phase_seconds": {k: {"source": s, "output": o} for k, (s, o) in phase_times(cont, res, m.fps).items()},
         "infeasible_source_frames": np.flatnonzero(polys.infeasible).tolist(),
         "original_timing_outside_polygon": np.flatnonzero(~polys.original_inside).tolist(),
+        "glitches_mended": [g.describe() for g in plan.glitches],
         "infeasible_output_frames": outside,
         "root_residual_source": polys.residual.round(4).tolist(),
         "torque_limits": {n: {"limit": float(plan.original.limits[plan.body.joint_dofs(j).start]),
