@@ -28,51 +28,51 @@ FLOOR_FRACTION = 0.02
 
 #: N·m for a 70 kg body, by ASF joint name (the joint's torque acts on the body it carries)
 CMU_TORQUE_LIMITS: dict[str, float] = {
-    "lhipjoint": 323.7,  # highest frame 5279.6 in 16_15
-    "lfemur": 279.0,  # highest frame 4522.8 in 16_15
-    "ltibia": 267.2,  # highest frame 1418.6 in 16_15
-    "lfoot": 313.8,  # highest frame 306.2 in 16_08
-    "ltoes": 6.5,  # highest frame 0.3 in 16_45
-    "rhipjoint": 323.7,  # highest frame 1203.9 in 16_15
-    "rfemur": 279.0,  # highest frame 1426.1 in 16_15
-    "rtibia": 267.2,  # highest frame 675.8 in 16_15
-    "rfoot": 313.8,  # highest frame 398.9 in 16_15
-    "rtoes": 6.5,  # highest frame 0.4 in 16_55
-    "lowerback": 262.0,  # highest frame 6802.6 in 16_15
-    "upperback": 171.2,  # highest frame 5315.4 in 16_15
-    "thorax": 82.2,  # highest frame 3855.4 in 16_15
-    "lowerneck": 14.4,  # highest frame 62.5 in 16_55
-    "upperneck": 6.5,  # highest frame 29.3 in 16_55
-    "head": 6.5,  # highest frame 7.5 in 16_55
-    "lclavicle": 42.0,  # highest frame 2347.8 in 16_15
-    "lhumerus": 29.9,  # highest frame 1201.2 in 16_15
-    "lradius": 12.1,  # highest frame 367.0 in 16_15
-    "lwrist": 6.5,  # highest frame 42.5 in 16_15
-    "lhand": 6.5,  # highest frame 0.3 in 16_15
-    "lfingers": 6.5,  # highest frame 0.1 in 16_15
-    "lthumb": 6.5,  # highest frame 0.6 in 16_15
-    "rclavicle": 42.0,  # highest frame 133.6 in 16_22
-    "rhumerus": 29.9,  # highest frame 168.4 in 16_22
-    "rradius": 12.1,  # highest frame 46.3 in 16_22
-    "rwrist": 6.5,  # highest frame 5.6 in 16_22
-    "rhand": 6.5,  # highest frame 0.1 in 16_22
-    "rfingers": 6.5,  # highest frame 0.0 in 16_22
-    "rthumb": 6.5,  # highest frame 0.1 in 16_22
+    "lhipjoint": 297.8,  # peak 476.8 in 16_04
+    "lfemur": 267.3,  # peak 391.8 in 16_08
+    "ltibia": 192.8,  # peak 292.3 in 16_05
+    "lfoot": 262.6,  # peak 235.0 in 16_35
+    "ltoes": 6.0,  # peak 0.2 in 16_46
+    "rhipjoint": 297.8,  # peak 516.6 in 16_04
+    "rfemur": 267.3,  # peak 382.4 in 16_04
+    "rtibia": 192.8,  # peak 220.3 in 16_04
+    "rfoot": 262.6,  # peak 237.9 in 16_56
+    "rtoes": 6.0,  # peak 0.4 in 16_46
+    "lowerback": 244.7,  # peak 256.9 in 16_09
+    "upperback": 156.8,  # peak 158.4 in 16_10
+    "thorax": 74.2,  # peak 75.4 in 16_10
+    "lowerneck": 12.9,  # peak 16.1 in 16_09
+    "upperneck": 6.0,  # peak 5.5 in 16_09
+    "head": 6.0,  # peak 1.7 in 16_07
+    "lclavicle": 35.5,  # peak 41.2 in 16_10
+    "lhumerus": 21.4,  # peak 23.1 in 16_10
+    "lradius": 9.8,  # peak 10.2 in 16_10
+    "lwrist": 6.0,  # peak 1.4 in 16_10
+    "lhand": 6.0,  # peak 0.0 in 16_10
+    "lfingers": 6.0,  # peak 0.0 in 16_10
+    "lthumb": 6.0,  # peak 0.0 in 16_10
+    "rclavicle": 35.5,  # peak 40.0 in 16_10
+    "rhumerus": 21.4,  # peak 22.0 in 16_09
+    "rradius": 9.8,  # peak 9.9 in 16_55
+    "rwrist": 6.0,  # peak 1.4 in 16_10
+    "rhand": 6.0,  # peak 0.1 in 16_10
+    "rfingers": 6.0,  # peak 0.0 in 16_10
+    "rthumb": 6.0,  # peak 0.0 in 16_10
 }
 
 #: N·m for a 70 kg body, by body segment: the largest of the table's joints in the segment (for
 #: skeletons of other families)
 SEGMENT_TORQUE_LIMITS: dict[str, float] = {
-    "pelvis": 323.7,
-    "thigh": 279.0,
-    "shank": 267.2,
-    "foot": 313.8,
-    "torso": 262.0,
-    "head_neck": 14.4,
-    "shoulder": 42.0,
-    "upper_arm": 29.9,
-    "forearm": 12.1,
-    "hand": 6.5,
+    "pelvis": 297.8,
+    "thigh": 267.3,
+    "shank": 192.8,
+    "foot": 262.6,
+    "torso": 244.7,
+    "head_neck": 12.9,
+    "shoulder": 35.5,
+    "upper_arm": 21.4,
+    "forearm": 9.8,
+    "hand": 6.0,
 }
 
 #: the cgspeed BVH release of the CMU data names the same joints differently
@@ -96,8 +96,9 @@ def joint_torques(body: BodyModel, tau: np.ndarray) -> dict[str, np.ndarray]:
 def observed_limits(samples: dict[str, list[np.ndarray]]) -> dict[str, float]:
     """Per joint, the :data:`QUANTILE` of its torques pooled over clips, the larger of a left/right
     pair (ASF names ``l…``/``r…``; a body is as strong on both sides), times :data:`STRENGTH_MARGIN`,
-    at least :data:`FLOOR_FRACTION` of the largest. A quantile, not the peak: a few frames of marker
-    swap in one clip (16_15's left arm reaches 5000 N·m) must not set a joint's strength."""
+    at least :data:`FLOOR_FRACTION` of the largest. A quantile, not the peak: a few frames of a
+    capture glitch that the repair misses (:mod:`.glitches`; unmended, 16_15's frozen left arm
+    start gave its lowerback 5000 N·m) or of a clip end's extrapolated q' must not set a joint's strength."""
     q = {j: float(np.quantile(np.concatenate(v), QUANTILE)) for j, v in samples.items()}
     sym = {}
     for j, v in q.items():

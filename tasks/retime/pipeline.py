@@ -29,7 +29,7 @@ from motionweb.tasks.retime.dynamics import (
 )
 from motionweb.tasks.retime.errors import RetimeError
 from motionweb.tasks.retime.glitches import Glitch, repair_glitches
-from motionweb.tasks.retime.limits import table_limits
+from motionweb.tasks.retime.limits import joint_torques, table_limits
 from motionweb.tasks.retime.objective import BakedObjective, bake
 from motionweb.tasks.retime.polygons import (
     N_ROOT,
@@ -158,6 +158,37 @@ def humanoid_foot_corners(humanoid: Any, skeleton: Skeleton) -> dict[int, np.nda
     return out
 
 
+def clip_physics(motion: Motion, opts: RetimeParams, *, up: int = 1, humanoid: Any | None = None,
+                 contact_intervals: dict[str, list[tuple[float, float]]] | None = None,
+                 timings: dict[str, float] | None = None) -> tuple[BodyModel, list[Glitch], DynamicsTerms, Contacts]:
+    """A clip's body model, the capture glitches mended in its path (``opts.repair_glitches``), its
+    path dynamics (MPS06 §3.1) and its contacts (§3.2). ``timings`` gets the seconds of the stages
+    "dynamics" and "contacts". Cost O(F · nv · B)."""
+    tm = timings if timings is not None else {}
+    t = time.perf_counter()
+    body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up, humanoid=humanoid)
+    path, glitches = repair_glitches(motion) if opts.repair_glitches else (motion, [])
+    terms = dynamics_terms(body, path, opts.smoothing_s)
+    tm["dynamics"] = time.perf_counter() - t
+    t = time.perf_counter()
+    corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
+    contacts = contacts_for(body, terms.q, motion.fps, mu=opts.friction, rule=contact_rule(opts, motion.name),
+                            intervals=contact_intervals, foot_corners=corners)
+    tm["contacts"] = time.perf_counter() - t
+    return body, glitches, terms, contacts
+
+
+def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray]:
+    """Per joint name, (F,) the largest |component| of its torque at the clip's own timing under the
+    default physics, contacts carrying their share (min-Σλ, ``polygons.original_forces``): what the
+    shipped torque table is observed from (``limits.observed_limits``, MPS06 §4). O(F · nv · B)."""
+    body, _, terms, contacts = clip_physics(motion, opts)
+    weight = body.total_mass * float(np.linalg.norm(body.default_gravity()))
+    orig = original_forces(*terms.combine(body.default_gravity()), contacts, opts.torque_margin, weight,
+                           polygon_options(opts))
+    return joint_torques(body, orig.tau)
+
+
 def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = "y", gravity: np.ndarray | None = None,
             mass: dict[str, float] | None = None, humanoid: Any | None = None,
             contact_intervals: dict[str, list[tuple[float, float]]] | None = None) -> RetimePlan:
@@ -169,18 +200,9 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     opts = opts or RetimeParams()
     tm: dict[str, float] = {}
     up = "xyz".index(up_axis)
-    t = time.perf_counter()
-    body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up,
-                          humanoid=humanoid)
+    body, glitches, terms, contacts = clip_physics(motion, opts, up=up, humanoid=humanoid,
+                                                   contact_intervals=contact_intervals, timings=tm)
     factors = mass_factors(body, mass or {})
-    path, glitches = repair_glitches(motion) if opts.repair_glitches else (motion, [])
-    terms = dynamics_terms(body, path, opts.smoothing_s)
-    tm["dynamics"] = time.perf_counter() - t
-    t = time.perf_counter()
-    corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
-    contacts = contacts_for(body, terms.q, motion.fps, mu=opts.friction, rule=contact_rule(opts, motion.name),
-                            intervals=contact_intervals, foot_corners=corners)
-    tm["contacts"] = time.perf_counter() - t
     if not contacts.active.any() and not opts.allow_flight_only:
         feet = ", ".join(f.name for f in contacts.feet)
         low = contacts.corner_positions[..., up].min() - contacts.ground
