@@ -110,8 +110,9 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
         if over.any():
             k = int(np.argmax(np.abs(orig.tau[i, N_ROOT:]) / np.maximum(orig.limits[N_ROOT:], 1e-12)))
             j = next(j for j in range(1, body.n_bodies) if body.joint_dofs(j).start <= k + N_ROOT < body.joint_dofs(j).stop)
-            why = (f"joint {names[j]} needs {abs(orig.tau[i, N_ROOT + k]):.0f} N·m, over its limit "
-                   f"{orig.limits[N_ROOT + k]:.0f}")
+            need, limit = abs(orig.tau[i, N_ROOT + k]), orig.limits[N_ROOT + k]
+            digits = 0 if limit >= 100 else 1
+            why = f"joint {names[j]} needs {need:.{digits}f} N·m, over its limit {limit:.{digits}f}"
             # the torque of j carries its subtree's accelerations: look for the jump there
             sub = [int(c) - 1 for c in body.model.subtrees[j + 1]]  # Pinocchio joint c is skeleton joint c - 1
             deg, at, g = max(largest_step(plan.motion.rotations[:, c], i, half) + (c,) for c in sub)
