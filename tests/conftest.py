@@ -36,6 +36,12 @@ def cmu_dir(mocap_dir: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def cmu16(cmu_dir: Path) -> Path:
+    """CMU subject 16's ASF/AMC folder (``16.asf``, ``16_01.amc`` ... ``16_58.amc``)."""
+    return _real_set(cmu_dir / "asf_amc", "16", "16.asf", "CMU subject 16")
+
+
+@pytest.fixture(scope="session")
 def prefect_harness():
     """Prefect's test harness (a temporary API server) once per session, heartbeats off."""
     from prefect.settings import PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings

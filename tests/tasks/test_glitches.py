@@ -7,7 +7,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pytest
 from fixtures import wiggle
 from motionweb.store.formats import read_motion
 from motionweb.store.kinematics import quat_from_axis_angle, quat_mul
@@ -54,14 +53,6 @@ def test_fast_motion_and_a_lasting_jump_mid_clip_stay() -> None:
     out, found = repair_glitches(replace(m, rotations=rot))
     assert found == []
     assert out.rotations is rot or np.array_equal(out.rotations, rot)
-
-
-@pytest.fixture(scope="module")
-def cmu16(cmu_dir: Path) -> Path:
-    d = cmu_dir / "asf_amc" / "16"
-    if not (d / "16_28.amc").is_file():
-        pytest.skip(f"CMU trial 16_28 not found under {d}")
-    return d
 
 
 def test_cmu_16_28_frozen_arm_start(cmu16: Path) -> None:

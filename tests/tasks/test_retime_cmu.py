@@ -28,14 +28,6 @@ OPTS = RetimeParams()
 
 
 @pytest.fixture(scope="module")
-def cmu16(cmu_dir: Path) -> Path:
-    d = cmu_dir / "asf_amc" / "16"
-    if not (d / "16.asf").is_file():
-        pytest.skip(f"CMU subject 16 not found under {d}")
-    return d
-
-
-@pytest.fixture(scope="module")
 def jump(cmu16: Path):
     motion = read_motion(cmu16 / "16_06.amc")
     return motion, prepare(motion, OPTS)
