@@ -161,7 +161,7 @@ def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str,
                f"polygons can reach, {bound:.3f} s; the result leaves its polygons on {outside} of {n} frames")
     elif not met:
         msg = (f"not met physically: {outside} of {n} output frames lie outside their feasible polygon "
-               f"(no timing inside them is shorter than {bound:.3f} s)")
+               f"(the shortest timing inside every polygon lasts {bound:.3f} s)")
     else:
         msg = f"met: {n - outside} of {n} output frames inside their polygon (shortest reachable {bound:.3f} s)"
     return {"met": bool(met), "requested_duration": dur,
