@@ -144,18 +144,18 @@ def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str,
     A duration below the shortest (:func:`.reachable.fastest_timing`) cannot stay inside the
     feasible polygons; the optimum then leaves them (``outside`` output frames) and the message
     says so. Where no timing stays inside every polygon, the message names the frames where the
-    chain breaks and ``shortest_feasible_duration`` is None. Met: not shorter than the shortest,
-    and ≤ 10 % of the output frames outside their polygon.
+    chain breaks and ``shortest_feasible_duration`` is None. Met: ≤ 10 % of the output frames
+    outside their polygon, and not shorter than the shortest (where there is one).
     """
     fastest = fastest_timing(plan.polygons, plan.motion.fps)
     bound = fastest.duration
     dur = float(res.t[-1])
     n = len(res.t)
-    met = dur >= bound and outside <= 0.1 * n
+    met = (dur >= bound or not fastest.inside) and outside <= 0.1 * n
     if not fastest.inside:
         where = ", ".join(str(i) for i in fastest.broken[:5]) + (" ..." if len(fastest.broken) > 5 else "")
-        msg = (f"no timing stays inside every polygon (no way on inside from source frames {where}); "
-               f"{outside} of {n} output frames lie outside theirs")
+        msg = (f"{'met' if met else 'not met'}: no timing stays inside every polygon (no way on inside from "
+               f"source frames {where}); {outside} of {n} output frames lie outside theirs")
     elif dur < bound:
         msg = (f"unreachable: {dur:.3f} s is shorter than the shortest duration any timing inside the feasible "
                f"polygons can reach, {bound:.3f} s; the result leaves its polygons on {outside} of {n} frames")
