@@ -130,9 +130,9 @@ def _forward(verts, count, d, lo, hi):  # pragma: no cover - numba
                 else:
                     a = pts[k, 0] + (pts[kn, 0] - pts[k, 0]) * (xi - y0) / (y1 - y0)
                     amin, amax = min(amin, a), max(amax, a)
-        top = min(x[i] + 2.0 * d * amax, hi[i + 1])
-        bottom = max(x[i] + 2.0 * d * amin, lo[i + 1])
-        x[i + 1] = top if top >= bottom else (hi[i + 1] if x[i] + 2.0 * d * amin > hi[i + 1] else lo[i + 1])
+        top = min(xi + 2.0 * d * amax, hi[i + 1])
+        bottom = max(xi + 2.0 * d * amin, lo[i + 1])
+        x[i + 1] = top if top >= bottom else (hi[i + 1] if xi + 2.0 * d * amin > hi[i + 1] else lo[i + 1])
     return np.maximum(x, X_FLOOR)
 
 
