@@ -242,7 +242,7 @@ def retime(
         typer.echo(f"  source frames the contact model cannot explain: {rep['infeasible_source_frames']}")
     if rep["infeasible_output_frames"]:
         typer.echo(f"  output frames outside their feasible polygon: {len(rep['infeasible_output_frames'])}")
-    typer.echo(f"  timing {rep['reachable']['message']}")
+    typer.echo(f"  timing ({rep['timing']}) {rep['reachable']['message']}")
 
 
 def _quiet_services() -> None:

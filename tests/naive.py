@@ -533,11 +533,17 @@ def in_convex(v: np.ndarray, pt: np.ndarray, tol: float = 1e-9) -> bool:
 
 def grid_fastest(vertices: list[np.ndarray], fps: float, grid: np.ndarray) -> float:
     """The shortest duration over every profile of ṗ² values on ``grid`` at each frame (exhaustive):
-    frame i's (p̈, ṗ²) = ((x_{i+1} − x_i) fps / 2, x_i) must lie in its polygon, the last frame's
-    ṗ² within its polygon's range of ṗ². O(F · G²) pairs, combined exhaustively (G^F profiles)."""
+    the p̈ = (x_{i+1} − x_i) fps / 2 of each interval must lie, with every ṗ² of its first half, in
+    frame i's polygon and, with every ṗ² of its second half, in frame i + 1's (ṗ² runs linearly, so
+    the ends of each half); the last frame's ṗ² within its polygon's range of ṗ². O(F · G²) pairs,
+    combined exhaustively (G^F profiles)."""
     f, d = len(vertices), 1.0 / fps
-    ok = [np.array([[in_convex(vertices[i], np.array([(b - a) / (2 * d), a])) for b in grid] for a in grid])
-          for i in range(f - 1)]
+
+    def fits(i: int, a: float, b: float) -> bool:
+        acc, mid = (b - a) / (2 * d), (a + b) / 2
+        return all(in_convex(vertices[j], np.array([acc, x])) for j, x in ((i, a), (i, mid), (i + 1, mid), (i + 1, b)))
+
+    ok = [np.array([[fits(i, a, b) for b in grid] for a in grid]) for i in range(f - 1)]
     last = (grid >= vertices[-1][:, 1].min()) & (grid <= vertices[-1][:, 1].max())
     best = np.inf
     for prof in itertools.product(range(len(grid)), repeat=f):
@@ -546,3 +552,62 @@ def grid_fastest(vertices: list[np.ndarray], fps: float, grid: np.ndarray) -> fl
         s = np.sqrt(grid[list(prof)])
         best = min(best, float((2 * d / (s[1:] + s[:-1])).sum()))
     return best
+
+
+def box_polygon(amax: float, x0: float, x1: float) -> np.ndarray:
+    """The (p̈, ṗ²) polygon |p̈| ≤ amax, x0 ≤ ṗ² ≤ x1, counter-clockwise (4, 2)."""
+    return np.array([[-amax, x0], [amax, x0], [amax, x1], [-amax, x1]])
+
+
+def polygons_of(vertices: list[np.ndarray]):
+    """``FeasiblePolygons`` of given per-frame vertices (no contact forces; original timing inside)."""
+    from motionweb.tasks.retime.polygons import FeasiblePolygons
+
+    f = len(vertices)
+    return FeasiblePolygons(vertices=vertices, lambdas=[np.zeros((len(v), 1)) for v in vertices],
+                            center=np.tile([0.0, 1.0], (f, 1)), center_lambda=np.zeros((f, 1)), residual=np.zeros(f),
+                            tolerance=np.zeros((f, 6)), infeasible=np.zeros(f, bool),
+                            original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0)
+
+
+def greedy_free(vertices: list[np.ndarray], fps: float, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """``reachable.free_frames`` from scratch, one frame per unit: each step tries freeing (polygon →
+    box) every frame not yet freed, rebuilding all polygons and running ``fastest_timing`` anew,
+    and frees the one that saves the most output seconds per output frame it leaves outside (its
+    own 1/√x, half of each unfreed neighbour's) until the fastest profile lasts ≤ ``duration``;
+    then restores freed frames in order while it still fits. (freed (F,), fastest profile (F,))."""
+    from motionweb.tasks.retime.reachable import fastest_timing
+
+    f, d = len(vertices), 1.0 / fps
+
+    def fastest(mask: np.ndarray) -> np.ndarray:
+        return fastest_timing(polygons_of([np.zeros((0, 2)) if mask[i] else v for i, v in enumerate(vertices)]), fps).x
+
+    def length(x: np.ndarray) -> float:
+        s = np.sqrt(x)
+        return float((2 * d / (s[1:] + s[:-1])).sum())
+
+    freed = np.zeros(f, bool)
+    x = fastest(freed)
+    while length(x) > duration:
+        best, best_gain = -1, 0.0
+        for i in range(f):
+            if freed[i]:
+                continue
+            trial = freed.copy()
+            trial[i] = True
+            x2 = fastest(trial)
+            spent = 1 / np.sqrt(x2[i]) + sum(0.5 / np.sqrt(x2[j]) for j in (i - 1, i + 1) if 0 <= j < f and not freed[j])
+            gain = (length(x) - length(x2)) / spent
+            if gain > best_gain:
+                best, best_gain = i, gain
+        assert best >= 0, "nothing helps"
+        freed[best] = True
+        x = fastest(freed)
+    for i in np.flatnonzero(freed):
+        trial = freed.copy()
+        trial[i] = False
+        x2 = fastest(trial)
+        if length(x2) <= duration:
+            freed, x = trial, x2
+    return freed, x

@@ -7,6 +7,7 @@
 * :mod:`.spline` — the monotone timing spline p(t) and its L-BFGS-B optimizer (MPS06 §3.5-3.6);
 * :mod:`.pipeline` — :class:`RetimeParams`, :func:`prepare` and :func:`retime_plan` end to end;
 * :mod:`.reachable` — the shortest timing inside every polygon (TOPP-RA reachability on the path);
+* :mod:`.path_timing` — a timing of a requested duration built on the source frames from those profiles;
 * :mod:`.report` — flights, contact phases, feasibility and the shortest reachable duration.
 
 The names below are the public API used by the flows and the benchmarks.

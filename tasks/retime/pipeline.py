@@ -31,6 +31,7 @@ from motionweb.tasks.retime.errors import RetimeError
 from motionweb.tasks.retime.glitches import Glitch, repair_glitches
 from motionweb.tasks.retime.limits import joint_torques, table_limits
 from motionweb.tasks.retime.objective import BakedObjective, bake
+from motionweb.tasks.retime.path_timing import path_timing
 from motionweb.tasks.retime.polygons import (
     N_ROOT,
     FeasiblePolygons,
@@ -38,8 +39,9 @@ from motionweb.tasks.retime.polygons import (
     PolygonOptions,
     feasible_polygons,
     original_forces,
+    timing_distances,
 )
-from motionweb.tasks.retime.spline import RetimeResult, optimize_timing
+from motionweb.tasks.retime.spline import RetimeResult, check_keytimes, optimize_timing
 from pydantic import Field
 
 
@@ -103,6 +105,12 @@ class RetimeParams(Params):
     lp_solver: Literal["simplex", "highs"] = "simplex"
     #: knots of the monotone timing spline p(t) per second of output
     knots_per_second: float = 8.0
+    #: the timing of a duration without keytimes: "spline" — MPS06's optimized spline (Eqn. 14);
+    #: "path" — built on the source frames, inside every polygon where the duration allows and
+    #: leaving them on as few output frames as it can where not (path_timing.py); "auto" — both,
+    #: keeping the one with fewer output frames outside their polygon (the spline on a tie).
+    #: Keytimes and a free length always take the spline.
+    timing: Literal["auto", "spline", "path"] = "auto"
 
 
 def contact_rule(params: RetimeParams, clip: str | None = None) -> ContactRule:
@@ -242,13 +250,35 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
                 opts: RetimeParams | None = None, free_length: bool = False) -> tuple[Motion, RetimeResult]:
-    """Optimize the timing of a prepared clip and sample the retimed motion at the source fps.
+    """Time a prepared clip (``opts.timing``: the optimized spline, the path timing or the better
+    of the two) and sample the retimed motion at the source fps.
 
     ``free_length``: ``duration`` is the starting length and the optimizer picks the length too.
+    Raises ``RetimeError`` for timing "path" with keytimes, a free length, or a duration no path
+    timing reaches.
     """
     opts = opts or RetimeParams()
     m = plan.motion
-    res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes, samples_per_frame=opts.samples_per_frame,
-                          knots_per_second=opts.knots_per_second, speed_max=opts.speed_max, free_length=free_length)
+    path_ok = not keytimes and not free_length
+    if opts.timing == "path" and not path_ok:
+        raise RetimeError("retime.timing 'path' takes no keytimes and no free length: use 'spline' or 'auto'")
+    res = None
+    if opts.timing != "path":
+        res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes,
+                              samples_per_frame=opts.samples_per_frame, knots_per_second=opts.knots_per_second,
+                              speed_max=opts.speed_max, free_length=free_length)
+    if opts.timing != "spline" and path_ok:
+        check_keytimes(m.duration, duration, [], opts.speed_max)
+        path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame)
+        if path is None and res is None:
+            raise RetimeError(f"no path timing of {duration:g} s stays inside the feasible polygons on half its "
+                              "frames or more: use retime.timing 'spline' or 'auto'")
+        if path is not None and (res is None or outside_count(plan, path) < outside_count(plan, res)):
+            res = path
     out = replace(sample_motion(m, res.p * m.fps), name=f"{m.name}_retimed", source=None, content_hash="")
     return out, res
+
+
+def outside_count(plan: RetimePlan, res: RetimeResult) -> int:
+    """Output frames of a timing outside their feasible polygon (``polygons.timing_distances``)."""
+    return int((~timing_distances(plan.polygons, plan.motion.fps, res.p, res.pd, res.pdd)[2]).sum())

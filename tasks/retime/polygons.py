@@ -410,6 +410,25 @@ def closest_point(v: np.ndarray, x: np.ndarray) -> np.ndarray:
     return proj[np.argmin(((proj - x) ** 2).sum(axis=1))]
 
 
+def timing_distances(polys: FeasiblePolygons, fps: float, p: np.ndarray, pd: np.ndarray,
+                     pdd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How far each output frame of a timing lies from its feasible polygon (MPS06 §3.3).
+
+    ``p`` (T,) source seconds, ``pd``, ``pdd`` (T,) ṗ and p̈: the frame is checked against its
+    nearest source frame's polygon (against the fan centre where that polygon is empty) and is
+    inside within 1e-3 · (1 + max |(p̈, ṗ²)|). Returns (T,) source frames, distances, inside. O(T · K).
+    """
+    n = len(polys.vertices)
+    frames = np.clip(np.rint(np.asarray(p) * fps).astype(int), 0, n - 1)
+    dist = np.empty(len(frames))
+    for k, i in enumerate(frames):
+        x = np.array([pdd[k], pd[k] ** 2])
+        cp = closest_point(polys.vertices[i], x) if len(polys.vertices[i]) else polys.center[i]
+        dist[k] = np.linalg.norm(x - cp)
+    scale = 1 + np.maximum(np.abs(pdd), np.asarray(pd) ** 2)
+    return frames, dist, dist <= 1e-3 * scale
+
+
 def convex_hull(points: np.ndarray) -> np.ndarray:
     """Indices of the convex hull of ``points`` (n, 2), counter-clockwise (Andrew's monotone chain).
 

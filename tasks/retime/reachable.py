@@ -4,12 +4,16 @@ The polygons bound each source frame's (p̈, ṗ²); along the path x = ṗ² ob
 source seconds), so a timing is a profile x(u) with (½ dx/du, x) in every frame's polygon: the
 time-optimal path parameterization problem of robotics, solved by reachability analysis (TOPP-RA;
 Pham & Pham, IEEE T-RO 34(3), 2018) on the source frames with p̈ constant over each frame
-interval. A backward pass gives each frame's controllable set (the ṗ² from which the rest of the
+interval and inside the polygon of the nearer frame at every instant between (the paper's
+first-order interpolation scheme, checked as an output frame is: against its nearest source frame). A backward pass gives each frame's controllable set (the ṗ² from which the rest of the
 clip can still play inside its polygons), a greedy forward pass the fastest profile in them. Both
 cut a convex polygon by half-planes, so no LP is needed and the result is exact for the polygons:
 the shortest duration any timing inside them reaches (the one a retiming below it cannot meet).
 
-Cost: O(F · K) (F frames, K polygon vertices), compiled.
+:func:`free_frames` is the greedy below that shortest duration: which source frames to let leave
+their polygon so the rest can play faster (``path_timing``).
+
+Cost: O(F · K²) per pass (F frames, K polygon vertices), compiled.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from numba import njit
 
 #: ṗ² floor of a profile (no timing stops the clip): 1e-6 is 1/1000 of normal speed
 X_FLOOR = 1e-6
+#: candidate units of :func:`free_frames`: at most this many per clip (units of ⌈F / UNITS⌉ frames)
+UNITS = 256
 #: (p̈, ṗ²) box standing in for an empty polygon (RetimeParams' default pdd_max, speed_max²): the
 #: timing is then not inside, whatever the box
 BOX = (40.0, 36.0)
@@ -63,10 +69,13 @@ def _clip(pts, n, ca, cx, b):  # pragma: no cover - numba
     """The convex polygon ``pts[:n]`` (a, x) cut to ca·a + cx·x ≤ b (Sutherland-Hodgman): (out, m)."""
     out = np.empty((n + 2, 2))
     m = 0
+    tol = 1e-12 * (abs(b) + 1.0)  # a point on the line stays, whatever its rounding
     for k in range(n):
         kn = k + 1 if k + 1 < n else 0
         sp = ca * pts[k, 0] + cx * pts[k, 1] - b
         sq = ca * pts[kn, 0] + cx * pts[kn, 1] - b
+        sp = 0.0 if abs(sp) <= tol else sp
+        sq = 0.0 if abs(sq) <= tol else sq
         if sp <= 0.0:
             out[m] = pts[k]
             m += 1
@@ -89,21 +98,86 @@ def _frame_polygon(verts, count, i):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _backward(verts, count, d):  # pragma: no cover - numba
-    """Controllable sets [lo, hi] of ṗ² per frame (TOPP-RA's backward pass) and where the chain broke."""
+def _cut_shifted(cut, c, poly, m, shift):  # pragma: no cover - numba
+    """Cut ``cut[:c]`` (a, x) to the points whose (a, x + shift·a) lies in the convex polygon
+    ``poly[:m]``: each of its edges, and its bounding box, as a half-plane na·a + nx·x' ≤ b, which
+    in (a, x) is (na + shift·nx)·a + nx·x ≤ b. (out, n)."""
+    bounds = ((1.0, 0.0, poly[:m, 0].max()), (-1.0, 0.0, -poly[:m, 0].min()),
+              (0.0, 1.0, poly[:m, 1].max()), (0.0, -1.0, -poly[:m, 1].min()))
+    for na, nx, b in bounds:
+        cut, c = _clip(cut, c, na + shift * nx, nx, b)
+    for k in range(m):
+        if c == 0:
+            break
+        kn = k + 1 if k + 1 < m else 0
+        na, nx = poly[kn, 1] - poly[k, 1], poly[k, 0] - poly[kn, 0]  # outward normal (counter-clockwise)
+        if na == 0.0 and nx == 0.0:
+            continue
+        cut, c = _clip(cut, c, na + shift * nx, nx, na * poly[k, 0] + nx * poly[k, 1])
+    return cut, c
+
+
+@njit(cache=True)
+def _interval_polygon(verts, count, i, d):  # pragma: no cover - numba
+    """The (p̈, ṗ²) = (a, x_i) of frame i whose p̈ held over the interval to frame i + 1 stays
+    inside the polygon of the nearer frame at every instant: x runs linearly from x_i to
+    x_i + 2 d a, the first half checked against frame i's polygon, the second against frame
+    i + 1's, so (convexity) both ends of each half must lie in its polygon (TOPP-RA's first-order
+    interpolation scheme, with the check an output frame gets). The last frame: its own polygon.
+    (points, n), n = 0 when no such a exists."""
+    pts, n = _frame_polygon(verts, count, i)
+    cut = pts[:n].copy()
+    if i == verts.shape[0] - 1:
+        return cut, n
+    nxt, m = _frame_polygon(verts, count, i + 1)
+    cut, c = _cut_shifted(cut, n, pts, n, d)
+    if c:
+        cut, c = _cut_shifted(cut, c, nxt, m, d)
+    if c:
+        cut, c = _cut_shifted(cut, c, nxt, m, 2.0 * d)
+    return cut, c
+
+
+@njit(cache=True)
+def set_interval(verts, count, d, i, qv, qc, meet):  # pragma: no cover - numba
+    """Store frame i's :func:`_interval_polygon` in ``qv[i], qc[i]`` (its own polygon where the
+    two frames' do not meet, ``meet[i]`` False)."""
+    q, n = _interval_polygon(verts, count, i, d)
+    meet[i] = n > 0
+    if n == 0:
+        q, n = _frame_polygon(verts, count, i)
+    qv[i, :n] = q[:n]
+    qc[i] = n
+
+
+@njit(cache=True)
+def interval_polygons(verts, count, d):  # pragma: no cover - numba
+    """Every frame's :func:`_interval_polygon`: (F, K', 2) vertices, (F,) counts, (F,) whether the
+    frame's polygon meets the next one's. O(F · K²)."""
     f = verts.shape[0]
+    qv = np.zeros((f, 4 * verts.shape[1] + 16, 2))
+    qc = np.zeros(f, np.int64)
+    meet = np.ones(f, np.bool_)
+    for i in range(f):
+        set_interval(verts, count, d, i, qv, qc, meet)
+    return qv, qc, meet
+
+
+@njit(cache=True)
+def _backward(qv, qc, d):  # pragma: no cover - numba
+    """Controllable sets [lo, hi] of ṗ² per frame (TOPP-RA's backward pass) over the interval
+    polygons, and where no way on inside was left."""
+    f = qv.shape[0]
     lo = np.zeros(f)
     hi = np.zeros(f)
     broken = np.zeros(f, np.bool_)
-    pts, n = _frame_polygon(verts, count, f - 1)
-    lo[f - 1], hi[f - 1] = pts[:n, 1].min(), pts[:n, 1].max()
-    broken[f - 1] = count[f - 1] == 0
+    n = qc[f - 1]
+    lo[f - 1], hi[f - 1] = qv[f - 1, :n, 1].min(), qv[f - 1, :n, 1].max()
     for i in range(f - 2, -1, -1):
-        pts, n = _frame_polygon(verts, count, i)
+        pts, n = qv[i], qc[i]
         # x_{i+1} = x_i + 2 d a_i must lie in [lo_{i+1}, hi_{i+1}]
         cut, m = _clip(pts, n, 2.0 * d, 1.0, hi[i + 1])
         cut, m = _clip(cut, m, -2.0 * d, -1.0, -lo[i + 1])
-        broken[i] = count[i] == 0
         if m == 0:  # no way on inside: restart the chain from this frame's own polygon
             broken[i] = True
             cut, m = pts, n
@@ -112,13 +186,13 @@ def _backward(verts, count, d):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _forward(verts, count, d, lo, hi):  # pragma: no cover - numba
-    """The fastest profile in the controllable sets (TOPP-RA's greedy forward pass)."""
-    f = verts.shape[0]
+def _forward(qv, qc, d, lo, hi, fastest):  # pragma: no cover - numba
+    """The fastest (slowest) profile in the controllable sets: TOPP-RA's greedy forward pass."""
+    f = qv.shape[0]
     x = np.empty(f)
-    x[0] = hi[0]
+    x[0] = hi[0] if fastest else lo[0]
     for i in range(f - 1):
-        pts, n = _frame_polygon(verts, count, i)
+        pts, n = qv[i], qc[i]
         xi = min(max(x[i], pts[:n, 1].min()), pts[:n, 1].max())
         amin, amax = np.inf, -np.inf
         for k in range(n):  # the a-range of the polygon on the line ṗ² = xi
@@ -132,8 +206,118 @@ def _forward(verts, count, d, lo, hi):  # pragma: no cover - numba
                     amin, amax = min(amin, a), max(amax, a)
         top = min(xi + 2.0 * d * amax, hi[i + 1])
         bottom = max(xi + 2.0 * d * amin, lo[i + 1])
-        x[i + 1] = top if top >= bottom else (hi[i + 1] if xi + 2.0 * d * amin > hi[i + 1] else lo[i + 1])
+        if top >= bottom:
+            x[i + 1] = top if fastest else bottom
+        else:  # the chain broke here: restart at the nearest end of the next controllable set
+            x[i + 1] = hi[i + 1] if xi + 2.0 * d * amin > hi[i + 1] else lo[i + 1]
     return np.maximum(x, X_FLOOR)
+
+
+@njit(cache=True)
+def interval_profile(qv, qc, d, fastest):  # pragma: no cover - numba
+    """The fastest (``fastest``) or slowest profile over interval polygons (:func:`interval_polygons`)
+    and the frames where no way on inside was left."""
+    lo, hi, broken = _backward(qv, qc, d)
+    return _forward(qv, qc, d, lo, hi, fastest), broken
+
+
+@njit(cache=True)
+def profile_duration(x, d):  # pragma: no cover - numba
+    """Output seconds of a profile x = ṗ² (F,) on source frames ``d`` seconds apart (p̈ constant between)."""
+    t = 0.0
+    for i in range(x.shape[0] - 1):
+        t += 2.0 * d / (np.sqrt(x[i]) + np.sqrt(x[i + 1]))
+    return t
+
+
+@njit(cache=True)
+def _spent(x, freed, s, e):  # pragma: no cover - numba
+    """Output frames checked against the polygons of source frames s..e−1 freed, or against their
+    neighbours' over the intervals that touch them (half each): 1/√x per source frame."""
+    f = x.shape[0]
+    out = 0.0
+    for j in range(s, e):
+        out += 1.0 / np.sqrt(x[j])
+    if s > 0 and not freed[s - 1]:
+        out += 0.5 / np.sqrt(x[s - 1])
+    if e < f and not freed[e]:
+        out += 0.5 / np.sqrt(x[e])
+    return out
+
+
+@njit(cache=True)
+def _set_units(verts, cnt, d, s, e, qv, qc, meet):  # pragma: no cover - numba
+    """Recompute the interval polygons that frames s..e−1 enter (frames s−1..e−1)."""
+    for i in range(max(s - 1, 0), e):
+        set_interval(verts, cnt, d, i, qv, qc, meet)
+
+
+@njit(cache=True)
+def free_frames(verts, count, d, duration, unit, max_outside):  # pragma: no cover - numba
+    """Greedy: free units of ``unit`` source frames (polygon → box) until the fastest profile of
+    the rest lasts ≤ ``duration``; each step frees the unit whose freeing saves the most output
+    seconds per output frame it leaves outside (:func:`_spent`). Then restores freed units no
+    longer needed. Returns (freed mask, fastest profile, success); fails when nothing helps or
+    more than ``max_outside`` output frames would be left outside."""
+    f = count.shape[0]
+    cnt = count.copy()
+    freed = np.zeros(f, np.bool_)
+    qv, qc, meet = interval_polygons(verts, cnt, d)
+    x, _ = interval_profile(qv, qc, d, True)
+    dur = profile_duration(x, d)
+    while dur > duration:
+        best_gain, best = 0.0, -1
+        for s in range(0, f, unit):
+            e = min(s + unit, f)
+            if freed[s] or cnt[s:e].max() == 0:
+                continue
+            lo = max(s - 1, 0)
+            saved_v, saved_c, saved_m, saved_cnt = qv[lo:e].copy(), qc[lo:e].copy(), meet[lo:e].copy(), cnt[s:e].copy()
+            cnt[s:e] = 0
+            _set_units(verts, cnt, d, s, e, qv, qc, meet)
+            x2, _ = interval_profile(qv, qc, d, True)
+            cnt[s:e] = saved_cnt
+            qv[lo:e], qc[lo:e], meet[lo:e] = saved_v, saved_c, saved_m
+            gain = (dur - profile_duration(x2, d)) / _spent(x2, freed, s, e)
+            if gain > best_gain:
+                best_gain, best = gain, s
+        if best < 0:
+            return freed, x, False
+        e = min(best + unit, f)
+        freed[best:e] = True
+        cnt[best:e] = 0
+        _set_units(verts, cnt, d, best, e, qv, qc, meet)
+        x, _ = interval_profile(qv, qc, d, True)
+        dur = profile_duration(x, d)
+        spent = 0.0
+        for s in range(0, f, unit):
+            if freed[s]:
+                spent += _spent(x, freed, s, min(s + unit, f))
+        if spent > max_outside:
+            return freed, x, False
+    for s in range(0, f, unit):  # restore what the later choices made unnecessary
+        e = min(s + unit, f)
+        if not freed[s]:
+            continue
+        cnt[s:e] = count[s:e]
+        _set_units(verts, cnt, d, s, e, qv, qc, meet)
+        x2, _ = interval_profile(qv, qc, d, True)
+        if profile_duration(x2, d) <= duration:
+            freed[s:e] = False
+            x = x2
+        else:
+            cnt[s:e] = 0
+            _set_units(verts, cnt, d, s, e, qv, qc, meet)
+    return freed, x, True
+
+
+def extreme_profile(verts: np.ndarray, count: np.ndarray, d: float, fastest: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The fastest (``fastest``) or slowest profile inside the padded polygons (:func:`padded`) of
+    frames ``d`` s apart, and where the chain broke (an empty polygon, two frames' polygons that do
+    not meet, or no way on inside)."""
+    qv, qc, meet = interval_polygons(verts, count, d)
+    x, broken = interval_profile(qv, qc, d, fastest)
+    return x, broken | (count == 0) | ~meet
 
 
 def fastest_timing(polys: FeasiblePolygons, fps: float) -> PathTiming:
@@ -144,8 +328,6 @@ def fastest_timing(polys: FeasiblePolygons, fps: float) -> PathTiming:
     ``inside`` and ``broken`` says where. O(F · K).
     """
     verts, count = padded(polys)
-    lo, hi, broken = _backward(verts, count, 1.0 / fps)
-    x = _forward(verts, count, 1.0 / fps, lo, hi)
-    s = np.sqrt(x)
+    x, broken = extreme_profile(verts, count, 1.0 / fps, True)
     where = np.flatnonzero(broken)
-    return PathTiming(x=x, duration=float((2.0 / fps / (s[1:] + s[:-1])).sum()), inside=not len(where), broken=where)
+    return PathTiming(x=x, duration=profile_duration(x, 1.0 / fps), inside=not len(where), broken=where)

@@ -13,7 +13,7 @@ from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
 from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
 from motionweb.tasks.retime.pipeline import RetimePlan
-from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, closest_point
+from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, timing_distances
 from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.spline import RetimeResult
 
@@ -141,24 +141,26 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
 def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str, Any]:
     """Whether the requested timing was met, with the shortest duration reachable inside the polygons.
 
-    A duration below the shortest (:func:`.reachable.fastest_timing`) cannot stay inside the
-    feasible polygons; the optimum then leaves them (``outside`` output frames) and the message
-    says so. Where no timing stays inside every polygon, the message names the frames where the
-    chain breaks and ``shortest_feasible_duration`` is None. Met: ≤ 10 % of the output frames
-    outside their polygon, and not shorter than the shortest (where there is one).
+    Met: ≤ 10 % of the output frames (``outside`` of them) lie outside their feasible polygon. A
+    duration below the shortest timing inside every polygon (:func:`.reachable.fastest_timing`)
+    must leave them somewhere, and the message says by how much; where no timing stays inside
+    every polygon it names the frames where the chain breaks and ``shortest_feasible_duration``
+    is None.
     """
     fastest = fastest_timing(plan.polygons, plan.motion.fps)
     bound = fastest.duration
     dur = float(res.t[-1])
     n = len(res.t)
-    met = (dur >= bound or not fastest.inside) and outside <= 0.1 * n
+    met = outside <= 0.1 * n
+    word = "met" if met else "not met"
     if not fastest.inside:
         where = ", ".join(str(i) for i in fastest.broken[:5]) + (" ..." if len(fastest.broken) > 5 else "")
-        msg = (f"{'met' if met else 'not met'}: no timing stays inside every polygon (no way on inside from "
-               f"source frames {where}); {outside} of {n} output frames lie outside theirs")
+        msg = (f"{word}: no timing stays inside every polygon (no way on inside from source frames {where}); "
+               f"{outside} of {n} output frames lie outside theirs")
     elif dur < bound:
-        msg = (f"unreachable: {dur:.3f} s is shorter than the shortest duration any timing inside the feasible "
-               f"polygons can reach, {bound:.3f} s; the result leaves its polygons on {outside} of {n} frames")
+        msg = (f"{word if met else 'unreachable'}: {dur:.3f} s is shorter than the shortest duration any timing "
+               f"inside the feasible polygons can reach, {bound:.3f} s; the result leaves its polygons on "
+               f"{outside} of {n} frames")
     elif not met:
         msg = (f"not met physically: {outside} of {n} output frames lie outside their feasible polygon "
                f"(the shortest timing inside every polygon lasts {bound:.3f} s)")
@@ -176,13 +178,11 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
     """
     m, obj, cont = plan.motion, plan.baked, plan.contacts
     edges = pyramid_edges(cont, plan.body.up_axis)  # (3, 4)
+    source, distance, inside = timing_distances(plan.polygons, m.fps, res.p, res.pd, res.pdd)
     frames = []
-    outside = []
     for k in range(len(res.t)):
         x = np.array([res.pdd[k], res.pd[k] ** 2])
-        i = int(np.clip(np.rint(res.p[k] * m.fps), 0, m.n_frames - 1))
-        cp = closest_point(plan.polygons.vertices[i], x) if len(plan.polygons.vertices[i]) else obj.center[i]
-        dist = float(np.linalg.norm(x - cp))
+        i = int(source[k])
         lam = contact_lambda(obj, i, x)
         tau = plan.A[i] * x[0] + plan.B[i] * x[1] + plan.C[i] - cont.basis[i] @ lam
         forces = {}
@@ -191,14 +191,12 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
                 per = cont.corners * EDGES_PER_CORNER
                 lf = lam[fi * per:(fi + 1) * per].reshape(cont.corners, EDGES_PER_CORNER)
                 forces[foot.name] = (edges @ lf.sum(axis=0)).round(4).tolist()
-        feasible = dist <= 1e-3 * (1 + np.abs(x).max())
-        if not feasible:
-            outside.append(k)
         frames.append({"t": round(float(res.t[k]), 6), "source_time": round(float(res.p[k]), 6),
                        "speed": round(float(res.pd[k]), 6), "accel": round(float(res.pdd[k]), 6),
-                       "source_frame": i, "feasible": bool(feasible), "distance": round(dist, 6),
+                       "source_frame": i, "feasible": bool(inside[k]), "distance": round(float(distance[k]), 6),
                        "torques": tau[N_ROOT:].round(4).tolist(), "root_residual": tau[:N_ROOT].round(4).tolist(),
                        "contact_forces": forces})
+    outside = np.flatnonzero(~inside).tolist()
     flights = []
     for s0, s1 in flight_intervals(cont.active, m.fps):
         if s0 <= 0.0 or s1 >= m.duration:
@@ -214,6 +212,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "gravity": plan.gravity.tolist(), "mass_factors": dict(zip(plan.body.skeleton.names,
                                                                    plan.factors.round(6).tolist(), strict=True)),
         "total_mass_kg": plan.body.total_mass,
+        "timing": res.kind, "timing_note": res.message,
         "objective": float(res.objective), "converged": res.converged, "iterations": res.iterations,
         "contacts": cont.intervals(m.fps), "contacts_detected": cont.detected, "flights": flights,
         "phase_seconds": {k: {"source": s, "output": o} for k, (s, o) in phase_times(cont, res, m.fps).items()},

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 from motionweb.tasks.retime.errors import RetimeError
@@ -53,6 +54,14 @@ def single_threaded_blas() -> Iterator[None]:
     finally:
         for put, n in libs:
             put(n)
+
+
+class TimingCurve(Protocol):
+    """p(t) of a retiming: ``out[-1]`` its output duration, ``evaluate(z, t)`` p, ṗ, p̈ at times t."""
+
+    out: np.ndarray
+
+    def evaluate(self, z: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,16 +169,17 @@ def _chain(z, grad, n_ctrl, src):  # pragma: no cover - numba
 
 @dataclass(frozen=True, eq=False)
 class RetimeResult:
-    """A retiming: the spline, its parameters, and p, ṗ, p̈ at the output frames.
+    """A retiming: the timing curve, its parameters, and p, ṗ, p̈ at the output frames.
 
     Attributes:
-        spline, z: the timing curve and its parameters.
+        spline, z: the timing curve (a :class:`TimingSpline`, or the path timing's
+            ``path_timing.PathCurve`` with no parameters) and its parameters; kind: "spline" or "path".
         t: (T,) output frame times; p, pd, pdd: (T,) source time, ṗ, p̈ there.
         objective: final objective; n_samples: samples used; iterations: L-BFGS iterations;
         seconds: optimization wall time; converged: optimizer success flag.
     """
 
-    spline: TimingSpline
+    spline: TimingCurve
     z: np.ndarray
     t: np.ndarray
     p: np.ndarray
@@ -182,6 +192,7 @@ class RetimeResult:
     converged: bool
     message: str = ""
     history: list[float] = field(default_factory=list)
+    kind: str = "spline"
 
 
 def check_keytimes(src_duration: float, duration: float, keytimes: list[tuple[float, float]],

@@ -74,3 +74,21 @@ def test_an_unforeseen_failure_is_one_line_not_a_traceback(tmp_path: Path) -> No
     assert "Traceback" not in r.stderr
     assert r.stderr.strip().splitlines() == [
         "error: RuntimeError: Timed out while attempting to connect to the server. (MOTIONWEB_DEBUG=1 shows where)"]
+
+
+def test_retime_a_cmu_jump_in_half_the_time(cmu16: Path, tmp_path: Path, prefect_harness) -> None:
+    """``motionweb retime 16_06.amc --duration`` half its length (MPS06 Fig. 1), as a new user runs
+    it: the summary gives the flight's ratio, the timing used and that the target was met below
+    the shortest timing inside every polygon; the JSON report and the plots are written beside."""
+    out = tmp_path / "half.bvh"
+    r = runner.invoke(app, ["retime", str(cmu16 / "16_06.amc"), "--out", str(out), "--duration", "1.6917",
+                            "--plot", str(tmp_path / "plots")])
+    assert r.exit_code == 0, r.output
+    assert "Traceback" not in r.output
+    assert "16_06: 3.383 s -> 1.692 s" in r.output and "flight 0.417 s" in r.output
+    assert "timing (path) met: 1.692 s is shorter than the shortest duration" in r.output
+    rep = json.loads(out.with_suffix(".json").read_text())
+    assert rep["timing"] == "path" and rep["reachable"]["met"]
+    assert len(rep["infeasible_output_frames"]) <= 0.1 * rep["frames_out"]
+    assert 0.9 < rep["flights"][0]["ratio"] < 1.1
+    assert all(Path(p).stat().st_size > 0 for p in rep["plots"])

@@ -5,35 +5,28 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motionweb.tasks.retime.polygons import FeasiblePolygons
 from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.report import shortest_duration
+from naive import box_polygon as box
 from naive import grid_fastest, in_convex
-
-
-def polygons(vertices: list[np.ndarray]) -> FeasiblePolygons:
-    f = len(vertices)
-    return FeasiblePolygons(vertices=vertices, lambdas=[np.zeros((len(v), 1)) for v in vertices],
-                            center=np.tile([0.0, 1.0], (f, 1)), center_lambda=np.zeros((f, 1)), residual=np.zeros(f),
-                            tolerance=np.zeros((f, 6)), infeasible=np.zeros(f, bool),
-                            original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0)
-
-
-def box(amax: float, x0: float, x1: float) -> np.ndarray:
-    return np.array([[-amax, x0], [amax, x0], [amax, x1], [-amax, x1]])
+from naive import polygons_of as polygons
 
 
 def test_bang_bang_between_two_normal_speed_frames() -> None:
     """|p̈| ≤ a, ṗ² ≤ X, first and last frame at ṗ = 1: accelerate at a, cruise at √X, brake at a
-    (the continuous bang-bang solution, exact when the switches fall on frames)."""
+    (the continuous bang-bang solution, exact when the switches fall on frames). The end frames'
+    polygons are the line ṗ² = 1, which the half intervals next to them are checked against, so
+    the ramps start one frame in."""
     fps, a, X, f = 100.0, 5.0, 4.0, 301
     verts = [box(a, 1.0, 1.0)] + [box(a, 0.0, X)] * (f - 2) + [box(a, 1.0, 1.0)]
     t = fastest_timing(polygons(verts), fps)
     u = np.arange(f) / fps
-    want = np.minimum.reduce([np.full(f, X), 1 + 2 * a * u, 1 + 2 * a * (u[-1] - u)])
+    up, down = np.maximum(u - u[1], 0), np.maximum(u[-2] - u, 0)
+    want = np.minimum.reduce([np.full(f, X), 1 + 2 * a * up, 1 + 2 * a * down])
     np.testing.assert_allclose(t.x, want, atol=1e-9)
     ramp = (np.sqrt(X) - 1) / a  # each ramp: (X − 1) / 2a = 0.3 s of source, 30 frames
-    assert t.duration == pytest.approx(2 * ramp + (u[-1] - (X - 1) / a) / np.sqrt(X), rel=1e-9)
+    cruise = u[-2] - u[1] - (X - 1) / a
+    assert t.duration == pytest.approx(2 / fps + 2 * ramp + cruise / np.sqrt(X), rel=1e-9)
     assert t.inside and not len(t.broken)
 
 
@@ -67,8 +60,10 @@ def test_random_polygons_against_an_exhaustive_search(seed: int) -> None:
         verts.append(pts)
     t = fastest_timing(polygons(verts), fps)
     assert t.inside
-    for i in range(f - 1):
-        assert in_convex(verts[i], np.array([(t.x[i + 1] - t.x[i]) * fps / 2, t.x[i]]), tol=1e-7), i
+    for i in range(f - 1):  # p̈ held over the interval: each half inside its nearer frame's polygon
+        a, mid = (t.x[i + 1] - t.x[i]) * fps / 2, (t.x[i] + t.x[i + 1]) / 2
+        for j, x in ((i, t.x[i]), (i, mid), (i + 1, mid), (i + 1, t.x[i + 1])):
+            assert in_convex(verts[j], np.array([a, x]), tol=1e-7), (i, j)
     assert verts[-1][:, 1].min() - 1e-9 <= t.x[-1] <= verts[-1][:, 1].max() + 1e-9
     grid = np.linspace(0.05, 3.0, 16)
     best = grid_fastest(verts, fps, grid)
