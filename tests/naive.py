@@ -570,12 +570,14 @@ def polygons_of(vertices: list[np.ndarray]):
                             original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0)
 
 
-def greedy_free(vertices: list[np.ndarray], fps: float, duration: float) -> tuple[np.ndarray, np.ndarray]:
+def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """``reachable.free_frames`` from scratch, one frame per unit: each step tries freeing (polygon →
     box) every frame not yet freed, rebuilding all polygons and running ``fastest_timing`` anew,
-    and frees the one that saves the most output seconds per output frame it leaves outside (its
-    own 1/√x, half of each unfreed neighbour's) until the fastest profile lasts ≤ ``duration``;
-    then restores freed frames in order while it still fits. (freed (F,), fastest profile (F,))."""
+    ranks them by the output seconds saved per output frame left outside (its own 1/√x, half of
+    each unfreed neighbour's) and frees the best, then up to ``batch`` − 1 more in rank order
+    while their summed savings fit in what is missing, until the fastest profile lasts ≤
+    ``duration``; then restores freed frames in order while it still fits. (freed (F,), fastest
+    profile (F,))."""
     from motionweb.tasks.retime.reachable import fastest_timing
 
     f, d = len(vertices), 1.0 / fps
@@ -590,7 +592,7 @@ def greedy_free(vertices: list[np.ndarray], fps: float, duration: float) -> tupl
     freed = np.zeros(f, bool)
     x = fastest(freed)
     while length(x) > duration:
-        best, best_gain = -1, 0.0
+        ranked = []
         for i in range(f):
             if freed[i]:
                 continue
@@ -598,11 +600,16 @@ def greedy_free(vertices: list[np.ndarray], fps: float, duration: float) -> tupl
             trial[i] = True
             x2 = fastest(trial)
             spent = 1 / np.sqrt(x2[i]) + sum(0.5 / np.sqrt(x2[j]) for j in (i - 1, i + 1) if 0 <= j < f and not freed[j])
-            gain = (length(x) - length(x2)) / spent
-            if gain > best_gain:
-                best, best_gain = i, gain
-        assert best >= 0, "nothing helps"
-        freed[best] = True
+            saving = length(x) - length(x2)
+            ranked.append((-saving / spent, i, saving))
+        ranked.sort()  # best gain first, ties by frame
+        assert ranked and ranked[0][0] < 0, "nothing helps"
+        taken = 0.0
+        for r, (neg_gain, i, saving) in enumerate(ranked[:batch]):
+            if neg_gain >= 0 or (r and taken + saving > length(x) - duration):
+                break
+            taken += saving
+            freed[i] = True
         x = fastest(freed)
     for i in np.flatnonzero(freed):
         trial = freed.copy()

@@ -33,6 +33,10 @@ from motionweb.tasks.retime.polygons import FeasiblePolygons
 from motionweb.tasks.retime.reachable import UNITS, extreme_profile, free_frames, padded, profile_duration
 from motionweb.tasks.retime.spline import RetimeResult
 
+#: units the greedy may free per step (reachable.free_frames): one step ranks them all, so
+#: taking the top few whose savings still fit cuts the steps ~BATCH-fold
+BATCH = 8
+
 
 @dataclass(frozen=True, eq=False)
 class PathCurve:
@@ -78,12 +82,14 @@ def profile_of_duration(polys: FeasiblePolygons, fps: float, duration: float,
                         max_outside: float = 0.5) -> PathProfile | None:
     """A profile lasting ``duration`` output seconds, inside the polygons where it can be (module doc).
 
-    None where the greedy cannot reach the duration with at most ``max_outside`` of the output
-    frames in freed source frames, or where no profile inside is slow enough. O(F · K) inside the
+    None for a clip of one frame, where the greedy cannot reach the duration with at most
+    ``max_outside`` of the output frames left outside, or where no profile inside is slow enough. O(F · K) inside the
     reachable range; the greedy's cost below it (module doc).
     """
     verts, count = padded(polys)
     f = len(count)
+    if f < 2:
+        return None
     d = 1.0 / fps
     one = np.ones(f)
     original = (f - 1) * d
@@ -92,7 +98,8 @@ def profile_of_duration(polys: FeasiblePolygons, fps: float, duration: float,
         return PathProfile(x=one, freed=freed, theta=0.0)
     ext, _ = extreme_profile(verts, count, d, duration < original)
     if duration < original and profile_duration(ext, d) > duration:
-        freed, ext, ok = free_frames(verts, count, d, duration, max(1, -(-f // UNITS)), max_outside * duration * fps)
+        freed, ext, ok = free_frames(verts, count, d, duration, max(1, -(-f // UNITS)), max_outside * duration * fps,
+                                     BATCH)
         if not ok:
             return None
     elif duration > original and profile_duration(ext, d) < duration:

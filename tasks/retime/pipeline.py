@@ -33,6 +33,7 @@ from motionweb.tasks.retime.limits import joint_torques, table_limits
 from motionweb.tasks.retime.objective import BakedObjective, bake
 from motionweb.tasks.retime.path_timing import path_timing
 from motionweb.tasks.retime.polygons import (
+    MET_OUTSIDE_FRACTION,
     N_ROOT,
     FeasiblePolygons,
     OriginalForces,
@@ -105,10 +106,11 @@ class RetimeParams(Params):
     lp_solver: Literal["simplex", "highs"] = "simplex"
     #: knots of the monotone timing spline p(t) per second of output
     knots_per_second: float = 8.0
-    #: the timing of a duration without keytimes: "spline" — MPS06's optimized spline (Eqn. 14);
-    #: "path" — built on the source frames, inside every polygon where the duration allows and
-    #: leaving them on as few output frames as it can where not (path_timing.py); "auto" — both,
-    #: keeping the one with fewer output frames outside their polygon (the spline on a tie).
+    #: the timing of a duration without keytimes: "spline" — MPS06's optimized spline (Eqn. 14,
+    #: honouring the objective); "path" — built on the source frames, inside every polygon where
+    #: the duration allows and leaving them on as few output frames as it can where not
+    #: (path_timing.py); "auto" — the spline when it meets the target (at most 10 % of the output
+    #: frames outside their polygon), else the path timing where it leaves fewer outside.
     #: Keytimes and a free length always take the spline.
     timing: Literal["auto", "spline", "path"] = "auto"
 
@@ -250,8 +252,9 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
                 opts: RetimeParams | None = None, free_length: bool = False) -> tuple[Motion, RetimeResult]:
-    """Time a prepared clip (``opts.timing``: the optimized spline, the path timing or the better
-    of the two) and sample the retimed motion at the source fps.
+    """Time a prepared clip (``opts.timing``: the optimized spline, the path timing, or the spline
+    unless it misses the target and the path timing leaves fewer frames outside) and sample the
+    retimed motion at the source fps.
 
     ``free_length``: ``duration`` is the starting length and the optimizer picks the length too.
     Raises ``RetimeError`` for timing "path" with keytimes, a free length, or a duration no path
@@ -267,7 +270,8 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
         res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes,
                               samples_per_frame=opts.samples_per_frame, knots_per_second=opts.knots_per_second,
                               speed_max=opts.speed_max, free_length=free_length)
-    if opts.timing != "spline" and path_ok:
+    missed = res is None or outside_count(plan, res) > MET_OUTSIDE_FRACTION * len(res.t)
+    if opts.timing != "spline" and path_ok and missed:
         check_keytimes(m.duration, duration, [], opts.speed_max)
         path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame)
         if path is None and res is None:

@@ -410,6 +410,10 @@ def closest_point(v: np.ndarray, x: np.ndarray) -> np.ndarray:
     return proj[np.argmin(((proj - x) ** 2).sum(axis=1))]
 
 
+#: a timing meets its target when at most this share of its output frames lies outside their polygon
+MET_OUTSIDE_FRACTION = 0.1
+
+
 def timing_distances(polys: FeasiblePolygons, fps: float, p: np.ndarray, pd: np.ndarray,
                      pdd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How far each output frame of a timing lies from its feasible polygon (MPS06 §3.3).

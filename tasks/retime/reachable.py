@@ -253,21 +253,27 @@ def _set_units(verts, cnt, d, s, e, qv, qc, meet):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def free_frames(verts, count, d, duration, unit, max_outside):  # pragma: no cover - numba
+def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma: no cover - numba
     """Greedy: free units of ``unit`` source frames (polygon → box) until the fastest profile of
-    the rest lasts ≤ ``duration``; each step frees the unit whose freeing saves the most output
-    seconds per output frame it leaves outside (:func:`_spent`). Then restores freed units no
-    longer needed. Returns (freed mask, fastest profile, success); fails when nothing helps or
-    more than ``max_outside`` output frames would be left outside."""
+    the rest lasts ≤ ``duration``. Each step ranks the units by the output seconds their freeing
+    saves per output frame it leaves outside (:func:`_spent`) and frees the best, then up to
+    ``batch`` − 1 more in rank order while their savings, summed, stay within what is still
+    missing. Then restores, in order, freed units no longer needed. Returns (freed mask, fastest
+    profile, success); fails when nothing helps or more than ``max_outside`` output frames would
+    be left outside."""
     f = count.shape[0]
     cnt = count.copy()
     freed = np.zeros(f, np.bool_)
     qv, qc, meet = interval_polygons(verts, cnt, d)
     x, _ = interval_profile(qv, qc, d, True)
     dur = profile_duration(x, d)
+    starts = np.arange(0, f, unit)
+    gain = np.empty(starts.shape[0])
+    saving = np.empty(starts.shape[0])
     while dur > duration:
-        best_gain, best = 0.0, -1
-        for s in range(0, f, unit):
+        gain[:] = -1.0
+        for k in range(starts.shape[0]):
+            s = starts[k]
             e = min(s + unit, f)
             if freed[s] or cnt[s:e].max() == 0:
                 continue
@@ -278,19 +284,26 @@ def free_frames(verts, count, d, duration, unit, max_outside):  # pragma: no cov
             x2, _ = interval_profile(qv, qc, d, True)
             cnt[s:e] = saved_cnt
             qv[lo:e], qc[lo:e], meet[lo:e] = saved_v, saved_c, saved_m
-            gain = (dur - profile_duration(x2, d)) / _spent(x2, freed, s, e)
-            if gain > best_gain:
-                best_gain, best = gain, s
-        if best < 0:
+            saving[k] = dur - profile_duration(x2, d)
+            gain[k] = saving[k] / _spent(x2, freed, s, e)
+        order = np.argsort(-gain, kind="mergesort")
+        if gain[order[0]] <= 0.0:
             return freed, x, False
-        e = min(best + unit, f)
-        freed[best:e] = True
-        cnt[best:e] = 0
-        _set_units(verts, cnt, d, best, e, qv, qc, meet)
+        taken = 0.0
+        for r in range(min(batch, order.shape[0])):
+            k = order[r]
+            if gain[k] <= 0.0 or (r > 0 and taken + saving[k] > dur - duration):
+                break
+            taken += saving[k]
+            s = starts[k]
+            e = min(s + unit, f)
+            freed[s:e] = True
+            cnt[s:e] = 0
+            _set_units(verts, cnt, d, s, e, qv, qc, meet)
         x, _ = interval_profile(qv, qc, d, True)
         dur = profile_duration(x, d)
         spent = 0.0
-        for s in range(0, f, unit):
+        for s in starts:
             if freed[s]:
                 spent += _spent(x, freed, s, min(s + unit, f))
         if spent > max_outside:

@@ -13,7 +13,7 @@ from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
 from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
 from motionweb.tasks.retime.pipeline import RetimePlan
-from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, timing_distances
+from motionweb.tasks.retime.polygons import MET_OUTSIDE_FRACTION, N_ROOT, FeasiblePolygons, timing_distances
 from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.spline import RetimeResult
 
@@ -141,7 +141,8 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
 def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str, Any]:
     """Whether the requested timing was met, with the shortest duration reachable inside the polygons.
 
-    Met: ≤ 10 % of the output frames (``outside`` of them) lie outside their feasible polygon. A
+    Met: at most ``MET_OUTSIDE_FRACTION`` (10 %) of the output frames (``outside`` of them) lie
+    outside their feasible polygon. A
     duration below the shortest timing inside every polygon (:func:`.reachable.fastest_timing`)
     must leave them somewhere, and the message says by how much; where no timing stays inside
     every polygon it names the frames where the chain breaks and ``shortest_feasible_duration``
@@ -151,7 +152,7 @@ def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str,
     bound = fastest.duration
     dur = float(res.t[-1])
     n = len(res.t)
-    met = outside <= 0.1 * n
+    met = outside <= MET_OUTSIDE_FRACTION * n
     word = "met" if met else "not met"
     if not fastest.inside:
         where = ", ".join(str(i) for i in fastest.broken[:5]) + (" ..." if len(fastest.broken) > 5 else "")
