@@ -570,12 +570,14 @@ def polygons_of(vertices: list[np.ndarray]):
                             original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0)
 
 
-def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: int = 1,
+                batch_gain: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
     """``reachable.free_frames`` from scratch, one frame per unit: each step tries freeing (polygon →
     box) every frame not yet freed, rebuilding all polygons and running ``fastest_timing`` anew,
     ranks them by the output seconds saved per output frame left outside (its own 1/√x, half of
     each unfreed neighbour's) and frees the best, then up to ``batch`` − 1 more in rank order
-    while their summed savings fit in what is missing, until the fastest profile lasts ≤
+    while they gain at least ``batch_gain`` of the best and their summed savings fit in what is
+    missing, until the fastest profile lasts ≤
     ``duration``; then restores freed frames in order while it still fits. (freed (F,), fastest
     profile (F,))."""
     from motionweb.tasks.retime.reachable import fastest_timing
@@ -606,7 +608,7 @@ def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: 
         assert ranked and ranked[0][0] < 0, "nothing helps"
         taken = 0.0
         for r, (neg_gain, i, saving) in enumerate(ranked[:batch]):
-            if neg_gain >= 0 or (r and taken + saving > length(x) - duration):
+            if neg_gain >= 0 or (r and (neg_gain > batch_gain * ranked[0][0] or taken + saving > length(x) - duration)):
                 break
             taken += saving
             freed[i] = True

@@ -28,6 +28,9 @@ from numba import njit
 X_FLOOR = 1e-6
 #: candidate units of :func:`free_frames`: at most this many per clip (units of ⌈F / UNITS⌉ frames)
 UNITS = 256
+#: :func:`free_frames` frees more than the best unit in one step only where they save nearly as
+#: much per output frame as the best (this share of its gain)
+BATCH_GAIN = 0.8
 #: (p̈, ṗ²) box standing in for an empty polygon (RetimeParams' default pdd_max, speed_max²): the
 #: timing is then not inside, whatever the box
 BOX = (40.0, 36.0)
@@ -246,6 +249,17 @@ def _spent(x, freed, s, e):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _all_spent(x, freed, starts, unit):  # pragma: no cover - numba
+    """Output frames left outside by all freed units (:func:`_spent` summed)."""
+    f = x.shape[0]
+    out = 0.0
+    for s in starts:
+        if freed[s]:
+            out += _spent(x, freed, s, min(s + unit, f))
+    return out
+
+
+@njit(cache=True)
 def _set_units(verts, cnt, d, s, e, qv, qc, meet):  # pragma: no cover - numba
     """Recompute the interval polygons that frames s..e−1 enter (frames s−1..e−1)."""
     for i in range(max(s - 1, 0), e):
@@ -257,10 +271,10 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
     """Greedy: free units of ``unit`` source frames (polygon → box) until the fastest profile of
     the rest lasts ≤ ``duration``. Each step ranks the units by the output seconds their freeing
     saves per output frame it leaves outside (:func:`_spent`) and frees the best, then up to
-    ``batch`` − 1 more in rank order while their savings, summed, stay within what is still
-    missing. Then restores, in order, freed units no longer needed. Returns (freed mask, fastest
-    profile, success); fails when nothing helps or more than ``max_outside`` output frames would
-    be left outside."""
+    ``batch`` − 1 more in rank order while they gain at least :data:`BATCH_GAIN` of the best and
+    their savings, summed, stay within what is still missing. Then restores, in order, freed units no longer needed. Returns (freed mask, fastest
+    profile, success); fails when nothing helps or more than ``max_outside`` output frames are
+    left outside in the end (the steps give up at twice that)."""
     f = count.shape[0]
     cnt = count.copy()
     freed = np.zeros(f, np.bool_)
@@ -292,7 +306,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
         taken = 0.0
         for r in range(min(batch, order.shape[0])):
             k = order[r]
-            if gain[k] <= 0.0 or (r > 0 and taken + saving[k] > dur - duration):
+            if gain[k] <= 0.0 or (r > 0 and (gain[k] < BATCH_GAIN * gain[order[0]] or taken + saving[k] > dur - duration)):
                 break
             taken += saving[k]
             s = starts[k]
@@ -302,11 +316,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
             _set_units(verts, cnt, d, s, e, qv, qc, meet)
         x, _ = interval_profile(qv, qc, d, True)
         dur = profile_duration(x, d)
-        spent = 0.0
-        for s in starts:
-            if freed[s]:
-                spent += _spent(x, freed, s, min(s + unit, f))
-        if spent > max_outside:
+        if _all_spent(x, freed, starts, unit) > 2.0 * max_outside:  # beyond what the restores could win back
             return freed, x, False
     for s in range(0, f, unit):  # restore what the later choices made unnecessary
         e = min(s + unit, f)
@@ -321,7 +331,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
         else:
             cnt[s:e] = 0
             _set_units(verts, cnt, d, s, e, qv, qc, meet)
-    return freed, x, True
+    return freed, x, _all_spent(x, freed, starts, unit) <= max_outside
 
 
 def extreme_profile(verts: np.ndarray, count: np.ndarray, d: float, fastest: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from motionweb.tasks.retime.path_timing import BATCH, PathCurve, profile_of_duration
 from motionweb.tasks.retime.polygons import timing_distances
-from motionweb.tasks.retime.reachable import fastest_timing, profile_duration
+from motionweb.tasks.retime.reachable import BATCH_GAIN, fastest_timing, profile_duration
 from naive import box_polygon as box
 from naive import greedy_free, in_convex
 from naive import polygons_of as polygons
@@ -94,11 +94,27 @@ def test_the_greedy_against_its_from_scratch_reference(seed: int) -> None:
     polys = polygons(verts)
     target = (0.9 if seed % 2 else 0.95) * fastest_timing(polys, fps).duration
     prof = profile_of_duration(polys, fps, target)
-    freed, x = greedy_free(verts, fps, target, batch=BATCH)
+    freed, x = greedy_free(verts, fps, target, batch=BATCH, batch_gain=BATCH_GAIN)
     assert prof is not None and freed.sum() >= 2
     np.testing.assert_array_equal(prof.freed, freed)
     assert profile_duration(x, 1 / fps) <= target + 1e-12
     np.testing.assert_allclose(prof.x, 1 + prof.theta * (x - 1), rtol=1e-9)
+
+
+def test_equal_bottlenecks_are_freed_together() -> None:
+    """Four equal bottlenecks: one step ranks them alike and frees them together (the batch);
+    kernel and reference agree, and all four go."""
+    fps, f = 30.0, 40
+    verts = [box(30.0, 0.2, 9.0) for _ in range(f)]
+    for i in (5, 15, 25, 35):
+        verts[i] = box(30.0, 0.2, 1.05)
+    polys = polygons(verts)
+    target = 0.62 * fastest_timing(polys, fps).duration
+    prof = profile_of_duration(polys, fps, target)
+    freed, _ = greedy_free(verts, fps, target, batch=BATCH, batch_gain=BATCH_GAIN)
+    assert prof is not None
+    np.testing.assert_array_equal(prof.freed, freed)
+    assert all(freed[i - 1:i + 2].any() for i in (5, 15, 25, 35))
 
 
 def test_out_of_reach_gives_none() -> None:
