@@ -31,8 +31,8 @@ UNITS = 256
 #: :func:`free_frames` frees more than the best unit in one step only where they save nearly as
 #: much per output frame as the best (this share of its gain)
 BATCH_GAIN = 0.8
-#: (p̈, ṗ²) box standing in for an empty polygon (RetimeParams' default pdd_max, speed_max²): the
-#: timing is then not inside, whatever the box
+#: (p̈, ṗ²) box standing in for an empty polygon where a clip has no polygon at all
+#: (RetimeParams' default pdd_max, speed_max²); otherwise the box the polygons were clipped to
 BOX = (40.0, 36.0)
 
 
@@ -53,8 +53,10 @@ class PathTiming:
     broken: np.ndarray
 
 
-def padded(polys: FeasiblePolygons) -> tuple[np.ndarray, np.ndarray]:
-    """The polygons as (F, K, 2) vertices (padding repeats the last) and (F,) vertex counts (0: empty)."""
+def padded(polys: FeasiblePolygons) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The polygons as (F, K, 2) vertices (padding repeats the last), (F,) vertex counts (0: empty)
+    and the (p̈, ṗ²) box they were clipped to, (2,) max |p̈| and max ṗ² over all their vertices
+    (:data:`BOX` where there are none): what stands in for an empty or freed polygon."""
     vs = polys.vertices
     k = max(max((len(v) for v in vs), default=1), 1)
     verts = np.zeros((len(vs), k, 2))
@@ -64,7 +66,8 @@ def padded(polys: FeasiblePolygons) -> tuple[np.ndarray, np.ndarray]:
             verts[i, :len(v)] = v
             verts[i, len(v):] = v[-1]
             count[i] = len(v)
-    return verts, count
+    every = np.concatenate([v for v in vs if len(v)]) if count.any() else np.array([BOX])
+    return verts, count, np.array([np.abs(every[:, 0]).max(), every[:, 1].max()])
 
 
 @njit(cache=True)
@@ -93,10 +96,10 @@ def _clip(pts, n, ca, cx, b):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _frame_polygon(verts, count, i):  # pragma: no cover - numba
-    """Frame i's polygon, or :data:`BOX` where it is empty: (points, n)."""
+def _frame_polygon(verts, count, i, box):  # pragma: no cover - numba
+    """Frame i's polygon, or the (p̈, ṗ²) box |p̈| ≤ box[0], 0 ≤ ṗ² ≤ box[1] where it is empty: (points, n)."""
     if count[i] == 0:
-        return np.array([[-BOX[0], 0.0], [BOX[0], 0.0], [BOX[0], BOX[1]], [-BOX[0], BOX[1]]]), 4
+        return np.array([[-box[0], 0.0], [box[0], 0.0], [box[0], box[1]], [-box[0], box[1]]]), 4
     return verts[i], count[i]
 
 
@@ -121,18 +124,18 @@ def _cut_shifted(cut, c, poly, m, shift):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _interval_polygon(verts, count, i, d):  # pragma: no cover - numba
+def _interval_polygon(verts, count, i, d, box):  # pragma: no cover - numba
     """The (p̈, ṗ²) = (a, x_i) of frame i whose p̈ held over the interval to frame i + 1 stays
     inside the polygon of the nearer frame at every instant: x runs linearly from x_i to
     x_i + 2 d a, the first half checked against frame i's polygon, the second against frame
     i + 1's, so (convexity) both ends of each half must lie in its polygon (TOPP-RA's first-order
     interpolation scheme, with the check an output frame gets). The last frame: its own polygon.
     (points, n), n = 0 when no such a exists."""
-    pts, n = _frame_polygon(verts, count, i)
+    pts, n = _frame_polygon(verts, count, i, box)
     cut = pts[:n].copy()
     if i == verts.shape[0] - 1:
         return cut, n
-    nxt, m = _frame_polygon(verts, count, i + 1)
+    nxt, m = _frame_polygon(verts, count, i + 1, box)
     cut, c = _cut_shifted(cut, n, pts, n, d)
     if c:
         cut, c = _cut_shifted(cut, c, nxt, m, d)
@@ -142,19 +145,19 @@ def _interval_polygon(verts, count, i, d):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def set_interval(verts, count, d, i, qv, qc, meet):  # pragma: no cover - numba
+def set_interval(verts, count, d, i, qv, qc, meet, box):  # pragma: no cover - numba
     """Store frame i's :func:`_interval_polygon` in ``qv[i], qc[i]`` (its own polygon where the
     two frames' do not meet, ``meet[i]`` False)."""
-    q, n = _interval_polygon(verts, count, i, d)
+    q, n = _interval_polygon(verts, count, i, d, box)
     meet[i] = n > 0
     if n == 0:
-        q, n = _frame_polygon(verts, count, i)
+        q, n = _frame_polygon(verts, count, i, box)
     qv[i, :n] = q[:n]
     qc[i] = n
 
 
 @njit(cache=True)
-def interval_polygons(verts, count, d):  # pragma: no cover - numba
+def interval_polygons(verts, count, d, box):  # pragma: no cover - numba
     """Every frame's :func:`_interval_polygon`: (F, K', 2) vertices, (F,) counts, (F,) whether the
     frame's polygon meets the next one's. O(F · K²)."""
     f = verts.shape[0]
@@ -162,7 +165,7 @@ def interval_polygons(verts, count, d):  # pragma: no cover - numba
     qc = np.zeros(f, np.int64)
     meet = np.ones(f, np.bool_)
     for i in range(f):
-        set_interval(verts, count, d, i, qv, qc, meet)
+        set_interval(verts, count, d, i, qv, qc, meet, box)
     return qv, qc, meet
 
 
@@ -260,14 +263,14 @@ def _all_spent(x, freed, starts, unit):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _set_units(verts, cnt, d, s, e, qv, qc, meet):  # pragma: no cover - numba
+def _set_units(verts, cnt, d, s, e, qv, qc, meet, box):  # pragma: no cover - numba
     """Recompute the interval polygons that frames s..e−1 enter (frames s−1..e−1)."""
     for i in range(max(s - 1, 0), e):
-        set_interval(verts, cnt, d, i, qv, qc, meet)
+        set_interval(verts, cnt, d, i, qv, qc, meet, box)
 
 
 @njit(cache=True)
-def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma: no cover - numba
+def free_frames(verts, count, d, duration, unit, max_outside, batch, box):  # pragma: no cover - numba
     """Greedy: free units of ``unit`` source frames (polygon → box) until the fastest profile of
     the rest lasts ≤ ``duration``. Each step ranks the units by the output seconds their freeing
     saves per output frame it leaves outside (:func:`_spent`) and frees the best, then up to
@@ -278,7 +281,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
     f = count.shape[0]
     cnt = count.copy()
     freed = np.zeros(f, np.bool_)
-    qv, qc, meet = interval_polygons(verts, cnt, d)
+    qv, qc, meet = interval_polygons(verts, cnt, d, box)
     x, _ = interval_profile(qv, qc, d, True)
     dur = profile_duration(x, d)
     starts = np.arange(0, f, unit)
@@ -294,7 +297,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
             lo = max(s - 1, 0)
             saved_v, saved_c, saved_m, saved_cnt = qv[lo:e].copy(), qc[lo:e].copy(), meet[lo:e].copy(), cnt[s:e].copy()
             cnt[s:e] = 0
-            _set_units(verts, cnt, d, s, e, qv, qc, meet)
+            _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
             x2, _ = interval_profile(qv, qc, d, True)
             cnt[s:e] = saved_cnt
             qv[lo:e], qc[lo:e], meet[lo:e] = saved_v, saved_c, saved_m
@@ -313,7 +316,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
             e = min(s + unit, f)
             freed[s:e] = True
             cnt[s:e] = 0
-            _set_units(verts, cnt, d, s, e, qv, qc, meet)
+            _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
         x, _ = interval_profile(qv, qc, d, True)
         dur = profile_duration(x, d)
         if _all_spent(x, freed, starts, unit) > 2.0 * max_outside:  # beyond what the restores could win back
@@ -323,22 +326,23 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch):  # pragma:
         if not freed[s]:
             continue
         cnt[s:e] = count[s:e]
-        _set_units(verts, cnt, d, s, e, qv, qc, meet)
+        _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
         x2, _ = interval_profile(qv, qc, d, True)
         if profile_duration(x2, d) <= duration:
             freed[s:e] = False
             x = x2
         else:
             cnt[s:e] = 0
-            _set_units(verts, cnt, d, s, e, qv, qc, meet)
+            _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
     return freed, x, _all_spent(x, freed, starts, unit) <= max_outside
 
 
-def extreme_profile(verts: np.ndarray, count: np.ndarray, d: float, fastest: bool) -> tuple[np.ndarray, np.ndarray]:
+def extreme_profile(verts: np.ndarray, count: np.ndarray, d: float, fastest: bool,
+                    box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The fastest (``fastest``) or slowest profile inside the padded polygons (:func:`padded`) of
     frames ``d`` s apart, and where the chain broke (an empty polygon, two frames' polygons that do
     not meet, or no way on inside)."""
-    qv, qc, meet = interval_polygons(verts, count, d)
+    qv, qc, meet = interval_polygons(verts, count, d, box)
     x, broken = interval_profile(qv, qc, d, fastest)
     return x, broken | (count == 0) | ~meet
 
@@ -350,7 +354,7 @@ def fastest_timing(polys: FeasiblePolygons, fps: float) -> PathTiming:
     inside them is shorter. Where a polygon is empty or the chain breaks the timing is not
     ``inside`` and ``broken`` says where. O(F · K).
     """
-    verts, count = padded(polys)
-    x, broken = extreme_profile(verts, count, 1.0 / fps, True)
+    verts, count, box = padded(polys)
+    x, broken = extreme_profile(verts, count, 1.0 / fps, True, box)
     where = np.flatnonzero(broken)
     return PathTiming(x=x, duration=profile_duration(x, 1.0 / fps), inside=not len(where), broken=where)

@@ -71,7 +71,8 @@ def test_durations_within_reach_are_met_inside(frac: float) -> None:
 
 def test_below_the_shortest_the_bottleneck_is_freed() -> None:
     """One frame capped at ṗ² ≤ 1.05 (the rest allow 9): below the fastest timing the greedy frees
-    the frames around it, the duration is met and every other interval is inside."""
+    the frames around it, within the polygons' box; the duration is met and every other interval
+    is inside."""
     fps, f = 30.0, 60
     verts = [box(30.0, 0.2, 9.0) for _ in range(f)]
     verts[30] = box(30.0, 0.2, 1.05)
@@ -80,6 +81,8 @@ def test_below_the_shortest_the_bottleneck_is_freed() -> None:
     prof = profile_of_duration(polys, fps, 0.97 * fast)
     assert prof is not None and prof.freed.any()
     assert set(np.flatnonzero(prof.freed)) <= set(range(26, 35))
+    a = np.diff(prof.x) * fps / 2  # freed frames stay in the box the polygons were clipped to
+    assert np.abs(a).max() <= 30.0 + 1e-9 and prof.x.max() <= 9.0 + 1e-9
     assert profile_duration(prof.x, 1 / fps) == pytest.approx(0.97 * fast, rel=1e-9)
     assert not half_intervals_inside(verts, prof.x, fps, prof.freed | np.roll(prof.freed, 1) | np.roll(prof.freed, -1))
 
