@@ -177,8 +177,9 @@ def warp(
                           skip=skip, fast=fast, backward=backward, plot=str(plot) if plot else None)
     try:
         plan_warp(cfg, request)  # every check before a flow run starts
-        summary = warp_flow(cfg, request)
-    except (MotionFormatError, ValueError, OSError) as exc:
+        with reported_flow_errors():
+            summary = warp_flow(cfg, request)
+    except ERRORS as exc:
         fail(str(exc))
     typer.echo(format_summary(summary))
 
@@ -228,9 +229,10 @@ def retime(
     from motionweb.flows.retime import retime_flow
 
     try:
-        rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
-                          mass=factors, objective=objective, plot_dir=str(plot) if plot else None)
-    except (MotionFormatError, ValueError, OSError) as exc:
+        with reported_flow_errors():
+            rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
+                              mass=factors, objective=objective, plot_dir=str(plot) if plot else None)
+    except ERRORS as exc:
         fail(str(exc))
     typer.echo(f"{rep['clip']}: {rep['duration_in']:.3f} s -> {rep['duration_out']:.3f} s, "
                f"{rep['frames_out']} frames written to {rep['output']}")

@@ -9,8 +9,9 @@ from contextlib import contextmanager
 
 from motionweb.store.errors import MotionFormatError
 
-#: RuntimeError: e.g. Prefect's local API server not starting in time on a busy machine
-ERRORS = (ValueError, KeyError, FileNotFoundError, MotionFormatError, RuntimeError)
+#: RuntimeError: e.g. Prefect's local API server not starting in time on a busy machine; OSError:
+#: a missing input or an output that cannot be written
+ERRORS = (ValueError, KeyError, OSError, MotionFormatError, RuntimeError)
 
 
 class DropReported(logging.Filter):

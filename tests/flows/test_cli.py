@@ -92,3 +92,22 @@ def test_retime_a_cmu_jump_in_half_the_time(cmu16: Path, tmp_path: Path, prefect
     assert len(rep["infeasible_output_frames"]) <= 0.1 * rep["frames_out"]
     assert 0.9 < rep["flights"][0]["ratio"] < 1.1
     assert all(Path(p).stat().st_size > 0 for p in rep["plots"])
+
+
+def test_a_request_refused_inside_the_flow_is_one_line(tmp_path: Path) -> None:
+    """``retime`` of a BVH that declares no length unit (the physics needs metres): the error is
+    raised inside the flow run, where Prefect's task log would print its traceback first; the
+    user sees one line naming the file, exit 2."""
+    import os
+    import subprocess
+    import sys
+
+    write_bvh(tiny_motion(40, 30.0), tmp_path / "tiny.bvh")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
+    env["PREFECT_HOME"] = str(tmp_path / "prefect")
+    r = subprocess.run([sys.executable, "-m", "motionweb.flows.cli", "retime", "tiny.bvh", "--out", "r.bvh",
+                        "--duration", "1"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stdout + r.stderr, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "tiny.bvh" in lines[0] and "length unit" in lines[0], lines
