@@ -5,7 +5,8 @@ source seconds), so a timing is a profile x(u) with (½ dx/du, x) in every frame
 time-optimal path parameterization problem of robotics, solved by reachability analysis (TOPP-RA;
 Pham & Pham, IEEE T-RO 34(3), 2018) on the source frames with p̈ constant over each frame
 interval and inside the polygon of the nearer frame at every instant between (the paper's
-first-order interpolation scheme, checked as an output frame is: against its nearest source frame). A backward pass gives each frame's controllable set (the ṗ² from which the rest of the
+first-order interpolation scheme, checked as an output frame is: against its nearest source
+frame). A backward pass gives each frame's controllable set (the ṗ² from which the rest of the
 clip can still play inside its polygons), a greedy forward pass the fastest profile in them. Both
 cut a convex polygon by half-planes, so no LP is needed and the result is exact for the polygons:
 the shortest duration any timing inside them reaches (the one a retiming below it cannot meet).
@@ -348,11 +349,12 @@ def extreme_profile(verts: np.ndarray, count: np.ndarray, d: float, fastest: boo
 
 
 def fastest_timing(polys: FeasiblePolygons, fps: float) -> PathTiming:
-    """The shortest timing whose every source frame lies inside its polygon (TOPP-RA, MPS06 §3.3).
+    """The shortest timing whose every instant lies inside its nearest source frame's polygon
+    (TOPP-RA, MPS06 §3.3).
 
-    Exact for the polygons given, with p̈ constant between source frames: no timing that stays
-    inside them is shorter. Where a polygon is empty or the chain breaks the timing is not
-    ``inside`` and ``broken`` says where. O(F · K).
+    Exact for the polygons given, with p̈ constant between source frames: no such timing is
+    shorter. Where a polygon is empty or the chain breaks the timing is not ``inside`` and
+    ``broken`` says where. O(F · K²).
     """
     verts, count, box = padded(polys)
     x, broken = extreme_profile(verts, count, 1.0 / fps, True, box)
