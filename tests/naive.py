@@ -559,15 +559,16 @@ def box_polygon(amax: float, x0: float, x1: float) -> np.ndarray:
     return np.array([[-amax, x0], [amax, x0], [amax, x1], [-amax, x1]])
 
 
-def polygons_of(vertices: list[np.ndarray]):
-    """``FeasiblePolygons`` of given per-frame vertices (no contact forces; original timing inside)."""
+def polygons_of(vertices: list[np.ndarray], box: tuple[float, float] = (40.0, 36.0)):
+    """``FeasiblePolygons`` of given per-frame vertices clipped to ``box`` (max |p̈|, max ṗ²), no
+    contact forces, the original timing inside."""
     from motionweb.tasks.retime.polygons import FeasiblePolygons
 
     f = len(vertices)
     return FeasiblePolygons(vertices=vertices, lambdas=[np.zeros((len(v), 1)) for v in vertices],
                             center=np.tile([0.0, 1.0], (f, 1)), center_lambda=np.zeros((f, 1)), residual=np.zeros(f),
                             tolerance=np.zeros((f, 6)), infeasible=np.zeros(f, bool),
-                            original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0)
+                            original_inside=np.ones(f, bool), n_lps=0, seconds=0.0, cpu_seconds=0.0, box=box)
 
 
 def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: int = 1,

@@ -84,6 +84,8 @@ class FeasiblePolygons:
             original_inside: (F,) whether (0, 1) is in the polygon.
         n_lps: LPs solved; n_fallback: of them, simplex solves handed to HiGHS (iteration limit,
             numerical trouble); seconds, cpu_seconds: wall and CPU time of this process.
+        box: (max |p̈|, max ṗ²) of the box the polygons are clipped to (``PolygonOptions``
+            pdd_max, speed_max²; by default RetimeParams' defaults).
     """
 
     vertices: list[np.ndarray]
@@ -98,6 +100,7 @@ class FeasiblePolygons:
     seconds: float
     cpu_seconds: float
     n_fallback: int = 0
+    box: tuple[float, float] = (40.0, 36.0)
 
 
 # --------------------------------------------------------------------------- LPs
@@ -619,4 +622,4 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
     return FeasiblePolygons(vertices=verts, lambdas=lams, center=center, center_lambda=clam, residual=res,
                             tolerance=tol, infeasible=infeasible, original_inside=inside, n_lps=n_lps,
                             seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,
-                            n_fallback=n_fallback)
+                            n_fallback=n_fallback, box=(opts.pdd_max, opts.speed_max ** 2))

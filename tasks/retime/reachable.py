@@ -32,9 +32,6 @@ UNITS = 256
 #: :func:`free_frames` frees more than the best unit in one step only where they save nearly as
 #: much per output frame as the best (this share of its gain)
 BATCH_GAIN = 0.8
-#: (p̈, ṗ²) box standing in for an empty polygon where a clip has no polygon at all
-#: (RetimeParams' default pdd_max, speed_max²); otherwise the box the polygons were clipped to
-BOX = (40.0, 36.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,8 +53,8 @@ class PathTiming:
 
 def padded(polys: FeasiblePolygons) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The polygons as (F, K, 2) vertices (padding repeats the last), (F,) vertex counts (0: empty)
-    and the (p̈, ṗ²) box they were clipped to, (2,) max |p̈| and max ṗ² over all their vertices
-    (:data:`BOX` where there are none): what stands in for an empty or freed polygon."""
+    and (2,) the (p̈, ṗ²) box they were clipped to (``polys.box``): what stands in for an empty
+    or freed polygon."""
     vs = polys.vertices
     k = max(max((len(v) for v in vs), default=1), 1)
     verts = np.zeros((len(vs), k, 2))
@@ -67,8 +64,7 @@ def padded(polys: FeasiblePolygons) -> tuple[np.ndarray, np.ndarray, np.ndarray]
             verts[i, :len(v)] = v
             verts[i, len(v):] = v[-1]
             count[i] = len(v)
-    every = np.concatenate([v for v in vs if len(v)]) if count.any() else np.array([BOX])
-    return verts, count, np.array([np.abs(every[:, 0]).max(), every[:, 1].max()])
+    return verts, count, np.asarray(polys.box, float)
 
 
 @njit(cache=True)

@@ -76,12 +76,12 @@ def test_below_the_shortest_the_bottleneck_is_freed() -> None:
     fps, f = 30.0, 60
     verts = [box(30.0, 0.2, 9.0) for _ in range(f)]
     verts[30] = box(30.0, 0.2, 1.05)
-    polys = polygons(verts)
+    polys = polygons(verts, box=(30.0, 9.0))
     fast = fastest_timing(polys, fps).duration
     prof = profile_of_duration(polys, fps, 0.97 * fast)
     assert prof is not None and prof.freed.any()
     assert set(np.flatnonzero(prof.freed)) <= set(range(26, 35))
-    a = np.diff(prof.x) * fps / 2  # freed frames stay in the box the polygons were clipped to
+    a = np.diff(prof.x) * fps / 2  # freed frames stay in the box the polygons were clipped to, not the default
     assert np.abs(a).max() <= 30.0 + 1e-9 and prof.x.max() <= 9.0 + 1e-9
     assert profile_duration(prof.x, 1 / fps) == pytest.approx(0.97 * fast, rel=1e-9)
     assert not half_intervals_inside(verts, prof.x, fps, prof.freed | np.roll(prof.freed, 1) | np.roll(prof.freed, -1))

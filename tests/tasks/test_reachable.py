@@ -70,3 +70,16 @@ def test_random_polygons_against_an_exhaustive_search(seed: int) -> None:
     assert np.isfinite(best) and t.duration <= best + 1e-9
     top = np.sqrt([v[:, 1].max() for v in verts])  # each frame at its own top speed: a lower bound
     assert t.duration >= (2 / fps / (top[1:] + top[:-1])).sum() - 1e-12
+
+
+def test_an_empty_polygon_takes_the_box_the_polygons_were_clipped_to() -> None:
+    """An empty polygon (or a freed one) stands for the whole (p̈, ṗ²) box of the clip's polygons
+    (``FeasiblePolygons.box``, the user's pdd_max and speed_max²), not a fixed default."""
+    fps = 30.0
+    verts = [box(40.0, 0.0, 36.0)] * 10 + [np.zeros((0, 2))] + [box(40.0, 0.0, 36.0)] * 10
+    at = {}
+    for cap in (4.0, 36.0):
+        t = fastest_timing(polygons(verts, box=(40.0, cap)), fps)
+        assert not t.inside and t.broken.tolist() == [10]
+        at[cap] = t.x[10]
+    assert at[4.0] <= 4.0 + 1e-9 < at[36.0]
