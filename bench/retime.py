@@ -9,9 +9,11 @@ with scipy ``linprog`` building every LP from scratch, and the same objective ke
 Python interpreter. Then a full retime of a 300-frame clip (and with HiGHS's LPs), and the paper's experiments (MPS06
 §4.1-4.2, Figs. 1, 8-11) with what the flight and contact phases did. ``--all-trials``: the share
 of source frames inside their polygon at the original timing for every walk, run and jump of
-subject 16 (manifest.csv), with the frames that are not and why.
+subject 16 (manifest.csv), with the frames that are not and why. ``--retime-all``: each of them
+retimed to 0.5, 0.6, 0.7 and 1.5 of its length: the timing used, whether it met the target, the
+share of output frames inside their polygon, every flight's ratio and the CPU seconds.
 
-Run: .venv/bin/python -m bench.retime [--all-trials]
+Run: .venv/bin/python -m bench.retime [--all-trials] [--retime-all]
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import csv
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from typing import Any
 
@@ -224,24 +226,48 @@ def _speed_in(res: Any, t0: float, t1: float) -> str:
     return f"x{pd[sel].min():.2f}-{pd[sel].max():.2f}" if sel.any() else "-"
 
 
+def subject16_trials() -> Iterator[tuple[str, Motion, RetimePlan]]:
+    """(category, clip, plan under the default physics) of every walk, run and jump of subject 16."""
+    for row in csv.DictReader(open(mocap_root() / "cmu" / "manifest.csv")):
+        if row["path"].startswith("asf_amc/16/") and row["category"] in ("walk", "run", "jump"):
+            motion = read_motion(mocap_root() / "cmu" / row["path"])
+            yield row["category"], motion, prepare(motion, OPTS)
+
+
 def all_trials() -> None:
     print("\nOriginal timing inside its polygon, every walk / run / jump of subject 16 (manifest.csv):")
-    rows = list(csv.DictReader(open(mocap_root() / "cmu" / "manifest.csv")))
     shares = []
-    for row in rows:
-        if not row["path"].startswith("asf_amc/16/") or row["category"] not in ("walk", "run", "jump"):
-            continue
-        motion = read_motion(mocap_root() / "cmu" / row["path"])
-        plan = prepare(motion, OPTS)
+    for category, motion, plan in subject16_trials():
         of = original_feasibility(plan)
         shares.append(of["inside_fraction"])
         why = "; ".join(f"{o['frame']}: {o['why']}" for o in of["outside"][:3])
-        print(f"  {motion.name} {row['category']:5} {motion.n_frames:4d} frames: inside {of['inside_fraction']:6.1%}, "
+        print(f"  {motion.name} {category:5} {motion.n_frames:4d} frames: inside {of['inside_fraction']:6.1%}, "
               f"unexplained by contacts {of['unexplained_fraction']:5.1%} (stance frames "
               f"{of['unexplained_stance_fraction']:5.1%}, flight frames {of['unexplained_flight_fraction']:5.1%})"
               f"{'  outside: ' + why if why else ''}"
               f"{' ...' if len(of['outside']) > 3 else ''}")
     print(f"  {sum(s >= 0.95 for s in shares)} of {len(shares)} trials have >= 95% inside; lowest {min(shares):.1%}")
+
+
+def retimed_trials(fracs: tuple[float, ...] = (0.5, 0.6, 0.7, 1.5)) -> None:
+    print(f"\nEvery walk / run / jump of subject 16 retimed to {', '.join(f'{f:g}' for f in fracs)} of its length "
+          "(default config; timing p = path, s = spline; M = met, <= 10% of output frames outside; flight ratios):")
+    tally: dict[tuple[str, float], list[tuple[bool, bool, float]]] = {}
+    for category, motion, plan in subject16_trials():
+        line = f"  {motion.name} {category:5} {motion.n_frames:4d} frames, shortest inside " \
+               f"{shortest_duration(plan.polygons, motion.fps) / motion.duration:5.2f}x:"
+        for f in fracs:
+            (_, res), _, cpu = timed(lambda p=plan, d=f * motion.duration: retime_plan(p, d, None, OPTS))
+            rep = report(plan, res)
+            inside = 1 - len(rep["infeasible_output_frames"]) / rep["frames_out"]
+            met = rep["reachable"]["met"]
+            tally.setdefault((category, f), []).append((met, rep["timing"] == "path", inside))
+            flights = ",".join(f"{x['ratio']:.2f}" for x in rep["flights"])
+            line += f" | {f:g}: {rep['timing'][0]} {'M' if met else '-'} {inside:4.0%} [{flights}] {cpu:4.1f} s"
+        print(line, flush=True)
+    for (category, f), rows in sorted(tally.items()):
+        print(f"  {category:5} x{f:g}: met {sum(r[0] for r in rows)} of {len(rows)}, path timing {sum(r[1] for r in rows)}, "
+              f"mean inside {np.mean([r[2] for r in rows]):.1%}")
 
 
 def main() -> None:
@@ -254,6 +280,8 @@ def main() -> None:
     experiments()
     if "--all-trials" in sys.argv[1:]:
         all_trials()
+    if "--retime-all" in sys.argv[1:]:
+        retimed_trials()
 
 
 if __name__ == "__main__":
