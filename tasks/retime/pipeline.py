@@ -270,14 +270,15 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
         res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes,
                               samples_per_frame=opts.samples_per_frame, knots_per_second=opts.knots_per_second,
                               speed_max=opts.speed_max, free_length=free_length)
-    missed = res is None or outside_count(plan, res) > MET_OUTSIDE_FRACTION * len(res.t)
-    if opts.timing != "spline" and path_ok and missed:
-        check_keytimes(m.duration, duration, [], opts.speed_max)
+    outside = None if res is None else outside_count(plan, res)
+    if opts.timing != "spline" and path_ok and (outside is None or outside > MET_OUTSIDE_FRACTION * len(res.t)):
+        if res is None:  # the spline's optimizer checks the request otherwise
+            check_keytimes(m.duration, duration, [], opts.speed_max)
         path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame)
         if path is None and res is None:
             raise RetimeError(f"no path timing of {duration:g} s stays inside the feasible polygons on half its "
                               "frames or more: use retime.timing 'spline' or 'auto'")
-        if path is not None and (res is None or outside_count(plan, path) < outside_count(plan, res)):
+        if path is not None and (outside is None or outside_count(plan, path) < outside):
             res = path
     out = replace(sample_motion(m, res.p * m.fps), name=f"{m.name}_retimed", source=None, content_hash="")
     return out, res

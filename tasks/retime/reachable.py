@@ -272,9 +272,10 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box):  # pr
     the rest lasts ≤ ``duration``. Each step ranks the units by the output seconds their freeing
     saves per output frame it leaves outside (:func:`_spent`) and frees the best, then up to
     ``batch`` − 1 more in rank order while they gain at least :data:`BATCH_GAIN` of the best and
-    their savings, summed, stay within what is still missing. Then restores, in order, freed units no longer needed. Returns (freed mask, fastest
-    profile, success); fails when nothing helps or more than ``max_outside`` output frames are
-    left outside in the end (the steps give up at twice that)."""
+    their savings, summed, stay within what is still missing. Then restores, in order, freed units
+    no longer needed. Returns (freed mask, fastest profile, success); fails when nothing helps or
+    more than ``max_outside`` output frames are left outside in the end (the steps give up at
+    twice that)."""
     f = count.shape[0]
     cnt = count.copy()
     freed = np.zeros(f, np.bool_)
@@ -318,7 +319,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box):  # pr
         dur = profile_duration(x, d)
         if _all_spent(x, freed, starts, unit) > 2.0 * max_outside:  # beyond what the restores could win back
             return freed, x, False
-    for s in range(0, f, unit):  # restore what the later choices made unnecessary
+    for s in starts:  # restore what the later choices made unnecessary
         e = min(s + unit, f)
         if not freed[s]:
             continue

@@ -142,11 +142,10 @@ def reachability(plan: RetimePlan, res: RetimeResult, outside: int) -> dict[str,
     """Whether the requested timing was met, with the shortest duration reachable inside the polygons.
 
     Met: at most ``MET_OUTSIDE_FRACTION`` (10 %) of the output frames (``outside`` of them) lie
-    outside their feasible polygon. A
-    duration below the shortest timing inside every polygon (:func:`.reachable.fastest_timing`)
-    must leave them somewhere, and the message says by how much; where no timing stays inside
-    every polygon it names the frames where the chain breaks and ``shortest_feasible_duration``
-    is None.
+    outside their feasible polygon. A duration below the shortest timing inside every polygon
+    (:func:`.reachable.fastest_timing`) must leave them somewhere, and the message says by how
+    much; where no timing stays inside every polygon it names the frames where the chain breaks
+    and ``shortest_feasible_duration`` is None.
     """
     fastest = fastest_timing(plan.polygons, plan.motion.fps)
     bound = fastest.duration
