@@ -133,9 +133,10 @@ def segments(skeleton: Skeleton, scale: float, up_axis: int = 1) -> list[str]:
     the thigh in one skeleton and the pelvis in another); the structure decides: a leg is the
     path from the root to a foot joint (:func:`motionweb.tasks.retime.contacts.find_feet`), its two
     longest bodies thigh and shank, those above pelvis, the foot joint's subtree foot. The spine
-    is the path to the highest leaf; an arm is the path from the spine to any other leaf, its two
-    longest bodies upper arm and forearm, those before shoulder (clavicle), the forearm's
-    descendants hand. Spine bodies past the highest arm branch are head and neck; the root is
+    is the path to the highest leaf; an arm is the path from the spine to any other leaf, its
+    longest body the upper arm and the longest after it the forearm (a clavicle can be longer than
+    a forearm: CMU subjects 14, 135), those before shoulder (clavicle), the forearm's descendants
+    hand. Spine bodies past the highest arm branch are head and neck; the root is
     pelvis; the rest torso. O(J²).
     """
     from motionweb.tasks.retime.contacts import find_feet, rest_positions
@@ -161,17 +162,20 @@ def segments(skeleton: Skeleton, scale: float, up_axis: int = 1) -> list[str]:
             todo += skeleton.children(c)
         return out
 
-    def limb(chain: list[int], upper: str, lower: str, above: str, below: str) -> None:
+    def limb(chain: list[int], upper: str, lower: str, above: str, below: str, upper_longest: bool) -> None:
         if len(chain) < 2:
             return
-        top2 = sorted(sorted(chain, key=lambda j: -lengths[j])[:2], key=chain.index)
-        k0, k1 = chain.index(top2[0]), chain.index(top2[1])
+        if upper_longest:  # the upper body is the longest one, the lower the longest after it
+            k0 = min(range(len(chain) - 1), key=lambda k: (-lengths[chain[k]], k))
+            k1 = min(range(k0 + 1, len(chain)), key=lambda k: (-lengths[chain[k]], k))
+        else:  # the two longest, in chain order (a shank can be longer than its thigh)
+            k0, k1 = sorted(sorted(range(len(chain)), key=lambda k: (-lengths[chain[k]], k))[:2])
         for j in chain[:k0]:
             seg[j] = above
-        seg[top2[0]] = upper
+        seg[chain[k0]] = upper
         for j in chain[k0 + 1:k1 + 1]:
             seg[j] = lower
-        for j in descendants(top2[1]):
+        for j in descendants(chain[k1]):
             seg[j] = below
 
     feet = find_feet(skeleton, scale, up_axis)
@@ -179,7 +183,7 @@ def segments(skeleton: Skeleton, scale: float, up_axis: int = 1) -> list[str]:
     for foot in feet:
         chain = path(foot.joint)
         in_leg |= set(chain) | set(descendants(foot.joint))
-        limb(chain, "thigh", "shank", "pelvis", "foot")
+        limb(chain, "thigh", "shank", "pelvis", "foot", upper_longest=False)
         for j in [foot.joint, *descendants(foot.joint)]:
             seg[j] = "foot"
     tips = {j: rest[j] + (np.asarray(skeleton.end_sites[j], float) * scale if j in skeleton.end_sites else 0.0)
@@ -207,7 +211,7 @@ def segments(skeleton: Skeleton, scale: float, up_axis: int = 1) -> list[str]:
         if chain[0] in done:
             continue
         done.add(chain[0])
-        limb(chain, "upper_arm", "forearm", "shoulder", "hand")
+        limb(chain, "upper_arm", "forearm", "shoulder", "hand", upper_longest=True)
     return seg
 
 

@@ -1,10 +1,13 @@
 """Joint torque limits observed over several actions (design §8, MPS06 §3.2 Eqn. 12, §4).
 
 MPS06 §4: "Torque limits were determined by observing the joint torques over several actions."
-The shipped table holds, per joint of the CMU/ASF skeleton family, a high quantile of |τ| (largest
-component of the joint's 3 dofs) at the original timing of a set of subject-16 clips (walks, runs,
-jumps; :data:`DERIVATION_CLIPS`, none of them the clips of MPS06's experiments) for a 70 kg body,
-left and right alike, times :data:`STRENGTH_MARGIN` (:func:`observed_limits`). ``python -m bench.torque_limits`` recomputes it from the data.
+The shipped table holds, per joint of the CMU/ASF skeleton family, the strength the most demanding
+of several kinds of action asks of it: per action (:data:`DERIVATION_CLIPS`: subject-16 walks, runs
+and jumps, none of them the clips of MPS06's experiments, and a kick, a boxing trial and a climb of
+other subjects) a high quantile of |τ| (largest component of the joint's 3 dofs) pooled over the
+action's clips at their original timing for a 70 kg body, the largest over the actions, left and
+right alike, times :data:`STRENGTH_MARGIN` (:func:`observed_limits`). ``python -m bench.torque_limits``
+recomputes it from the data.
 Limits scale with the total body mass (torques of the same motion are linear in mass). Skeletons
 of other families get the table's per-segment maximum (the joint's body segment from
 :func:`motionweb.tasks.retime.dynamics.segments`); a config table overrides any joint.
@@ -16,63 +19,68 @@ import numpy as np
 from motionweb.tasks.retime.dynamics import DEFAULT_TOTAL_MASS, BodyModel, segments
 from motionweb.tasks.retime.polygons import N_ROOT
 
-#: subject-16 trials the table is observed on (MPS06's own experiments use 16_03, 16_06, 16_16)
-DERIVATION_CLIPS: tuple[str, ...] = (
-    "16_01", "16_02", "16_04", "16_05", "16_07", "16_09", "16_10",  # jumps
-    "16_35", "16_36", "16_45", "16_46", "16_55", "16_56", "16_08",  # runs
-    "16_15", "16_21", "16_22", "16_31", "16_32", "16_47", "16_58",  # walks
-)
+#: per action, the CMU trials (``asf_amc/<subject>/<trial>.amc``) the table is observed on; MPS06's
+#: own experiments use 16_03, 16_06 and 16_16, and 16_xx trials left out check the table
+DERIVATION_CLIPS: dict[str, tuple[str, ...]] = {
+    "jump": ("16_01", "16_02", "16_04", "16_05", "16_07", "16_09", "16_10"),
+    "run": ("16_35", "16_36", "16_45", "16_46", "16_55", "16_56", "16_08"),
+    "walk": ("16_15", "16_21", "16_22", "16_31", "16_32", "16_47", "16_58"),
+    "kick": ("135_04",),
+    "punch": ("14_02",),
+    "climb": ("14_21",),
+}
 STRENGTH_MARGIN = 1.2
 QUANTILE = 0.995
 FLOOR_FRACTION = 0.02
 
-#: N·m for a 70 kg body, by ASF joint name (the joint's torque acts on the body it carries)
+#: N·m for a 70 kg body, by ASF joint name (the joint's torque acts on the body it carries); each
+#: with the action that sets it and the largest torque seen in any clip
 CMU_TORQUE_LIMITS: dict[str, float] = {
-    "lhipjoint": 297.8,  # peak 476.8 in 16_04
-    "lfemur": 267.3,  # peak 391.8 in 16_08
-    "ltibia": 192.8,  # peak 292.3 in 16_05
-    "lfoot": 262.6,  # peak 235.0 in 16_35
-    "ltoes": 6.0,  # peak 0.2 in 16_46
-    "rhipjoint": 297.8,  # peak 516.6 in 16_04
-    "rfemur": 267.3,  # peak 382.4 in 16_04
-    "rtibia": 192.8,  # peak 220.3 in 16_04
-    "rfoot": 262.6,  # peak 237.9 in 16_56
-    "rtoes": 6.0,  # peak 0.4 in 16_46
-    "lowerback": 244.7,  # peak 256.9 in 16_09
-    "upperback": 156.8,  # peak 158.4 in 16_10
-    "thorax": 74.2,  # peak 75.4 in 16_10
-    "lowerneck": 12.9,  # peak 16.1 in 16_09
-    "upperneck": 6.0,  # peak 5.5 in 16_09
-    "head": 6.0,  # peak 1.7 in 16_07
-    "lclavicle": 35.5,  # peak 41.2 in 16_10
-    "lhumerus": 21.4,  # peak 23.1 in 16_10
-    "lradius": 9.8,  # peak 10.2 in 16_10
-    "lwrist": 6.0,  # peak 1.4 in 16_10
-    "lhand": 6.0,  # peak 0.0 in 16_10
-    "lfingers": 6.0,  # peak 0.0 in 16_10
-    "lthumb": 6.0,  # peak 0.0 in 16_10
-    "rclavicle": 35.5,  # peak 40.0 in 16_10
-    "rhumerus": 21.4,  # peak 22.0 in 16_09
-    "rradius": 9.8,  # peak 9.9 in 16_55
-    "rwrist": 6.0,  # peak 1.4 in 16_10
-    "rhand": 6.0,  # peak 0.1 in 16_10
-    "rfingers": 6.0,  # peak 0.0 in 16_10
-    "rthumb": 6.0,  # peak 0.0 in 16_10
+    "lhipjoint": 382.0,  # jump; peak 476.8 in 16_04
+    "lfemur": 301.7,  # punch; peak 391.8 in 16_08
+    "ltibia": 220.1,  # jump; peak 292.3 in 16_05
+    "lfoot": 276.1,  # run; peak 235.0 in 16_35
+    "ltoes": 7.6,  # floor; peak 0.3 in 135_04
+    "rhipjoint": 382.0,  # jump; peak 516.6 in 16_04
+    "rfemur": 301.7,  # punch; peak 382.4 in 16_04
+    "rtibia": 220.1,  # jump; peak 220.3 in 16_04
+    "rfoot": 276.1,  # run; peak 237.9 in 16_56
+    "rtoes": 7.6,  # floor; peak 0.4 in 16_46
+    "lowerback": 279.0,  # jump; peak 273.0 in 14_02
+    "upperback": 179.4,  # jump; peak 167.7 in 14_02
+    "thorax": 83.3,  # jump; peak 75.6 in 14_02
+    "lowerneck": 17.5,  # punch; peak 19.5 in 14_02
+    "upperneck": 8.2,  # punch; peak 10.0 in 14_02
+    "head": 7.6,  # floor; peak 2.6 in 14_02
+    "lclavicle": 62.0,  # punch; peak 59.0 in 14_02
+    "lhumerus": 47.2,  # punch; peak 40.5 in 14_02
+    "lradius": 20.0,  # punch; peak 15.4 in 14_02
+    "lwrist": 7.6,  # floor; peak 1.6 in 14_02
+    "lhand": 7.6,  # floor; peak 0.0 in 14_02
+    "lfingers": 7.6,  # floor; peak 0.0 in 14_02
+    "lthumb": 7.6,  # floor; peak 0.0 in 14_02
+    "rclavicle": 62.0,  # punch; peak 77.7 in 14_02
+    "rhumerus": 47.2,  # punch; peak 53.4 in 14_02
+    "rradius": 20.0,  # punch; peak 20.5 in 14_02
+    "rwrist": 7.6,  # floor; peak 2.5 in 14_02
+    "rhand": 7.6,  # floor; peak 0.2 in 135_04
+    "rfingers": 7.6,  # floor; peak 0.0 in 135_04
+    "rthumb": 7.6,  # floor; peak 0.2 in 135_04
 }
 
 #: N·m for a 70 kg body, by body segment: the largest of the table's joints in the segment (for
 #: skeletons of other families)
 SEGMENT_TORQUE_LIMITS: dict[str, float] = {
-    "pelvis": 297.8,
-    "thigh": 267.3,
-    "shank": 192.8,
-    "foot": 262.6,
-    "torso": 244.7,
-    "head_neck": 12.9,
-    "shoulder": 35.5,
-    "upper_arm": 21.4,
-    "forearm": 9.8,
-    "hand": 6.0,
+    "pelvis": 382.0,
+    "thigh": 301.7,
+    "shank": 220.1,
+    "foot": 276.1,
+    "torso": 279.0,
+    "head_neck": 17.5,
+    "shoulder": 62.0,
+    "upper_arm": 47.2,
+    "forearm": 20.0,
+    "hand": 7.6,
 }
 
 #: the cgspeed BVH release of the CMU data names the same joints differently
@@ -93,19 +101,31 @@ def joint_torques(body: BodyModel, tau: np.ndarray) -> dict[str, np.ndarray]:
     return {body.skeleton.names[j]: np.abs(tau[:, body.joint_dofs(j)]).max(axis=1) for j in range(1, body.n_bodies)}
 
 
-def observed_limits(samples: dict[str, list[np.ndarray]]) -> dict[str, float]:
-    """Per joint, the :data:`QUANTILE` of its torques pooled over clips, the larger of a left/right
-    pair (ASF names ``l…``/``r…``; a body is as strong on both sides), times :data:`STRENGTH_MARGIN`,
-    at least :data:`FLOOR_FRACTION` of the largest. A quantile, not the peak: a few frames of a
-    capture glitch that the repair misses (:mod:`.glitches`; unmended, 16_15's frozen left arm
-    start gave its lowerback 5000 N·m) or of a clip end's extrapolated q' must not set a joint's strength."""
-    q = {j: float(np.quantile(np.concatenate(v), QUANTILE)) for j, v in samples.items()}
+def observed_limits(samples: dict[str, dict[str, list[np.ndarray]]]) -> dict[str, tuple[float, str]]:
+    """Per joint, its limit and the action that sets it (or "floor"), from ``samples[action][joint]``: (F,) torque
+    magnitudes per clip of the action.
+
+    Per action the :data:`QUANTILE` of the joint's torques pooled over the action's clips; the
+    largest over the actions, so an action that asks little of a joint (arms in a walk) does not
+    dilute what another asks (arms in boxing); the larger of a left/right pair (ASF names
+    ``l…``/``r…``; a body is as strong on both sides), times :data:`STRENGTH_MARGIN`, at least
+    :data:`FLOOR_FRACTION` of the largest. A quantile, not the peak: a few frames of a capture glitch
+    that the repair misses (:mod:`.glitches`; unmended, 16_15's frozen left arm start gave its
+    lowerback 5000 N·m) or of a clip end's extrapolated q' must not set a joint's strength.
+    """
+    q: dict[str, tuple[float, str]] = {}
+    for action, joints in samples.items():
+        for j, v in joints.items():
+            value = float(np.quantile(np.concatenate(v), QUANTILE))
+            if j not in q or value > q[j][0]:
+                q[j] = (value, action)
     sym = {}
     for j, v in q.items():
         other = {"l": "r", "r": "l"}.get(j[:1], "") + j[1:]
-        sym[j] = max(v, q.get(other, v)) if other in q else v
-    top = max(sym.values(), default=0.0)
-    return {j: round(max(v, FLOOR_FRACTION * top) * STRENGTH_MARGIN, 1) for j, v in sym.items()}
+        sym[j] = max(v, q[other]) if other in q else v
+    top = max((v for v, _ in sym.values()), default=0.0)
+    floor = FLOOR_FRACTION * top
+    return {j: (round(max(v, floor) * STRENGTH_MARGIN, 1), a if v >= floor else "floor") for j, (v, a) in sym.items()}
 
 
 def segment_table(table: dict[str, float], body: BodyModel) -> dict[str, float]:

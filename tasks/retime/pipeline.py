@@ -110,8 +110,10 @@ class RetimeParams(Params):
     #: honouring the objective); "path" — built on the source frames, inside every polygon where
     #: the duration allows and leaving them on as few output frames as it can where not
     #: (path_timing.py); "auto" — the spline when it meets the target (at most 10 % of the output
-    #: frames outside their polygon), else the path timing where it leaves fewer outside.
-    #: Keytimes and a free length always take the spline.
+    #: frames outside their polygon), else the path timing where it leaves fewer outside, except
+    #: at the clip's own length, where the path timing is the original timing itself and the
+    #: spline's answer to changed physics (MPS06 Figs. 10-11) is kept. Keytimes and a free length
+    #: always take the spline.
     timing: Literal["auto", "spline", "path"] = "auto"
 
 
@@ -253,8 +255,8 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
                 opts: RetimeParams | None = None, free_length: bool = False) -> tuple[Motion, RetimeResult]:
     """Time a prepared clip (``opts.timing``: the optimized spline, the path timing, or the spline
-    unless it misses the target and the path timing leaves fewer frames outside) and sample the
-    retimed motion at the source fps.
+    unless it misses the target at another length than the clip's and the path timing leaves fewer
+    frames outside) and sample the retimed motion at the source fps.
 
     ``free_length``: ``duration`` is the starting length and the optimizer picks the length too.
     Raises ``RetimeError`` for timing "path" with keytimes, a free length, or a duration no path
@@ -271,7 +273,9 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
                               samples_per_frame=opts.samples_per_frame, knots_per_second=opts.knots_per_second,
                               speed_max=opts.speed_max, free_length=free_length)
     outside = None if res is None else outside_count(plan, res)
-    if opts.timing != "spline" and path_ok and (outside is None or outside > MET_OUTSIDE_FRACTION * len(res.t)):
+    own_length = abs(duration - m.duration) < 0.5 / m.fps  # the path timing would be the original one
+    if opts.timing != "spline" and path_ok and (outside is None or (
+            outside > MET_OUTSIDE_FRACTION * len(res.t) and not own_length)):
         if res is None:  # the spline's optimizer checks the request otherwise
             check_keytimes(m.duration, duration, [], opts.speed_max)
         path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame)

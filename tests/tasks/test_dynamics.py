@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from fixtures import G, jumper_skeleton, synthetic_jump
+from motionweb.store.motion import Skeleton
 from motionweb.tasks.retime.contacts import ContactRule, contacts_for, detect_contacts, find_feet, pyramid
 from motionweb.tasks.retime.dynamics import (
     SEGMENT_FRACTIONS,
@@ -220,6 +221,44 @@ def test_table_body_model_gives_an_adult_its_segment_masses() -> None:
     assert m["l_hip"] == pytest.approx(m["r_hip"]) and m["l_ankle"] == pytest.approx(m["r_ankle"])
     assert sum(SEGMENT_FRACTIONS[s] * (1 if s in ("pelvis", "torso", "head_neck") else 2)
                for s in SEGMENT_FRACTIONS) == pytest.approx(1.0)
+
+
+def _humanoid(clavicle: float, forearm: float, thigh: float, shank: float) -> Skeleton:
+    """A T-posed humanoid, y up: legs hip → knee → ankle → toe, spine → chest → neck → head,
+    arms clavicle → shoulder → elbow → wrist; body j spans joint j to its child."""
+    joints: list[tuple[str, int, tuple[float, float, float]]] = [("hips", -1, (0.0, 1.0, 0.0))]
+    for side, x in (("l", 1.0), ("r", -1.0)):
+        k = len(joints)
+        joints += [(f"{side}hip", 0, (0.1 * x, -0.05, 0.0)), (f"{side}knee", k, (0.0, -thigh, 0.0)),
+                   (f"{side}ankle", k + 1, (0.0, -shank, 0.0)), (f"{side}toe", k + 2, (0.0, -0.05, 0.12))]
+    k = len(joints)
+    joints += [("spine", 0, (0.0, 0.1, 0.0)), ("chest", k, (0.0, 0.25, 0.0)), ("neck", k + 1, (0.0, 0.25, 0.0)),
+               ("head", k + 2, (0.0, 0.1, 0.0))]
+    chest = k + 1
+    for side, x in (("l", 1.0), ("r", -1.0)):
+        k = len(joints)
+        joints += [(f"{side}clavicle", chest, (0.0, 0.22, 0.0)), (f"{side}shoulder", k, (clavicle * x, 0.0, 0.0)),
+                   (f"{side}elbow", k + 1, (0.30 * x, 0.0, 0.0)), (f"{side}wrist", k + 2, (forearm * x, 0.0, 0.0))]
+    names = tuple(n for n, _, _ in joints)
+    ends = {names.index(n): np.array(e) for n, e in (("ltoe", (0.0, 0.0, 0.05)), ("rtoe", (0.0, 0.0, 0.05)),
+                                                      ("head", (0.0, 0.2, 0.0)), ("lwrist", (0.08, 0.0, 0.0)),
+                                                      ("rwrist", (-0.08, 0.0, 0.0)))}
+    channels = tuple(("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation") if p < 0
+                     else ("Zrotation", "Xrotation", "Yrotation") for _, p, _ in joints)
+    return Skeleton(names, np.array([p for _, p, _ in joints]), np.array([o for _, _, o in joints]), channels, ends)
+
+
+@pytest.mark.parametrize("clavicle, forearm", [(0.15, 0.25), (0.20, 0.18)])
+def test_segments_follow_the_limbs_whatever_their_proportions(clavicle: float, forearm: float) -> None:
+    """The upper arm is the arm's longest body, the forearm the longest after it, though the
+    clavicle outgrows the forearm (CMU subjects 14 and 135); a shank longer than its thigh."""
+    sk = _humanoid(clavicle, forearm, thigh=0.40, shank=0.44)
+    seg = dict(zip(sk.names, segments(sk, 1.0), strict=True))
+    for side in "lr":
+        assert [seg[f"{side}{n}"] for n in ("hip", "knee", "ankle", "toe")] == ["thigh", "shank", "foot", "foot"]
+        assert [seg[f"{side}{n}"] for n in ("clavicle", "shoulder", "elbow", "wrist")] == \
+            ["shoulder", "upper_arm", "forearm", "hand"]
+    assert seg["hips"] == "pelvis" and seg["spine"] == "torso" and seg["head"] == "head_neck"
 
 
 def _foot_track(heights: np.ndarray, fps: float, speed: float = 0.0) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from motionweb.store.formats import read_motion
 from motionweb.tasks.retime import RetimeParams, flight_intervals, phase_times, prepare, report, retime_plan
-from motionweb.tasks.retime.dynamics import segments
+from motionweb.tasks.retime.dynamics import body_model_for, segments
 from motionweb.tasks.retime.limits import (
     CMU_TORQUE_LIMITS,
     DERIVATION_CLIPS,
@@ -72,16 +72,47 @@ def test_an_adult_body_and_contacts_that_hold(jump) -> None:
     assert 150 < plan.original.limits[body.joint_dofs(motion.skeleton.index("lfemur"))][0] < 500
 
 
-def test_the_shipped_torque_table_is_what_the_clips_show(cmu16: Path, jump) -> None:
+def test_the_shipped_torque_table_is_what_the_clips_show(cmu_dir: Path, jump) -> None:
     """Issue 11 item 1, reproducible: the shipped limits are exactly what bench/torque_limits.py
     observes on limits.DERIVATION_CLIPS with today's code (regenerate them when this fails)."""
-    samples: dict[str, list[np.ndarray]] = {}
-    for name in DERIVATION_CLIPS:
-        for joint, value in observed_torques(read_motion(cmu16 / f"{name}.amc"), OPTS).items():
-            samples.setdefault(joint, []).append(value)
-    table = observed_limits(samples)
+    samples: dict[str, dict[str, list[np.ndarray]]] = {}
+    for action, names in DERIVATION_CLIPS.items():
+        for name in names:
+            motion = read_motion(cmu_dir / "asf_amc" / name.split("_")[0] / f"{name}.amc")
+            for joint, value in observed_torques(motion, OPTS).items():
+                samples.setdefault(action, {}).setdefault(joint, []).append(value)
+    table = {j: v for j, (v, _) in observed_limits(samples).items()}
     assert table == pytest.approx(CMU_TORQUE_LIMITS, abs=0.051)
     assert segment_table(table, jump[1].body) == pytest.approx(SEGMENT_TORQUE_LIMITS, abs=0.051)
+
+
+def test_an_action_that_asks_little_of_a_joint_does_not_lower_its_limit() -> None:
+    """Per action a quantile, the largest over actions: adding walks (arms idle) to boxing keeps the
+    arms' limit; left and right alike; a joint no action loads gets the floor."""
+    rng = np.random.default_rng(0)
+    box = {"lhumerus": [rng.uniform(0, 50, 100)], "rhumerus": [rng.uniform(0, 40, 100)], "lhand": [np.zeros(100)]}
+    walk = {"lhumerus": [rng.uniform(0, 5, 20000)], "rhumerus": [rng.uniform(0, 5, 20000)], "lhand": [np.zeros(20000)]}
+    alone = observed_limits({"punch": box})
+    both = observed_limits({"punch": box, "walk": walk})
+    assert both == alone
+    assert both["lhumerus"] == both["rhumerus"] == (pytest.approx(round(50 * 0.995 * 1.2, 1), abs=0.15), "punch")
+    assert both["lhand"] == (pytest.approx(round(0.02 * both["lhumerus"][0], 1), abs=0.15), "floor")
+    pooled = np.quantile(np.concatenate(box["lhumerus"] + walk["lhumerus"]), 0.995) * 1.2
+    assert pooled < 0.5 * both["lhumerus"][0]  # what pooling every frame would have given
+
+
+@pytest.mark.parametrize("clip", ["asf_amc/14/14_02.amc", "asf_amc/135/135_04.amc", "asf_amc/01/01_01.amc",
+                                  "bvh/131/131_02.bvh"])
+def test_other_subjects_arms_get_their_segments(cmu_dir: Path, clip: str) -> None:
+    """On these skeletons the clavicle is longer than the forearm: the arm still reads shoulder,
+    upper arm, forearm, hand (and the table body model weighs each accordingly)."""
+    motion = read_motion(cmu_dir / clip, unit="in")
+    body = body_model_for(motion, kind=OPTS.body_model, total_mass=OPTS.total_mass)
+    seg = segments(motion.skeleton, body.scale, body.up_axis)
+    names = [n.lower() for n in motion.skeleton.names]
+    arm = [seg[names.index(n)] for n in (("lclavicle", "lhumerus", "lradius", "lwrist") if clip.endswith(".amc")
+                                          else ("leftcollar", "leftshoulder", "leftelbow", "leftwrist"))]
+    assert arm == ["shoulder", "upper_arm", "forearm", "hand"]
 
 
 @pytest.mark.parametrize("name", ["16_16", "16_35"])
@@ -190,6 +221,7 @@ def _sideways(motion, degrees: float) -> np.ndarray:
 def _left_stance(walk, **kw) -> tuple[dict, float, float]:
     plan = prepare(walk, OPTS, **kw)
     _, res = retime_plan(plan, walk.duration, None, OPTS)
+    assert res.kind == "spline"  # at its own length 'auto' keeps the spline: the path timing is the original
     ph = phase_times(plan.contacts, res, walk.fps)
     return ph, ph["lfoot only"][1] / ph["lfoot only"][0], ph["rfoot only"][1] / ph["rfoot only"][0]
 
