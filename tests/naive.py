@@ -572,11 +572,11 @@ def polygons_of(vertices: list[np.ndarray], box: tuple[float, float] = (40.0, 36
 
 
 def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: int = 1,
-                batch_gain: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+                batch_gain: float = 0.8, weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``reachable.free_frames`` from scratch, one frame per unit: each step tries freeing (polygon →
     box) every frame not yet freed, rebuilding all polygons and running ``fastest_timing`` anew,
     ranks them by the output seconds saved per output frame left outside (its own 1/√x, half of
-    each unfreed neighbour's) and frees the best, then up to ``batch`` − 1 more in rank order
+    each unfreed neighbour's, each frame's times its ``weight``, default 1) and frees the best, then up to ``batch`` − 1 more in rank order
     while they gain at least ``batch_gain`` of the best and their summed savings fit in what is
     missing, until the fastest profile lasts ≤
     ``duration``; then restores freed frames in order while it still fits. (freed (F,), fastest
@@ -584,6 +584,7 @@ def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: 
     from motionweb.tasks.retime.reachable import fastest_timing
 
     f, d = len(vertices), 1.0 / fps
+    w = np.ones(f) if weight is None else weight
 
     def fastest(mask: np.ndarray) -> np.ndarray:
         return fastest_timing(polygons_of([np.zeros((0, 2)) if mask[i] else v for i, v in enumerate(vertices)]), fps).x
@@ -602,7 +603,8 @@ def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: 
             trial = freed.copy()
             trial[i] = True
             x2 = fastest(trial)
-            spent = 1 / np.sqrt(x2[i]) + sum(0.5 / np.sqrt(x2[j]) for j in (i - 1, i + 1) if 0 <= j < f and not freed[j])
+            spent = w[i] / np.sqrt(x2[i]) + sum(0.5 * w[j] / np.sqrt(x2[j]) for j in (i - 1, i + 1)
+                                                if 0 <= j < f and not freed[j])
             saving = length(x) - length(x2)
             ranked.append((-saving / spent, i, saving))
         ranked.sort()  # best gain first, ties by frame

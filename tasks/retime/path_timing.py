@@ -12,8 +12,9 @@ built on the source frames instead, from the reachability profiles of :mod:`.rea
   wherever the original timing is;
 * a duration below the fastest leaves the polygons on as few output frames as a greedy finds
   (:func:`.reachable.free_frames`): it frees (replaces by the (p̈, ṗ²) box the polygons were
-  clipped to) the source frames that buy the most output time per output frame left outside,
-  until the fastest timing of the rest fits, then restores any freed frame no longer needed;
+  clipped to) the source frames that buy the most output time per output frame left outside
+  (a frame in flight counting :data:`FLIGHT_WEIGHT` frames, so the flight keeps its speed while
+  the ground phases can pay), until the fastest timing of the rest fits, then restores any freed frame no longer needed;
   the profile then moves from the original toward that fastest one as above;
 * the timing is the exact piecewise-quadratic p(t) of the profile (:class:`PathCurve`).
 
@@ -36,6 +37,10 @@ from motionweb.tasks.retime.spline import RetimeResult
 #: units the greedy may free per step (reachable.free_frames): one step ranks them all, so
 #: taking the top few whose savings still fit cuts the steps ~BATCH-fold
 BATCH = 8
+#: a freed flight frame counts as this many output frames outside: a ballistic flight played
+#: faster is what a viewer sees first (MPS06 §4.1: "leaving the flight phase intact"), so the
+#: greedy buys time on the ground first
+FLIGHT_WEIGHT = 10.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,9 +83,12 @@ class PathProfile:
     theta: float
 
 
-def profile_of_duration(polys: FeasiblePolygons, fps: float, duration: float,
-                        max_outside: float = 0.5) -> PathProfile | None:
+def profile_of_duration(polys: FeasiblePolygons, fps: float, duration: float, max_outside: float = 0.5,
+                        weight: np.ndarray | None = None) -> PathProfile | None:
     """A profile lasting ``duration`` output seconds, inside the polygons where it can be (module doc).
+
+    ``weight`` (F,): how many output frames outside a freed source frame counts as in the greedy's
+    ranking (default 1 each; :func:`frame_weights`).
 
     None for a clip of one frame, where the greedy cannot reach the duration with at most
     ``max_outside`` of the output frames left outside, or where no profile inside is slow enough.
@@ -98,8 +106,9 @@ def profile_of_duration(polys: FeasiblePolygons, fps: float, duration: float,
         return PathProfile(x=one, freed=freed, theta=0.0)
     ext, _ = extreme_profile(verts, count, d, duration < original, box)
     if duration < original and profile_duration(ext, d) > duration:
+        w = np.ones(f) if weight is None else np.asarray(weight, dtype=np.float64)
         freed, ext, ok = free_frames(verts, count, d, duration, max(1, -(-f // UNITS)), max_outside * duration * fps,
-                                     BATCH, box)
+                                     BATCH, box, w)
         if not ok:
             return None
     elif duration > original and profile_duration(ext, d) < duration:
@@ -129,12 +138,18 @@ def path_objective(obj: BakedObjective, curve: PathCurve, n_s: int) -> float:
     return float(value)
 
 
+def frame_weights(in_contact: np.ndarray) -> np.ndarray:
+    """(F,) the greedy's count per freed source frame: :data:`FLIGHT_WEIGHT` for a frame with no
+    foot down (``in_contact`` (F,) bool), 1 otherwise."""
+    return np.where(in_contact, 1.0, FLIGHT_WEIGHT)
+
+
 def path_timing(polys: FeasiblePolygons, obj: BakedObjective, fps: float, duration: float,
-                samples_per_frame: int = 4) -> RetimeResult | None:
-    """The path timing of ``duration`` (:func:`profile_of_duration`) sampled at the output frames,
-    with its MPS06 Eqn. 14 value; None where there is none."""
+                samples_per_frame: int = 4, weight: np.ndarray | None = None) -> RetimeResult | None:
+    """The path timing of ``duration`` (:func:`profile_of_duration`, ``weight`` as there) sampled
+    at the output frames, with its MPS06 Eqn. 14 value; None where there is none."""
     t0 = time.perf_counter()
-    prof = profile_of_duration(polys, fps, duration)
+    prof = profile_of_duration(polys, fps, duration, weight=weight)
     if prof is None:
         return None
     curve = PathCurve.of(prof.x, fps)

@@ -31,7 +31,7 @@ from motionweb.tasks.retime.errors import RetimeError
 from motionweb.tasks.retime.glitches import Glitch, repair_glitches
 from motionweb.tasks.retime.limits import joint_torques, table_limits
 from motionweb.tasks.retime.objective import BakedObjective, bake
-from motionweb.tasks.retime.path_timing import path_timing
+from motionweb.tasks.retime.path_timing import frame_weights, path_timing
 from motionweb.tasks.retime.polygons import (
     MET_OUTSIDE_FRACTION,
     N_ROOT,
@@ -278,7 +278,8 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
             outside > MET_OUTSIDE_FRACTION * len(res.t) and not own_length)):
         if res is None:  # the spline's optimizer checks the request otherwise
             check_keytimes(m.duration, duration, [], opts.speed_max)
-        path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame)
+        path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame,
+                           frame_weights(plan.contacts.active.any(axis=1)))
         if path is None and res is None:
             raise RetimeError(f"no path timing of {duration:g} s stays inside the feasible polygons on half its "
                               "frames or more: use retime.timing 'spline' or 'auto'")

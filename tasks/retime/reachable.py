@@ -234,28 +234,30 @@ def profile_duration(x, d):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _spent(x, freed, s, e):  # pragma: no cover - numba
+def _spent(x, freed, s, e, weight):  # pragma: no cover - numba
     """Output frames checked against the polygons of source frames s..e−1 freed, or against their
-    neighbours' over the intervals that touch them (half each): 1/√x per source frame."""
+    neighbours' over the intervals that touch them (half each): 1/√x per source frame, each
+    times its ``weight``."""
     f = x.shape[0]
     out = 0.0
     for j in range(s, e):
-        out += 1.0 / np.sqrt(x[j])
+        out += weight[j] / np.sqrt(x[j])
     if s > 0 and not freed[s - 1]:
-        out += 0.5 / np.sqrt(x[s - 1])
+        out += 0.5 * weight[s - 1] / np.sqrt(x[s - 1])
     if e < f and not freed[e]:
-        out += 0.5 / np.sqrt(x[e])
+        out += 0.5 * weight[e] / np.sqrt(x[e])
     return out
 
 
 @njit(cache=True)
 def _all_spent(x, freed, starts, unit):  # pragma: no cover - numba
-    """Output frames left outside by all freed units (:func:`_spent` summed)."""
+    """Output frames left outside by all freed units (:func:`_spent` summed, unweighted)."""
     f = x.shape[0]
+    ones = np.ones(f)
     out = 0.0
     for s in starts:
         if freed[s]:
-            out += _spent(x, freed, s, min(s + unit, f))
+            out += _spent(x, freed, s, min(s + unit, f), ones)
     return out
 
 
@@ -267,10 +269,11 @@ def _set_units(verts, cnt, d, s, e, qv, qc, meet, box):  # pragma: no cover - nu
 
 
 @njit(cache=True)
-def free_frames(verts, count, d, duration, unit, max_outside, batch, box):  # pragma: no cover - numba
+def free_frames(verts, count, d, duration, unit, max_outside, batch, box, weight):  # pragma: no cover - numba
     """Greedy: free units of ``unit`` source frames (polygon → box) until the fastest profile of
     the rest lasts ≤ ``duration``. Each step ranks the units by the output seconds their freeing
-    saves per output frame it leaves outside (:func:`_spent`) and frees the best, then up to
+    saves per output frame it leaves outside, each frame counted ``weight`` (F,) times
+    (:func:`_spent`), and frees the best, then up to
     ``batch`` − 1 more in rank order while they gain at least :data:`BATCH_GAIN` of the best and
     their savings, summed, stay within what is still missing. Then restores, in order, freed units
     no longer needed. Returns (freed mask, fastest profile, success); fails when nothing helps or
@@ -300,7 +303,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box):  # pr
             cnt[s:e] = saved_cnt
             qv[lo:e], qc[lo:e], meet[lo:e] = saved_v, saved_c, saved_m
             saving[k] = dur - profile_duration(x2, d)
-            gain[k] = saving[k] / _spent(x2, freed, s, e)
+            gain[k] = saving[k] / _spent(x2, freed, s, e, weight)
         order = np.argsort(-gain, kind="mergesort")
         if gain[order[0]] <= 0.0:
             return freed, x, False

@@ -6,7 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motionweb.tasks.retime.path_timing import BATCH, PathCurve, profile_of_duration
+from motionweb.tasks.retime.path_timing import (
+    BATCH,
+    FLIGHT_WEIGHT,
+    PathCurve,
+    frame_weights,
+    profile_of_duration,
+)
 from motionweb.tasks.retime.polygons import timing_distances
 from motionweb.tasks.retime.reachable import BATCH_GAIN, fastest_timing, profile_duration
 from naive import box_polygon as box
@@ -90,14 +96,15 @@ def test_below_the_shortest_the_bottleneck_is_freed() -> None:
 @pytest.mark.parametrize("seed", range(4))
 def test_the_greedy_against_its_from_scratch_reference(seed: int) -> None:
     """The compiled greedy (incremental interval polygons, BATCH units a step) frees what the
-    from-scratch reference frees, and ends on the same profile."""
+    from-scratch reference frees, and ends on the same profile; with and without frame weights."""
     rng = np.random.default_rng(seed)
     fps, f = 30.0, 40
     verts = [box(rng.uniform(5, 20), 0.1, rng.uniform(1.5, 6.0)) for _ in range(f)]
     polys = polygons(verts)
     target = (0.9 if seed % 2 else 0.95) * fastest_timing(polys, fps).duration
-    prof = profile_of_duration(polys, fps, target)
-    freed, x = greedy_free(verts, fps, target, batch=BATCH, batch_gain=BATCH_GAIN)
+    weight = None if seed < 2 else rng.choice([1.0, FLIGHT_WEIGHT], f)
+    prof = profile_of_duration(polys, fps, target, weight=weight)
+    freed, x = greedy_free(verts, fps, target, batch=BATCH, batch_gain=BATCH_GAIN, weight=weight)
     assert prof is not None and freed.sum() >= 2
     np.testing.assert_array_equal(prof.freed, freed)
     assert profile_duration(x, 1 / fps) <= target + 1e-12
@@ -118,6 +125,28 @@ def test_equal_bottlenecks_are_freed_together() -> None:
     assert prof is not None
     np.testing.assert_array_equal(prof.freed, freed)
     assert all(freed[i - 1:i + 2].any() for i in (5, 15, 25, 35))
+
+
+def test_the_greedy_buys_time_on_the_ground_before_the_flight() -> None:
+    """Two equal bottlenecks, either one enough: unweighted the first goes (ties by frame); when
+    the first lies in a flight (frame_weights: no foot down) the one on the ground goes instead."""
+    fps, f = 30.0, 40
+    verts = [box(30.0, 0.2, 9.0) for _ in range(f)]
+    for i in (10, 30):
+        verts[i] = box(30.0, 0.2, 1.05)
+    polys = polygons(verts)
+    both = fastest_timing(polys, fps).duration
+    one = fastest_timing(polygons([np.zeros((0, 2)) if i == 30 else v for i, v in enumerate(verts)]), fps).duration
+    target = one + 0.3 * (both - one)
+    ground = np.ones(f, bool)
+    ground[8:13] = False
+    plain = profile_of_duration(polys, fps, target)
+    weighted = profile_of_duration(polys, fps, target, weight=frame_weights(ground))
+    assert plain is not None and weighted is not None
+    assert plain.freed[9:12].any() and not plain.freed[28:33].any()
+    assert weighted.freed[28:33].any() and not weighted.freed[8:13].any()
+    np.testing.assert_array_equal(frame_weights(ground)[7:14], [1, FLIGHT_WEIGHT, FLIGHT_WEIGHT, FLIGHT_WEIGHT,
+                                                                FLIGHT_WEIGHT, FLIGHT_WEIGHT, 1])
 
 
 def test_out_of_reach_gives_none() -> None:
