@@ -184,6 +184,20 @@ def warp(
     typer.echo(format_summary(summary))
 
 
+def body_factors(option: str, texts: list[str] | None) -> dict[str, float]:
+    """``JOINT=FACTOR`` options as ``{joint: factor}`` (one-line failure for a malformed one)."""
+    factors = {}
+    for text in texts or []:
+        name, _, val = text.partition("=")
+        try:
+            factors[name] = float(val)
+            if not factors[name] > 0:
+                raise ValueError
+        except ValueError:
+            fail(f"{option} {text!r}: expected JOINT=FACTOR with a positive factor, e.g. lfemur=10")
+    return factors
+
+
 @app.command()
 def retime(
     input_path: Annotated[Path, typer.Argument(metavar="INPUT", help="Clip to retime (.bvh, .amc, DeepMimic .txt).")],
@@ -191,12 +205,14 @@ def retime(
     duration: Annotated[float | None, typer.Option(help="Output duration, seconds.")] = None,
     keytime: Annotated[list[str] | None, typer.Option(help="SRC_S:OUT_S, source time shown at output time.")] = None,
     gravity: Annotated[str | None, typer.Option(help="Gravity vector X,Y,Z in m/s² (default 0,-9.81,0 for Y up).")] = None,
-    mass: Annotated[list[str] | None, typer.Option(help="JOINT=FACTOR, multiply a body's mass.")] = None,
+    mass: Annotated[list[str] | None, typer.Option(help="JOINT=FACTOR, multiply a body's mass (inertia and weight).")] = None,
+    weight: Annotated[list[str] | None, typer.Option(
+        help="JOINT=FACTOR, multiply only a body's weight (gravity load), its inertia kept (MPS06 Fig. 11).")] = None,
     objective: Annotated[str | None, typer.Option(help="match (original torques) or minimize (effort).")] = None,
     plot: Annotated[Path | None, typer.Option(help="Folder for p(t) and feasible-polygon plots.")] = None,
     config: Annotated[Path | None, typer.Option(help="Config file (retime section).")] = None,
 ) -> None:
-    """Physics-based retiming (MPS06): change duration, keytimes, gravity or limb masses."""
+    """Physics-based retiming (MPS06): change duration, keytimes, gravity, limb masses or weights."""
     if duration is None and not keytime:
         fail("give --duration SECONDS and/or --keytime SRC_S:OUT_S")
     if objective is not None and objective not in ("match", "minimize"):
@@ -216,22 +232,15 @@ def retime(
                 raise ValueError
         except ValueError:
             fail(f"--gravity {gravity!r}: expected X,Y,Z, e.g. 0,-4.9,0")
-    factors = {}
-    for text in mass or []:
-        name, _, val = text.partition("=")
-        try:
-            factors[name] = float(val)
-            if not factors[name] > 0:
-                raise ValueError
-        except ValueError:
-            fail(f"--mass {text!r}: expected JOINT=FACTOR with a positive factor, e.g. left_hip=10")
+    factors, weights = body_factors("--mass", mass), body_factors("--weight", weight)
     cfg = config_or_fail(config)
     from motionweb.flows.retime import retime_flow
 
     try:
         with reported_flow_errors():
             rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
-                              mass=factors, objective=objective, plot_dir=str(plot) if plot else None)
+                              mass=factors, objective=objective, plot_dir=str(plot) if plot else None,
+                              weight=weights)
     except ERRORS as exc:
         fail(str(exc))
     typer.echo(f"{rep['clip']}: {rep['duration_in']:.3f} s -> {rep['duration_out']:.3f} s, "

@@ -411,12 +411,15 @@ class DynamicsTerms:
     def n_frames(self) -> int:
         return self.q.shape[0]
 
-    def combine(self, gravity: np.ndarray, mass_factors: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(A, B, C), each (F, nv), for a gravity vector and per-body mass multipliers. O(F·nv·B)."""
+    def combine(self, gravity: np.ndarray, mass_factors: np.ndarray | None = None,
+                weight_factors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C), each (F, nv), for a gravity vector and per-body (B,) multipliers: of the mass
+        (inertia and weight) and, on top of it, of the weight alone (the gravity term). O(F·nv·B)."""
         g = np.asarray(gravity, dtype=float)
-        w = np.ones(self.a.shape[2]) if mass_factors is None else np.asarray(mass_factors, dtype=float)
-        return self.a @ w, self.b @ w, np.einsum("fvbk,b,k->fv", self.c, w, g)
+        ones = np.ones(self.a.shape[2])
+        w = ones if mass_factors is None else np.asarray(mass_factors, dtype=float)
+        wg = w * (ones if weight_factors is None else np.asarray(weight_factors, dtype=float))
+        return self.a @ w, self.b @ w, np.einsum("fvbk,b,k->fv", self.c, wg, g)
 
 
 def dynamics_terms(body: BodyModel, motion: Motion, smoothing_s: float = 0.0) -> DynamicsTerms:

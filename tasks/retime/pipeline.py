@@ -136,7 +136,8 @@ def polygon_options(params: RetimeParams) -> PolygonOptions:
 class RetimePlan:
     """Everything precomputed for one clip and one physics setting (reused across timings).
 
-    ``A, B, C`` are the recombined path-dynamics terms under the new gravity / masses; ``original``
+    ``A, B, C`` are the recombined path-dynamics terms under the new gravity / masses (``factors``)
+    / weights (``weight_factors``, on top of the masses), each (B,) per body; ``original``
     the forces of the unmodified clip (targets of the 'match' objective and torque limits);
     ``glitches`` the capture glitches mended in the path the dynamics are computed from.
     """
@@ -147,6 +148,7 @@ class RetimePlan:
     contacts: Contacts
     gravity: np.ndarray
     factors: np.ndarray
+    weight_factors: np.ndarray
     A: np.ndarray
     B: np.ndarray
     C: np.ndarray
@@ -203,11 +205,15 @@ def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray
 
 def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = "y", gravity: np.ndarray | None = None,
             mass: dict[str, float] | None = None, humanoid: Any | None = None,
-            contact_intervals: dict[str, list[tuple[float, float]]] | None = None) -> RetimePlan:
+            contact_intervals: dict[str, list[tuple[float, float]]] | None = None,
+            weight: dict[str, float] | None = None) -> RetimePlan:
     """Dynamics, contacts, original forces, feasible polygons and the baked objective (MPS06 §3.1-3.6).
 
+    ``mass`` multiplies bodies' masses (inertia and weight, MPS06 §3.2: τ is linear in each);
+    ``weight`` multiplies only their weight, the gravity load, inertia kept (MPS06 §4.2 Fig. 11:
+    "the left femur's weight multiplied by ten").
     Raises ``RetimeError`` when no foot touches the ground (unless ``allow_flight_only``), and
-    ``ValueError`` for an unknown unit or an unknown joint in ``mass``.
+    ``ValueError`` for an unknown unit or an unknown joint in ``mass`` or ``weight``.
     """
     opts = opts or RetimeParams()
     tm: dict[str, float] = {}
@@ -215,6 +221,7 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     body, glitches, terms, contacts = clip_physics(motion, opts, up=up, humanoid=humanoid,
                                                    contact_intervals=contact_intervals, timings=tm)
     factors = mass_factors(body, mass or {})
+    weights = mass_factors(body, weight or {})
     if not contacts.active.any() and not opts.allow_flight_only:
         feet = ", ".join(f.name for f in contacts.feet)
         low = contacts.corner_positions[..., up].min() - contacts.ground
@@ -226,30 +233,30 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
             "retime it as pure flight (ballistic).")
     g0 = body.default_gravity()
     g = g0 if gravity is None else np.asarray(gravity, dtype=float)
-    weight = body.total_mass * float(np.linalg.norm(g0))
+    body_weight = body.total_mass * float(np.linalg.norm(g0))
     popts = polygon_options(opts)
     t = time.perf_counter()
     A0, B0, C0 = terms.combine(g0)
-    original = original_forces(A0, B0, C0, contacts, opts.torque_margin, weight, popts)
+    original = original_forces(A0, B0, C0, contacts, opts.torque_margin, body_weight, popts)
     sources = {n: "clip peak x torque_margin" for n in body.skeleton.names[1:]}
     if opts.torque_limits_from == "table":
         limits, sources = table_limits(body, opts.torque_limits)
         original = replace(original, limits=limits)
     tm["original_forces"] = time.perf_counter() - t
-    A, B, C = terms.combine(g, factors)
+    A, B, C = terms.combine(g, factors, weights)
     contacts = contacts.carrying(original.tau[:, :N_ROOT])
-    polys = feasible_polygons(A, B, C, contacts, original.limits, weight, popts)
+    polys = feasible_polygons(A, B, C, contacts, original.limits, body_weight, popts)
     tm["polygons"] = polys.seconds
     t = time.perf_counter()
     target = original.tau if opts.objective == "match" else np.zeros_like(original.tau)
     if opts.objective not in ("match", "minimize"):
         raise ValueError(f"unknown objective {opts.objective!r} (match, minimize)")
-    tau_scale = np.where(np.arange(len(original.limits)) < N_ROOT, weight, original.limits)
+    tau_scale = np.where(np.arange(len(original.limits)) < N_ROOT, body_weight, original.limits)
     baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta, tau_scale)
     tm["bake"] = time.perf_counter() - t
-    return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors, A=A, B=B,
-                      C=C, original=original, polygons=polys, baked=baked, timings=tm,
-                      limit_sources=sources, glitches=glitches)
+    return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors,
+                      weight_factors=weights, A=A, B=B, C=C, original=original, polygons=polys, baked=baked,
+                      timings=tm, limit_sources=sources, glitches=glitches)
 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,

@@ -211,6 +211,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
         "duration_in": m.duration, "duration_out": float(res.t[-1]),
         "gravity": plan.gravity.tolist(), "mass_factors": dict(zip(plan.body.skeleton.names,
                                                                    plan.factors.round(6).tolist(), strict=True)),
+        "weight_factors": dict(zip(plan.body.skeleton.names, plan.weight_factors.round(6).tolist(), strict=True)),
         "total_mass_kg": plan.body.total_mass,
         "timing": res.kind, "timing_note": res.message,
         "objective": float(res.objective), "converged": res.converged, "iterations": res.iterations,

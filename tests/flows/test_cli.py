@@ -94,6 +94,23 @@ def test_retime_a_cmu_jump_in_half_the_time(cmu16: Path, tmp_path: Path, prefect
     assert all(Path(p).stat().st_size > 0 for p in rep["plots"])
 
 
+def test_retime_a_cmu_walk_with_a_heavier_left_thigh(cmu16: Path, tmp_path: Path, prefect_harness) -> None:
+    """``--weight lfemur=10`` (MPS06 Fig. 11): the report records the weight factor beside unchanged
+    mass factors and the left single stance lengthens; a malformed factor is one line, exit 2."""
+    out = tmp_path / "heavy.bvh"
+    r = runner.invoke(app, ["retime", str(cmu16 / "16_16.amc"), "--out", str(out), "--duration", "4",
+                            "--weight", "lfemur=heavy"])
+    assert r.exit_code == 2 and "--weight 'lfemur=heavy': expected JOINT=FACTOR" in r.output, r.output
+    assert "Traceback" not in r.output and not out.exists()
+    r = runner.invoke(app, ["retime", str(cmu16 / "16_16.amc"), "--out", str(out), "--duration", "4.2417",
+                            "--weight", "lfemur=10"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(out.with_suffix(".json").read_text())
+    assert rep["weight_factors"]["lfemur"] == 10.0 and set(rep["mass_factors"].values()) == {1.0}
+    left = rep["phase_seconds"]["lfoot only"]
+    assert left["output"] > 1.05 * left["source"]
+
+
 def test_a_request_refused_inside_the_flow_is_one_line(tmp_path: Path) -> None:
     """``retime`` of a BVH that declares no length unit (the physics needs metres): the error is
     raised inside the flow run, where Prefect's task log would print its traceback first; the

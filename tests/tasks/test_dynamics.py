@@ -84,6 +84,30 @@ def test_gravity_and_mass_recombination_match_a_changed_model() -> None:
         mass_factors(body, {"tail": 2.0})
 
 
+def test_a_weight_factor_changes_only_the_gravity_load() -> None:
+    """combine's weight factors (MPS06 Fig. 11's "weight multiplied by ten"): C is that of a model
+    whose bodies weigh mass x weight factor, A and B keep the mass factors' inertia."""
+    motion, _ = synthetic_jump(fps=30)
+    body = body_model_for(motion)
+    terms = dynamics_terms(body, motion)
+    g = np.array([0.5, -9.81, 0.0])
+    w = mass_factors(body, {"chest": 2.0})
+    wf = mass_factors(body, {"l_hip": 10.0, "chest": 0.5})
+    A0, B0, _ = terms.combine(g, w)
+    A, B, C = terms.combine(g, w, wf)
+    np.testing.assert_array_equal(A, A0)
+    np.testing.assert_array_equal(B, B0)
+    inertias = [body.model.inertias[j + 1] for j in range(body.n_bodies)]
+    loaded = build_body_model(body.skeleton, 1.0, inertias=[pin.Inertia(i.mass * k, i.lever.copy(), i.inertia * k)
+                                                            for i, k in zip(inertias, w * wf, strict=True)])
+    m = loaded.model
+    m.gravity = pin.Motion(np.concatenate([g, np.zeros(3)]))
+    d = m.createData()
+    for i in (0, 12, motion.n_frames - 1):
+        np.testing.assert_allclose(C[i], pin.rnea(m, d, terms.q[i], np.zeros(m.nv), np.zeros(m.nv)), atol=1e-9)
+    assert np.abs(C - terms.combine(g, w)[2]).max() > 1.0
+
+
 def test_flight_is_ballistic_and_stance_detected() -> None:
     motion, (t0, t1) = synthetic_jump()
     body = body_model_for(motion)

@@ -248,17 +248,24 @@ def _left_stance(walk, **kw) -> tuple[dict, float, float]:
 
 def test_fig10_gravity_to_the_left_favours_the_left_leg(walk) -> None:
     """MPS06 Fig. 10 on 16_16: gravity 30° to the walker's left, same length: the retimed walk
-    stands on the left foot alone longer and on the right alone shorter (normal physics: x1.05, x0.91)."""
+    stands on the left foot alone longer and on the right alone shorter (normal physics: x0.97, x1.02)."""
     ph, left, right = _left_stance(walk, gravity=_sideways(walk, 30.0))
     assert left > 1.2 and right < 0.8, ph
 
 
-@pytest.mark.xfail(strict=True, reason="MPS06 Fig. 11 not reproduced: with the left femur x10 the torques of the "
-                   "original timing do depart least from the target while standing on the left foot (~4x less than in "
-                   "right stance, limit-normalized: the paper's 'heavy thigh over the supporting foot'), but the "
-                   "63 kg extra thigh makes every change of playback speed cost hip torque (A p'' = M q' p'' along its "
-                   "swing): with the torque term alone the timing stays uniform (left x1.01, right x1.01) and with the "
-                   "feasibility term the left single stance shortens (1.50 -> 1.39 s)")
-def test_fig11_a_heavy_left_femur_favours_standing_on_the_left(walk) -> None:
+def test_fig11_a_heavier_left_femur_favours_standing_on_the_left(walk) -> None:
+    """MPS06 Fig. 11 as worded ("the left femur's weight multiplied by ten"): the femur's weight
+    (gravity load) x10, its inertia kept, same length: against the same retiming under normal
+    physics the walk stands longer on the left foot alone and shorter on the right alone."""
+    normal, left0, right0 = _left_stance(walk)
+    ph, left, right = _left_stance(walk, weight={"lfemur": 10.0})
+    assert left > 1.05 and left / left0 > 1.08 and right / right0 < 0.96, (ph, normal)
+
+
+@pytest.mark.xfail(strict=True, reason="MPS06 Fig. 11 with the femur's mass x10 (inertia too, not only its weight as "
+                   "the paper words it): the 63 kg extra thigh makes every change of playback speed cost hip torque along "
+                   "its swing (A p'' = M q' p''), so the retiming slows the left leg's swing, the right single stance, "
+                   "instead (left 1.50 -> 1.39 s, right 1.30 -> 1.39 s); the weight alone reproduces it (test above)")
+def test_fig11_with_its_mass_x10_a_heavy_left_femur_favours_standing_on_the_left(walk) -> None:
     ph, left, right = _left_stance(walk, mass={"lfemur": 10.0})
     assert left > 1.1 and left > right, ph
