@@ -21,8 +21,10 @@ from motionweb.tasks.guided_warp import (
     check_compatible,
     guided_warp,
     linear_warp,
+    playback_speed,
     reduce_to_compression,
 )
+from motionweb.tasks.retime import RetimeError, RetimeParams, clip_contacts, flight_intervals
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
@@ -47,23 +49,27 @@ class WarpRequest:
 
 @dataclass(frozen=True)
 class WarpPlan:
-    """A checked request: the motions, output length m (None: unconstrained), keytimes in frames."""
+    """A checked request: the motions, output length m (None: unconstrained), keytimes in frames;
+    the up axis and the retime section's contact settings the summary's flight phases use."""
 
     motion: Motion
     reference: Motion | None
     n_out: int | None
     keytimes: tuple[tuple[float, float], ...]
     config: WarpParams
+    up_axis: str = "y"
+    contact_params: RetimeParams | None = None
 
 
-def load_motion(path: str | Path) -> Motion:
-    """A clip from .bvh (store.bvh), .amc (store.asfamc) or DeepMimic .txt (store.deepmimic)."""
+def load_motion(path: str | Path, config: Config) -> Motion:
+    """A clip from .bvh (store.bvh), .amc (store.asfamc) or DeepMimic .txt (store.deepmimic); a
+    BVH that declares no length unit takes the config's (``corpus.length_unit`` / ``scale_to_m``)."""
     from motionweb.store.formats import read_motion
 
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"{p}: no such file")
-    return read_motion(p)
+    return read_motion(p, unit=config.corpus.length_unit, scale_to_m=config.corpus.scale_to_m)
 
 
 def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
@@ -74,8 +80,8 @@ def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
     cfg = config.warp
     if request.skip is not None:
         cfg = cfg.model_copy(update={"skip": request.skip})
-    motion = load_motion(request.input)
-    reference = load_motion(request.reference) if request.reference else None
+    motion = load_motion(request.input, config)
+    reference = load_motion(request.reference, config) if request.reference else None
     if reference is not None:
         check_compatible(motion, reference)
     fps = motion.fps
@@ -89,7 +95,7 @@ def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
         n_out = None
     keys = tuple((float(i) * fps, float(o) * fps) for i, o in request.keytimes)
     reduce_to_compression(motion.n_frames, n_out, keys, cfg.skip, request.backward)
-    return WarpPlan(motion, reference, n_out, keys, cfg)
+    return WarpPlan(motion, reference, n_out, keys, cfg, config.corpus.up_axis, config.retime)
 
 
 def solve(plan: WarpPlan, fast: bool = False, backward: bool = False) -> WarpResult:
@@ -124,6 +130,25 @@ def plot_warp(result: WarpResult, fps: float, path: str | Path, linear: WarpResu
     plt.close(fig)
 
 
+def flight_phases(motion: Motion, result: WarpResult, opts: RetimeParams, up_axis: str) -> list[dict[str, float]]:
+    """What the warp did to each flight phase of the input, no foot on the ground as the physics
+    retiming detects contacts (``opts``, MPS06 §3.2): source and output
+    seconds and their ratio (HDP07 §4.1's preservation measure; 1 keeps the flight's speed).
+    Empty for a clip of unknown length unit or one whose feet cannot be found."""
+    if motion.scale_to_m is None:
+        return []
+    try:
+        contacts = clip_contacts(motion, opts, up="xyz".index(up_axis))
+    except (ValueError, RetimeError):
+        return []
+    out = []
+    for a, b in flight_intervals(contacts.active, motion.fps):
+        if 0 < a and b < motion.duration:
+            ratio = 1.0 / playback_speed(result.times, a * motion.fps, b * motion.fps)
+            out.append({"source_s": b - a, "output_s": (b - a) * ratio, "ratio": ratio})
+    return out
+
+
 def write_outputs(plan: WarpPlan, result: WarpResult, request: WarpRequest) -> dict[str, Any]:
     """Write the warped BVH (input skeleton, channel orders, unit) and the optional plot."""
     from motionweb.store.bvh import write_bvh
@@ -146,6 +171,7 @@ def write_outputs(plan: WarpPlan, result: WarpResult, request: WarpRequest) -> d
         "input_s": plan.motion.duration, "output_s": (result.n_out - 1) / fps, "cost": result.cost,
         "upsample": result.upsample, "backward": result.backward, "heuristic": result.heuristic,
         "keytimes_s": [(i / fps, o / fps) for i, o in result.keytimes],
+        "flights": flight_phases(plan.motion, result, plan.contact_params or RetimeParams(), plan.up_axis),
         "timings": result.timings,
     }
 
@@ -185,6 +211,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"{summary['input_s']:.3f}s -> {summary['output_s']:.3f}s)"),
         f"keytimes {keys}; upsample x{summary['upsample']}; cost {summary['cost']:.4g}"
         + ("; heuristic" if summary["heuristic"] else ""),
+    ] + [f"  flight {f['source_s']:.3f} s -> {f['output_s']:.3f} s (x{f['ratio']:.2f})" for f in summary["flights"]] + [
         "timings " + ", ".join(f"{k} {v * 1000:.1f} ms" for k, v in t.items()),
     ] + ([f"plot {summary['plot']}"] if summary.get("plot") else []))
 

@@ -14,9 +14,16 @@ The names below are the public API used by the flows and the benchmarks.
 """
 
 from motionweb.tasks.retime.errors import RetimeError
-from motionweb.tasks.retime.pipeline import RetimeParams, RetimePlan, polygon_options, prepare, retime_plan
+from motionweb.tasks.retime.pipeline import (
+    RetimeParams,
+    RetimePlan,
+    clip_contacts,
+    polygon_options,
+    prepare,
+    retime_plan,
+)
 from motionweb.tasks.retime.report import flight_intervals, phase_times, report, shortest_duration
 from motionweb.tasks.retime.spline import RetimeResult
 
-__all__ = ["RetimeError", "RetimeParams", "RetimePlan", "RetimeResult", "flight_intervals", "phase_times",
-           "polygon_options", "prepare", "report", "retime_plan", "shortest_duration"]
+__all__ = ["RetimeError", "RetimeParams", "RetimePlan", "RetimeResult", "clip_contacts", "flight_intervals",
+           "phase_times", "polygon_options", "prepare", "report", "retime_plan", "shortest_duration"]

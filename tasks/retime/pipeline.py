@@ -24,6 +24,7 @@ from motionweb.tasks.retime.dynamics import (
     BodyModel,
     DynamicsTerms,
     body_model_for,
+    configurations,
     dynamics_terms,
     mass_factors,
 )
@@ -190,6 +191,15 @@ def clip_physics(motion: Motion, opts: RetimeParams, *, up: int = 1, humanoid: A
                             intervals=contact_intervals, foot_corners=corners)
     tm["contacts"] = time.perf_counter() - t
     return body, glitches, terms, contacts
+
+
+def clip_contacts(motion: Motion, opts: RetimeParams, *, up: int = 1) -> Contacts:
+    """A clip's foot contacts as :func:`clip_physics` detects them (MPS06 §3.2), without its
+    dynamics: what another stage (the guided warp's summary) tells flight phases by. O(F · J)."""
+    body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up)
+    path, _ = repair_glitches(motion) if opts.repair_glitches else (motion, [])
+    return contacts_for(body, configurations(body, path), motion.fps, mu=opts.friction,
+                        rule=contact_rule(opts, motion.name))
 
 
 def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray]:

@@ -8,6 +8,7 @@ paths against enumeration of all subsequences on tiny inputs.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from dataclasses import replace
 
@@ -322,6 +323,7 @@ def test_cli_warp_end_to_end(walkjump, tmp_path):
     motion, (f0, _) = walkjump
     src = tmp_path / "walkjump.bvh"
     write_bvh(motion, src)
+    src.with_suffix(".json").write_text('{"unit": "cm"}')  # the flight phase needs metres
     out, plot = tmp_path / "out.bvh", tmp_path / "warp.png"
     runner = CliRunner()
     res = runner.invoke(app, ["warp", str(src), "--duration", "2.8", "--keytime", f"{f0 / 60:.4f}:1.6",
@@ -331,6 +333,9 @@ def test_cli_warp_end_to_end(walkjump, tmp_path):
     assert warped.n_frames == 169 and warped.skeleton.channels == motion.skeleton.channels
     assert warped.unit == motion.unit or warped.unit is None
     assert plot.stat().st_size > 1000
+    flight = re.search(r"flight (\d+\.\d+) s -> (\d+\.\d+) s \(x(\d+\.\d+)\)", res.output)
+    assert flight, res.output  # the summary says what the warp did to the flight
+    assert 0.45 < float(flight[1]) < 0.65 and float(flight[3]) == pytest.approx(float(flight[2]) / float(flight[1]), abs=0.01)
 
     res = runner.invoke(app, ["warp", str(src), "--frames", "20", "--out", str(out)])
     assert res.exit_code != 0 and "below n/s" in res.output and "Traceback" not in res.output
