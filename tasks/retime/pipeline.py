@@ -186,20 +186,26 @@ def clip_physics(motion: Motion, opts: RetimeParams, *, up: int = 1, humanoid: A
     terms = dynamics_terms(body, path, opts.smoothing_s)
     tm["dynamics"] = time.perf_counter() - t
     t = time.perf_counter()
-    corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
-    contacts = contacts_for(body, terms.q, motion.fps, mu=opts.friction, rule=contact_rule(opts, motion.name),
-                            intervals=contact_intervals, foot_corners=corners)
+    contacts = _detect(body, terms.q, motion, opts, humanoid, contact_intervals)
     tm["contacts"] = time.perf_counter() - t
     return body, glitches, terms, contacts
 
 
+def _detect(body: BodyModel, q: np.ndarray, motion: Motion, opts: RetimeParams, humanoid: Any | None,
+            contact_intervals: dict[str, list[tuple[float, float]]] | None) -> Contacts:
+    corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
+    return contacts_for(body, q, motion.fps, mu=opts.friction, rule=contact_rule(opts, motion.name),
+                        intervals=contact_intervals, foot_corners=corners)
+
+
 def clip_contacts(motion: Motion, opts: RetimeParams, *, up: int = 1) -> Contacts:
-    """A clip's foot contacts as :func:`clip_physics` detects them (MPS06 §3.2), without its
-    dynamics: what another stage (the guided warp's summary) tells flight phases by. O(F · J)."""
+    """A clip's foot contacts as :func:`clip_physics` detects them (MPS06 §3.2; the clip's own
+    ``opts.contact_intervals`` win), without its dynamics: what another stage (the guided warp's
+    summary) tells flight phases by. O(F · J)."""
     body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up)
     path, _ = repair_glitches(motion) if opts.repair_glitches else (motion, [])
-    return contacts_for(body, configurations(body, path), motion.fps, mu=opts.friction,
-                        rule=contact_rule(opts, motion.name))
+    return _detect(body, configurations(body, path), motion, opts, None,
+                   opts.contact_intervals.get(motion.name) or None)
 
 
 def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray]:

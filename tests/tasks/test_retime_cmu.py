@@ -21,7 +21,7 @@ from motionweb.tasks.retime.limits import (
     observed_limits,
     segment_table,
 )
-from motionweb.tasks.retime.pipeline import observed_torques
+from motionweb.tasks.retime.pipeline import clip_contacts, clip_physics, observed_torques
 from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.report import original_feasibility, shortest_duration
 
@@ -71,6 +71,14 @@ def test_an_adult_body_and_contacts_that_hold(jump) -> None:
     # torque limits from the shipped table (not the clip), hip about 280 N·m for 70 kg
     assert plan.limit_sources["lfemur"] == "table lfemur"
     assert 150 < plan.original.limits[body.joint_dofs(motion.skeleton.index("lfemur"))][0] < 500
+
+
+def test_clip_contacts_are_the_retimings_without_the_dynamics(jump) -> None:
+    """What the warp's summary tells flights by is exactly what the retiming detects."""
+    motion, plan = jump
+    _, _, _, contacts = clip_physics(motion, OPTS)
+    np.testing.assert_array_equal(clip_contacts(motion, OPTS).active, contacts.active)
+    assert flight_intervals(contacts.active, motion.fps) == flight_intervals(plan.contacts.active, motion.fps)
 
 
 def test_the_shipped_torque_table_is_what_the_clips_show(cmu_dir: Path, jump) -> None:
