@@ -247,6 +247,8 @@ def retime(
                f"{rep['frames_out']} frames written to {rep['output']}")
     for fl in rep["flights"]:
         typer.echo(f"  flight {fl['source_duration']:.3f} s -> {fl['output_duration']:.3f} s (x{fl['ratio']:.2f})")
+    if rep["free_fall"]["note"]:
+        typer.echo(f"  check the unit: {rep['free_fall']['note']}")
     for what in rep["glitches_mended"]:
         typer.echo(f"  capture glitch mended for the dynamics (the output keeps it): {what}")
     if rep["infeasible_source_frames"]:

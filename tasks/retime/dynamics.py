@@ -506,6 +506,12 @@ def weight_jacobians(jac: np.ndarray, h: np.ndarray, mass: np.ndarray, support: 
                     out[i, v, b, 2] = 0.0
 
 
+def centre_of_mass(body: BodyModel, q: np.ndarray) -> np.ndarray:
+    """(F, 3) the whole body's centre of mass (m) at configurations ``q`` (F, nq). O(F · B)."""
+    data = body.model.createData()
+    return np.array([pin.centerOfMass(body.model, data, qi) for qi in q]).reshape(-1, 3)
+
+
 def mass_factors(body: BodyModel, factors: dict[str, float]) -> np.ndarray:
     """(B,) per-body multipliers from ``{joint name: factor}`` (ValueError naming the joints)."""
     w = np.ones(body.n_bodies)

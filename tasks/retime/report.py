@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
+from motionweb.tasks.retime.dynamics import centre_of_mass
 from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
 from motionweb.tasks.retime.pipeline import RetimePlan
@@ -26,6 +27,43 @@ def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
     """
     fastest = fastest_timing(polys, fps)
     return fastest.duration if fastest.inside else float("inf")
+
+
+#: flights shorter than this are not fitted for their free fall (too few frames for a parabola)
+FREE_FALL_MIN_S = 0.15
+#: a median free fall this far (relative) from the default gravity's magnitude suggests a wrong length unit
+FREE_FALL_TOLERANCE = 0.25
+
+
+def free_fall(plan: RetimePlan) -> dict[str, Any]:
+    """The acceleration the centre of mass falls at in the clip's own flights, a check of its
+    length unit: a ballistic phase has gravity alone (MPS06 §4.1), so a clip whose unit is off by
+    a factor k falls at 9.81 / k m/s², and every flight the physics sees is wrong by as much.
+
+    Per inner flight of at least :data:`FREE_FALL_MIN_S` (no foot down; its first and last frames
+    touch), a least-squares parabola of the centre of mass's height; the median over flights.
+    Returns ``gravity`` (m/s², None without such a flight), ``flights`` (how many were fitted) and
+    a ``note`` naming the ``scale_to_m`` that would make them fall at the default gravity, where
+    they are more than :data:`FREE_FALL_TOLERANCE` off. O(F · B).
+    """
+    m, body = plan.motion, plan.body
+    fits = []
+    for s0, s1 in flight_intervals(plan.contacts.active, m.fps):
+        frames = np.arange(round(s0 * m.fps) + 1, round(s1 * m.fps))
+        if s0 <= 0.0 or s1 >= m.duration or s1 - s0 < FREE_FALL_MIN_S or len(frames) < 4:
+            continue
+        height = centre_of_mass(body, plan.terms.q[frames])[:, body.up_axis]
+        t = frames / m.fps
+        fits.append(-2.0 * float(np.polyfit(t - t.mean(), height, 2)[0]))
+    if not fits:
+        return {"gravity": None, "flights": 0, "note": ""}
+    g_fall, g0 = float(np.median(fits)), float(np.linalg.norm(body.default_gravity()))
+    note = ""
+    if abs(g_fall / g0 - 1.0) > FREE_FALL_TOLERANCE and g_fall > 0:
+        note = (f"the centre of mass falls at {g_fall:.2f} m/s² in the clip's {len(fits)} flight(s), not {g0:.2f}: "
+                f"is the length unit right? scale_to_m {body.scale * g0 / g_fall:.4g} (now {body.scale:.4g}) would "
+                f"make them fall at {g0:.2f}")
+    return {"gravity": g_fall, "flights": len(fits), "note": note}
 
 
 def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:
@@ -226,6 +264,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
                               "source": plan.limit_sources.get(n, "")}
                           for j, n in enumerate(plan.body.skeleton.names) if j},
         "original_timing": original_feasibility(plan),
+        "free_fall": free_fall(plan),
         "shortest_feasible_duration": reach["shortest_feasible_duration"],
         "reachable": reach,
         "timings_s": {**plan.timings, "optimize": res.seconds},

@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from fixtures import synthetic_jump
+from fixtures import G, synthetic_jump
 from motionweb.store.kinematics import hold_ends
 from motionweb.tasks.retime import (
     RetimeError,
@@ -19,6 +19,7 @@ from motionweb.tasks.retime import (
 )
 from motionweb.tasks.retime.objective import evaluate
 from motionweb.tasks.retime.polygons import N_ROOT, FrameLP
+from motionweb.tasks.retime.report import free_fall
 from motionweb.tasks.retime.spline import TimingSpline, check_keytimes, objective_function
 from naive import evaluate_numpy
 from scipy.optimize import linprog
@@ -102,6 +103,18 @@ def test_half_gravity_lengthens_flight_by_sqrt2(jump) -> None:
     _, flight = _flight_speed(res, t0, t1)
     expected = (t1 - t0 - 0.04) * np.sqrt(2)
     assert abs(flight / expected - 1) < 0.05
+
+
+def test_free_fall_checks_the_length_unit(jump) -> None:
+    """The ballistic flight falls at the fixture's gravity; the same jump falling twice as fast (as a
+    clip whose unit is off by 2 would) is reported with the scale_to_m that makes it fall right."""
+    motion, _, plan = jump
+    ff = free_fall(plan)
+    assert ff["flights"] == 1 and ff["gravity"] == pytest.approx(G, rel=0.02) and ff["note"] == ""
+    fast, _ = synthetic_jump(fps=30, g=2 * G, stand=1.2, bend=0.6)
+    ff = free_fall(prepare(fast, OPTS))
+    assert ff["gravity"] == pytest.approx(2 * G, rel=0.02)
+    assert "scale_to_m 0.5 (now 1)" in ff["note"]
 
 
 def test_keytimes_met_and_monotone(jump) -> None:
