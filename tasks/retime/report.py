@@ -42,12 +42,14 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
 
     Per inner flight of at least :data:`FREE_FALL_MIN_S` (no foot down; its first and last frames
     touch), a least-squares parabola of the centre of mass's height; the median over flights.
-    Returns ``gravity`` (m/s², None without such a flight), ``flights`` (how many were fitted) and
-    a ``note`` naming the ``scale_to_m`` that would make them fall at the default gravity, where
-    they are more than :data:`FREE_FALL_TOLERANCE` off. O(F · B).
+    Returns ``gravity`` (m/s², None without such a flight), ``flights`` (how many were fitted),
+    ``per_flight`` ({source start s: m/s²}: a flight far off while the others fall right is held
+    up by something the feet do not touch, a bar or a wall) and a ``note`` naming the
+    ``scale_to_m`` that would make them fall at the default gravity, where the median is more
+    than :data:`FREE_FALL_TOLERANCE` off. O(F · B).
     """
     m, body = plan.motion, plan.body
-    fits = []
+    fits, per_flight = [], {}
     for s0, s1 in flight_intervals(plan.contacts.active, m.fps):
         frames = np.arange(round(s0 * m.fps) + 1, round(s1 * m.fps))
         if s0 <= 0.0 or s1 >= m.duration or s1 - s0 < FREE_FALL_MIN_S or len(frames) < 4:
@@ -55,15 +57,23 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
         height = centre_of_mass(body, plan.terms.q[frames])[:, body.up_axis]
         t = frames / m.fps
         fits.append(-2.0 * float(np.polyfit(t - t.mean(), height, 2)[0]))
+        per_flight[s0] = fits[-1]
     if not fits:
-        return {"gravity": None, "flights": 0, "note": ""}
+        return {"gravity": None, "flights": 0, "per_flight": {}, "note": ""}
     g_fall, g0 = float(np.median(fits)), float(np.linalg.norm(body.default_gravity()))
     note = ""
     if abs(g_fall / g0 - 1.0) > FREE_FALL_TOLERANCE and g_fall > 0:
         note = (f"the centre of mass falls at {g_fall:.2f} m/s² in the clip's {len(fits)} flight(s), not {g0:.2f}: "
                 f"is the length unit right? scale_to_m {body.scale * g0 / g_fall:.4g} (now {body.scale:.4g}) would "
                 f"make them fall at {g0:.2f}")
-    return {"gravity": g_fall, "flights": len(fits), "note": note}
+    return {"gravity": g_fall, "flights": len(fits), "per_flight": per_flight, "note": note}
+
+
+def held_up(fall: dict[str, Any], s0: float) -> bool:
+    """Whether the flight starting at ``s0`` falls more than :data:`FREE_FALL_TOLERANCE` off the
+    clip's median free fall (:func:`free_fall`): no foot down, yet not ballistic."""
+    g, mine = fall["gravity"], fall["per_flight"].get(s0)
+    return g is not None and mine is not None and abs(mine / g - 1.0) > FREE_FALL_TOLERANCE
 
 
 def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:
@@ -235,13 +245,15 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
                        "torques": tau[N_ROOT:].round(4).tolist(), "root_residual": tau[:N_ROOT].round(4).tolist(),
                        "contact_forces": forces})
     outside = np.flatnonzero(~inside).tolist()
+    fall = free_fall(plan)
     flights = []
     for s0, s1 in flight_intervals(cont.active, m.fps):
         if s0 <= 0.0 or s1 >= m.duration:
             continue
         o0, o1 = output_time(res, s0), output_time(res, s1)
         flights.append({"source": [s0, s1], "output": [o0, o1], "source_duration": s1 - s0,
-                        "output_duration": o1 - o0, "ratio": (o1 - o0) / (s1 - s0)})
+                        "output_duration": o1 - o0, "ratio": (o1 - o0) / (s1 - s0),
+                        "falls_at": fall["per_flight"].get(s0), "held_up": held_up(fall, s0)})
     polys = plan.polygons
     reach = reachability(plan, res, len(outside))
     return {
@@ -264,7 +276,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
                               "source": plan.limit_sources.get(n, "")}
                           for j, n in enumerate(plan.body.skeleton.names) if j},
         "original_timing": original_feasibility(plan),
-        "free_fall": free_fall(plan),
+        "free_fall": {k: v for k, v in fall.items() if k != "per_flight"},
         "shortest_feasible_duration": reach["shortest_feasible_duration"],
         "reachable": reach,
         "timings_s": {**plan.timings, "optimize": res.seconds},

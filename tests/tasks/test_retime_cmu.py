@@ -23,7 +23,7 @@ from motionweb.tasks.retime.limits import (
 )
 from motionweb.tasks.retime.pipeline import clip_contacts, clip_physics, observed_torques
 from motionweb.tasks.retime.reachable import fastest_timing
-from motionweb.tasks.retime.report import free_fall, original_feasibility, shortest_duration
+from motionweb.tasks.retime.report import free_fall, held_up, original_feasibility, shortest_duration
 
 OPTS = RetimeParams()
 
@@ -84,7 +84,7 @@ def test_clip_contacts_are_the_retimings_without_the_dynamics(jump) -> None:
 def test_free_fall_tells_a_wrong_length_unit(cmu_dir: Path, jump) -> None:
     """16_06's flight falls at about 9.81 m/s² in the ASF's own unit; the cgspeed BVH of 01_01 read
     as inches (a user's guess: the file declares none) falls at ~4 m/s², and the report names a
-    scale near the ASF's 0.0564 m per unit."""
+    scale near the ASF's 0.0564 m per unit; a flight held up by the hands is told apart."""
     ff = free_fall(jump[1])
     assert ff["flights"] == 1 and abs(ff["gravity"] / 9.81 - 1) < 0.1 and ff["note"] == ""
     bvh = prepare(read_motion(cmu_dir / "bvh" / "01" / "01_01.bvh", unit="in"), OPTS)
@@ -92,6 +92,11 @@ def test_free_fall_tells_a_wrong_length_unit(cmu_dir: Path, jump) -> None:
     assert ff["flights"] >= 5 and ff["gravity"] < 6.0
     scale = float(ff["note"].split("scale_to_m ")[1].split(" ")[0])
     assert 0.05 < scale < 0.07, ff["note"]
+    # 14_07 "jump up to grab": the feet leave the floor while the hands hold a bar, once
+    ff = free_fall(prepare(read_motion(cmu_dir / "asf_amc" / "14" / "14_07.amc"), OPTS))
+    held = [s0 for s0 in ff["per_flight"] if held_up(ff, s0)]
+    assert len(held) == 1 and ff["per_flight"][held[0]] < 3.0 and abs(ff["gravity"] / 9.81 - 1) < 0.1
+    assert ff["note"] == ""
 
 
 def test_the_shipped_torque_table_is_what_the_clips_show(cmu_dir: Path, jump) -> None:
