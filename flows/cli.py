@@ -247,9 +247,9 @@ def retime(
                f"{rep['frames_out']} frames written to {rep['output']}")
     for fl in rep["flights"]:
         typer.echo(f"  flight {fl['source_duration']:.3f} s -> {fl['output_duration']:.3f} s (x{fl['ratio']:.2f})"
-                   + (f", its centre of mass falls at {fl['falls_at']:.1f} m/s² (the clip's flights: "
-                      f"{rep['free_fall']['gravity']:.1f}): held up by more than the feet, not ballistic"
-                      if fl["held_up"] else ""))
+                   + (f", not ballistic: its centre of mass falls at {fl['falls_at']:.1f} m/s², not "
+                      f"{rep['free_fall']['expected']:.1f} (more than the feet holds or pushes it, or the contacts "
+                      "are off)" if fl["held_up"] else ""))
     if rep["free_fall"]["note"]:
         typer.echo(f"  check the unit: {rep['free_fall']['note']}")
     for what in rep["glitches_mended"]:

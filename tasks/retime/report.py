@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid
+from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid, rest_positions
 from motionweb.tasks.retime.dynamics import centre_of_mass
 from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
@@ -31,24 +31,32 @@ def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
 
 #: flights shorter than this are not fitted for their free fall (too few frames for a parabola)
 FREE_FALL_MIN_S = 0.15
-#: a median free fall this far (relative) from the default gravity's magnitude suggests a wrong length unit
+#: a flight falling this far (relative) from the expected gravity is not ballistic; flights that
+#: agree this well among themselves but all fall this far off it suggest a wrong length unit
 FREE_FALL_TOLERANCE = 0.25
+#: standing heights (m, rest pose, joint to joint) a length unit may give a human body
+HUMAN_HEIGHT_M = (0.9, 2.3)
 
 
 def free_fall(plan: RetimePlan) -> dict[str, Any]:
-    """The acceleration the centre of mass falls at in the clip's own flights, a check of its
-    length unit: a ballistic phase has gravity alone (MPS06 §4.1), so a clip whose unit is off by
-    a factor k falls at 9.81 / k m/s², and every flight the physics sees is wrong by as much.
+    """The acceleration the centre of mass falls at in the clip's own flights, and with it a check
+    of the length unit: a ballistic phase has gravity alone (MPS06 §4.1), so a clip whose unit is
+    off by a factor k falls at 9.81 / k m/s² in every flight, and every flight the physics sees is
+    wrong by as much.
 
     Per inner flight of at least :data:`FREE_FALL_MIN_S` (no foot down; its first and last frames
-    touch), a least-squares parabola of the centre of mass's height; the median over flights.
-    Returns ``gravity`` (m/s², None without such a flight), ``flights`` (how many were fitted),
-    ``per_flight`` ({source start s: m/s²}: a flight far off while the others fall right is held
-    up by something the feet do not touch, a bar or a wall) and a ``note`` naming the
-    ``scale_to_m`` that would make them fall at the default gravity, where the median is more
-    than :data:`FREE_FALL_TOLERANCE` off. O(F · B).
+    touch), a least-squares parabola of the centre of mass's height. Returns ``gravity`` (the
+    median, m/s², None without such a flight), ``flights`` (how many were fitted), ``per_flight``
+    ({source start s: m/s²}), ``expected`` (what a ballistic flight of this clip falls at: the
+    default gravity, or the median where the unit is suspect) and a ``note`` naming the
+    ``scale_to_m`` that would make the flights fall at the default gravity. The note needs two
+    flights or more that agree within :data:`FREE_FALL_TOLERANCE` of their median and all fall
+    farther than that from the default gravity, and a body that the new scale makes
+    :data:`HUMAN_HEIGHT_M` tall: hands on the floor (a cartwheel, a crawl) or a bar hold one flight
+    up, not all of them alike, and a unit that makes a giant is no fix. O(F · B).
     """
     m, body = plan.motion, plan.body
+    g0 = float(np.linalg.norm(body.default_gravity()))
     fits, per_flight = [], {}
     for s0, s1 in flight_intervals(plan.contacts.active, m.fps):
         frames = np.arange(round(s0 * m.fps) + 1, round(s1 * m.fps))
@@ -59,21 +67,27 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
         fits.append(-2.0 * float(np.polyfit(t - t.mean(), height, 2)[0]))
         per_flight[s0] = fits[-1]
     if not fits:
-        return {"gravity": None, "flights": 0, "per_flight": {}, "note": ""}
-    g_fall, g0 = float(np.median(fits)), float(np.linalg.norm(body.default_gravity()))
+        return {"gravity": None, "flights": 0, "per_flight": {}, "expected": g0, "note": ""}
+    g_fall = float(np.median(fits))
     note = ""
-    if abs(g_fall / g0 - 1.0) > FREE_FALL_TOLERANCE and g_fall > 0:
-        note = (f"the centre of mass falls at {g_fall:.2f} m/s² in the clip's {len(fits)} flight(s), not {g0:.2f}: "
-                f"is the length unit right? scale_to_m {body.scale * g0 / g_fall:.4g} (now {body.scale:.4g}) would "
-                f"make them fall at {g0:.2f}")
-    return {"gravity": g_fall, "flights": len(fits), "per_flight": per_flight, "note": note}
+    if g_fall > 0 and len(fits) >= 2 and all(abs(g / g_fall - 1.0) <= FREE_FALL_TOLERANCE for g in fits) \
+            and abs(g_fall / g0 - 1.0) > FREE_FALL_TOLERANCE:
+        scale = body.scale * g0 / g_fall
+        tall = float(np.ptp(rest_positions(body.skeleton, scale)[:, body.up_axis]))
+        if HUMAN_HEIGHT_M[0] <= tall <= HUMAN_HEIGHT_M[1]:
+            note = (f"the centre of mass falls at {g_fall:.2f} m/s² in all {len(fits)} of the clip's flights, not "
+                    f"{g0:.2f}: is the length unit right? scale_to_m {scale:.4g} (now {body.scale:.4g}) would make "
+                    f"them fall at {g0:.2f} (and the body {tall:.2f} m tall)")
+    return {"gravity": g_fall, "flights": len(fits), "per_flight": per_flight,
+            "expected": g_fall if note else g0, "note": note}
 
 
 def held_up(fall: dict[str, Any], s0: float) -> bool:
-    """Whether the flight starting at ``s0`` falls more than :data:`FREE_FALL_TOLERANCE` off the
-    clip's median free fall (:func:`free_fall`): no foot down, yet not ballistic."""
-    g, mine = fall["gravity"], fall["per_flight"].get(s0)
-    return g is not None and mine is not None and abs(mine / g - 1.0) > FREE_FALL_TOLERANCE
+    """Whether the flight starting at ``s0`` falls more than :data:`FREE_FALL_TOLERANCE` off what a
+    ballistic flight of the clip falls at (:func:`free_fall`'s ``expected``): no foot down, yet
+    something else holds or pushes the body (hands, a bar), or the contacts are off."""
+    mine = fall["per_flight"].get(s0)
+    return mine is not None and abs(mine / fall["expected"] - 1.0) > FREE_FALL_TOLERANCE
 
 
 def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:

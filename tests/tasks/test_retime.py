@@ -19,7 +19,7 @@ from motionweb.tasks.retime import (
 )
 from motionweb.tasks.retime.objective import evaluate
 from motionweb.tasks.retime.polygons import N_ROOT, FrameLP
-from motionweb.tasks.retime.report import free_fall
+from motionweb.tasks.retime.report import free_fall, held_up
 from motionweb.tasks.retime.spline import TimingSpline, check_keytimes, objective_function
 from naive import evaluate_numpy
 from scipy.optimize import linprog
@@ -106,15 +106,22 @@ def test_half_gravity_lengthens_flight_by_sqrt2(jump) -> None:
 
 
 def test_free_fall_checks_the_length_unit(jump) -> None:
-    """The ballistic flight falls at the fixture's gravity; the same jump falling twice as fast (as a
-    clip whose unit is off by 2 would) is reported with the scale_to_m that makes it fall right."""
-    motion, _, plan = jump
+    """The ballistic flight falls at the fixture's gravity. A jump falling at 0.7 g, as a clip
+    whose unit is 0.7 of the truth would: alone it is only a flight that is not ballistic; twice in
+    one clip, alike, it is a unit, and the report names the scale_to_m that makes both fall right."""
+    _, _, plan = jump
     ff = free_fall(plan)
     assert ff["flights"] == 1 and ff["gravity"] == pytest.approx(G, rel=0.02) and ff["note"] == ""
-    fast, _ = synthetic_jump(fps=30, g=2 * G, stand=1.2, bend=0.6)
-    ff = free_fall(prepare(fast, OPTS))
-    assert ff["gravity"] == pytest.approx(2 * G, rel=0.02)
-    assert "scale_to_m 0.5 (now 1)" in ff["note"]
+    assert not held_up(ff, next(iter(ff["per_flight"])))
+    slow, _ = synthetic_jump(fps=30, g=0.7 * G, stand=1.2, bend=0.6)
+    one = free_fall(prepare(slow, OPTS))
+    assert one["gravity"] == pytest.approx(0.7 * G, rel=0.02) and one["note"] == ""
+    assert held_up(one, next(iter(one["per_flight"])))
+    twice = replace(slow, root_positions=np.concatenate([slow.root_positions] * 2),
+                    rotations=np.concatenate([slow.rotations] * 2))
+    ff = free_fall(prepare(twice, OPTS))
+    assert ff["flights"] == 2 and "scale_to_m 1.429 (now 1)" in ff["note"], ff
+    assert ff["expected"] == pytest.approx(0.7 * G, rel=0.02) and not any(held_up(ff, s0) for s0 in ff["per_flight"])
 
 
 def test_keytimes_met_and_monotone(jump) -> None:
