@@ -34,7 +34,7 @@ from motionweb.tasks.retime import RetimeParams, RetimePlan, phase_times, prepar
 from motionweb.tasks.retime.dynamics import dynamics_terms
 from motionweb.tasks.retime.objective import objective_kernel
 from motionweb.tasks.retime.polygons import N_ROOT
-from motionweb.tasks.retime.report import original_feasibility, shortest_duration
+from motionweb.tasks.retime.report import free_fall, original_feasibility, shortest_duration
 from motionweb.tasks.retime.spline import objective_function
 from scipy.optimize import linprog
 
@@ -237,17 +237,23 @@ def subject16_trials() -> Iterator[tuple[str, Motion, RetimePlan]]:
 
 def all_trials() -> None:
     print("\nOriginal timing inside its polygon, every walk / run / jump of subject 16 (manifest.csv):")
-    shares = []
+    shares, falls = [], []
     for category, motion, plan in subject16_trials():
         of = original_feasibility(plan)
         shares.append(of["inside_fraction"])
+        fall = free_fall(plan)
+        if fall["gravity"] is not None:
+            falls.append(fall["gravity"])
         why = "; ".join(f"{o['frame']}: {o['why']}" for o in of["outside"][:3])
         print(f"  {motion.name} {category:5} {motion.n_frames:4d} frames: inside {of['inside_fraction']:6.1%}, "
+              f"falls at {'-' if fall['gravity'] is None else format(fall['gravity'], '5.2f')} m/s², "
               f"unexplained by contacts {of['unexplained_fraction']:5.1%} (stance frames "
               f"{of['unexplained_stance_fraction']:5.1%}, flight frames {of['unexplained_flight_fraction']:5.1%})"
               f"{'  outside: ' + why if why else ''}"
               f"{' ...' if len(of['outside']) > 3 else ''}")
     print(f"  {sum(s >= 0.95 for s in shares)} of {len(shares)} trials have >= 95% inside; lowest {min(shares):.1%}")
+    print(f"  free fall of the centre of mass in the flights (report.free_fall), {len(falls)} trials: median "
+          f"{np.median(falls):.2f} m/s², {min(falls):.2f}-{max(falls):.2f} (gravity 9.81)")
 
 
 def retimed_trials(fracs: tuple[float, ...] = (0.5, 0.6, 0.7, 1.5)) -> None:
