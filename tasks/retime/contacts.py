@@ -6,8 +6,9 @@ magnitudes λ ≥ 0, mapped to generalized forces by the corners' Jacobians, f_q
 (MPS06 Eqn. 11). A foot with a toe segment has 2 more corners across the ball of the foot (the toe
 joint): a foot up on its toes then stands on the forefoot patch from the ball to the toe tips, not on
 the line of its tips (24 basis forces). Contacts are detected per foot end (toe, heel) from its height above the clip's
-own floor and its speed, with hysteresis and minimum durations (:class:`ContactRule`); intervals
-can be given per clip instead.
+own floor and its speed, with hysteresis and minimum durations (:class:`ContactRule`); a
+"flight" whose centre of mass does not fall at gravity is a stance the rule missed and gets its
+lowest slow foot (:func:`missed_stances`); intervals can be given per clip instead.
 
 Cost: one forward kinematics + 4 frame Jacobians per foot per frame, O(F · n_feet · nv).
 """
@@ -19,11 +20,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Skeleton
-from motionweb.tasks.retime.dynamics import BodyModel
+from motionweb.tasks.retime.dynamics import BodyModel, centre_of_mass
 
 EDGES_PER_CORNER = 4
 #: sole corners: toe tips 0-1, heel 2-3, and (feet with a toe segment) the ball of the foot 4-5
 TOE, HEEL, BALL = (0, 1), (2, 3), (4, 5)
+#: a flight whose centre of mass falls farther than this (relative) from gravity is not ballistic
+BALLISTIC_TOLERANCE = 0.25
 
 
 @dataclass(frozen=True)
@@ -315,6 +318,42 @@ def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 
     return act, corner, floor
 
 
+def fall_rate(height: np.ndarray, fps: float) -> float:
+    """The acceleration (m/s², down positive) ``height`` (n,) samples at ``fps`` fall at: −2 × the
+    quadratic coefficient of their least-squares parabola (n ≥ 3)."""
+    t = np.arange(len(height)) / fps
+    return -2.0 * float(np.polyfit(t - t.mean(), height, 2)[0])
+
+
+def missed_stances(body: BodyModel, q: np.ndarray, pos: np.ndarray, active: np.ndarray, corner: np.ndarray,
+                   floor: float, fps: float, rule: ContactRule) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+    """Stances the rule missed: a "flight" (no foot down, between contacts, at least 4 frames)
+    whose centre of mass does not fall at gravity (more than :data:`BALLISTIC_TOLERANCE` off)
+    is carried by a foot. The foot that stays lowest is put down for it (all its corners) if it
+    stays within ``rule.height_off`` of the floor and slower than ``rule.speed_off`` all along —
+    a pivoting foot hovering just above ``height_on`` (CMU 16_29's turn). A real flight falls at
+    gravity, or lifts its feet. Returns the new (F, nf) and (F, nf, K) flags and the (start, end,
+    foot) runs put down. O(F_flight · B)."""
+    active, corner = active.copy(), corner.copy()
+    g = float(np.linalg.norm(body.default_gravity()))
+    up, f = body.up_axis, active.shape[0]
+    mended = []
+    for s, e in runs(~active.any(axis=1)):
+        if s == 0 or e == f or e - s < 4:
+            continue
+        if abs(fall_rate(centre_of_mass(body, q[s:e])[:, up], fps) / g - 1.0) <= BALLISTIC_TOLERANCE:
+            continue
+        low = pos[s:e, ..., up].min(axis=2) - floor  # (n, nf)
+        speed = np.linalg.norm(np.gradient(pos[s - 1:e + 1].mean(axis=2), axis=0) * fps, axis=-1)[1:-1]
+        ok = (low.max(axis=0) <= rule.height_off) & (speed.max(axis=0) <= rule.speed_off)
+        if ok.any():
+            k = int(np.argmin(np.where(ok, low.mean(axis=0), np.inf)))
+            active[s:e, k] = True
+            corner[s:e, k] = True
+            mended.append((s, e, k))
+    return active, corner, mended
+
+
 def intervals_to_active(intervals: dict[str, list[tuple[float, float]]], feet: tuple[Foot, ...],
                         n_frames: int, fps: float) -> np.ndarray:
     """(F, n_feet) flags from ``{foot joint name: [(start_s, end_s), ...]}`` (others: no contact)."""
@@ -340,6 +379,7 @@ def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, mu: float = 0.5,
         raise ValueError("no feet found in the skeleton (no low leaf joints); give foot corners")
     basis, pos = contact_bases(body, q, feet, mu)
     active, corner, floor = detect_contacts(pos, fps, up_axis=body.up_axis, rule=rule)
+    active, corner, _ = missed_stances(body, q, pos, active, corner, floor, fps, rule or ContactRule())
     if intervals:
         active, corner = intervals_to_active(intervals, feet, q.shape[0], fps), None
     return Contacts(feet=feet, active=active, basis=basis, corner_positions=pos, ground=floor,

@@ -7,7 +7,14 @@ import pinocchio as pin
 import pytest
 from fixtures import G, jumper_skeleton, synthetic_jump
 from motionweb.store.motion import Skeleton
-from motionweb.tasks.retime.contacts import ContactRule, contacts_for, detect_contacts, find_feet, pyramid
+from motionweb.tasks.retime.contacts import (
+    ContactRule,
+    contacts_for,
+    detect_contacts,
+    find_feet,
+    missed_stances,
+    pyramid,
+)
 from motionweb.tasks.retime.dynamics import (
     SEGMENT_FRACTIONS,
     body_model_for,
@@ -283,6 +290,30 @@ def test_segments_follow_the_limbs_whatever_their_proportions(clavicle: float, f
         assert [seg[f"{side}{n}"] for n in ("clavicle", "shoulder", "elbow", "wrist")] == \
             ["shoulder", "upper_arm", "forearm", "hand"]
     assert seg["hips"] == "pelvis" and seg["spine"] == "torso" and seg["head"] == "head_neck"
+
+
+def test_a_flight_that_does_not_fall_is_a_missed_stance() -> None:
+    """missed_stances: frames with no foot detected where the centre of mass stands still (not a
+    fall at g) are carried by the lower foot if it hovers within height_off, slow (CMU 16_29's
+    pivot at 4.5 cm); a foot at 9 cm is not put down, nor is a real (ballistic) flight."""
+    motion, (t0, t1) = synthetic_jump(fps=30)
+    body = body_model_for(motion)
+    q = configurations(body, motion)
+    fps, f = motion.fps, motion.n_frames
+    still = slice(10, 22)  # standing: the centre of mass does not move
+    flight = slice(int(np.ceil(t0 * fps)) + 1, int(np.floor(t1 * fps)))
+    for frames, hover, mended in ((still, 0.045, True), (still, 0.09, False), (flight, 0.045, False)):
+        heights = np.zeros((f, 2))
+        heights[frames] = [hover, 0.2]
+        pos = np.concatenate([_foot_track(heights[:, k], fps) for k in range(2)], axis=1)
+        active = heights < 0.01
+        corner = np.repeat(active[:, :, None], 4, axis=2)
+        act, cor, runs_put = missed_stances(body, q, pos, active, corner, 0.0, fps, ContactRule())
+        if mended:
+            assert runs_put == [(frames.start, frames.stop, 0)]
+            assert act[frames, 0].all() and cor[frames, 0].all() and not act[frames, 1].any()
+        else:
+            assert runs_put == [] and not act[frames].any()
 
 
 def _foot_track(heights: np.ndarray, fps: float, speed: float = 0.0) -> np.ndarray:
