@@ -9,7 +9,14 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from motionweb.tasks.retime.contacts import EDGES_PER_CORNER, Contacts, pyramid, rest_positions
+from motionweb.tasks.retime.contacts import (
+    BALLISTIC_TOLERANCE,
+    EDGES_PER_CORNER,
+    Contacts,
+    fall_rate,
+    pyramid,
+    rest_positions,
+)
 from motionweb.tasks.retime.dynamics import centre_of_mass
 from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
@@ -31,9 +38,6 @@ def shortest_duration(polys: FeasiblePolygons, fps: float) -> float:
 
 #: flights shorter than this are not fitted for their free fall (too few frames for a parabola)
 FREE_FALL_MIN_S = 0.15
-#: a flight falling this far (relative) from the expected gravity is not ballistic; flights that
-#: agree this well among themselves but all fall this far off it suggest a wrong length unit
-FREE_FALL_TOLERANCE = 0.25
 #: standing heights (m, rest pose, joint to joint) a length unit may give a human body
 HUMAN_HEIGHT_M = (0.9, 2.3)
 
@@ -50,7 +54,7 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
     ({source start s: m/s²}), ``expected`` (what a ballistic flight of this clip falls at: the
     default gravity, or the median where the unit is suspect) and a ``note`` naming the
     ``scale_to_m`` that would make the flights fall at the default gravity. The note needs two
-    flights or more that agree within :data:`FREE_FALL_TOLERANCE` of their median and all fall
+    flights or more that agree within :data:`.contacts.BALLISTIC_TOLERANCE` of their median and all fall
     farther than that from the default gravity, and a body that the new scale makes
     :data:`HUMAN_HEIGHT_M` tall: hands on the floor (a cartwheel, a crawl) or a bar hold one flight
     up, not all of them alike, and a unit that makes a giant is no fix. O(F · B).
@@ -62,16 +66,14 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
         frames = np.arange(round(s0 * m.fps) + 1, round(s1 * m.fps))
         if s0 <= 0.0 or s1 >= m.duration or s1 - s0 < FREE_FALL_MIN_S or len(frames) < 4:
             continue
-        height = centre_of_mass(body, plan.terms.q[frames])[:, body.up_axis]
-        t = frames / m.fps
-        fits.append(-2.0 * float(np.polyfit(t - t.mean(), height, 2)[0]))
+        fits.append(fall_rate(centre_of_mass(body, plan.terms.q[frames])[:, body.up_axis], m.fps))
         per_flight[s0] = fits[-1]
     if not fits:
         return {"gravity": None, "flights": 0, "per_flight": {}, "expected": g0, "note": ""}
     g_fall = float(np.median(fits))
     note = ""
-    if g_fall > 0 and len(fits) >= 2 and all(abs(g / g_fall - 1.0) <= FREE_FALL_TOLERANCE for g in fits) \
-            and abs(g_fall / g0 - 1.0) > FREE_FALL_TOLERANCE:
+    if g_fall > 0 and len(fits) >= 2 and all(abs(g / g_fall - 1.0) <= BALLISTIC_TOLERANCE for g in fits) \
+            and abs(g_fall / g0 - 1.0) > BALLISTIC_TOLERANCE:
         scale = body.scale * g0 / g_fall
         tall = float(np.ptp(rest_positions(body.skeleton, scale)[:, body.up_axis]))
         if HUMAN_HEIGHT_M[0] <= tall <= HUMAN_HEIGHT_M[1]:
@@ -83,11 +85,11 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
 
 
 def held_up(fall: dict[str, Any], s0: float) -> bool:
-    """Whether the flight starting at ``s0`` falls more than :data:`FREE_FALL_TOLERANCE` off what a
+    """Whether the flight starting at ``s0`` falls more than :data:`.contacts.BALLISTIC_TOLERANCE` off what a
     ballistic flight of the clip falls at (:func:`free_fall`'s ``expected``): no foot down, yet
     something else holds or pushes the body (hands, a bar), or the contacts are off."""
     mine = fall["per_flight"].get(s0)
-    return mine is not None and abs(mine / fall["expected"] - 1.0) > FREE_FALL_TOLERANCE
+    return mine is not None and abs(mine / fall["expected"] - 1.0) > BALLISTIC_TOLERANCE
 
 
 def phase_times(contacts: Contacts, res: RetimeResult, fps: float, n: int = 4000) -> dict[str, tuple[float, float]]:
