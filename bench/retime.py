@@ -34,7 +34,7 @@ from motionweb.tasks.retime import RetimeParams, RetimePlan, phase_times, prepar
 from motionweb.tasks.retime.dynamics import dynamics_terms
 from motionweb.tasks.retime.objective import objective_kernel
 from motionweb.tasks.retime.polygons import N_ROOT
-from motionweb.tasks.retime.report import free_fall, original_feasibility, shortest_duration
+from motionweb.tasks.retime.report import free_fall, inner_flights, original_feasibility, shortest_duration
 from motionweb.tasks.retime.spline import objective_function
 from scipy.optimize import linprog
 
@@ -192,7 +192,7 @@ def experiments() -> None:
         if res.kind != "spline":
             _, res = retime_plan(base, frac * jump.duration, None, SPLINE)
             print(f"  {'  (the spline alone)':38} {describe(base, res)}")
-    (f0, f1), = _inner_flights(base)
+    (f0, f1), = inner_flights(base.contacts.active, jump.fps)
     mid = 0.5 * (f0 + f1)
     _, res = retime_plan(base, jump.duration, [(mid, mid - 0.3)], OPTS)
     print(f"  {'Fig. 8: 16_06, mid-flight 0.3 s earlier':38} {describe(base, res)}; speed in flight "
@@ -211,13 +211,6 @@ def experiments() -> None:
         plan = prepare(walk, OPTS, **kw)
         _, res = retime_plan(plan, walk.duration, None, OPTS)
         print(f"  {label:38} {describe(plan, res)}")
-
-
-def _inner_flights(plan: RetimePlan) -> list[tuple[float, float]]:
-    from motionweb.tasks.retime.report import flight_intervals
-
-    m = plan.motion
-    return [(a, b) for a, b in flight_intervals(plan.contacts.active, m.fps) if a > 0 and b < m.duration]
 
 
 def _speed_in(res: Any, t0: float, t1: float) -> str:

@@ -24,7 +24,7 @@ from motionweb.tasks.guided_warp import (
     playback_speed,
     reduce_to_compression,
 )
-from motionweb.tasks.retime import RetimeError, RetimeParams, clip_contacts, flight_intervals
+from motionweb.tasks.retime import RetimeError, RetimeParams, clip_contacts, inner_flights
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
@@ -57,8 +57,8 @@ class WarpPlan:
     n_out: int | None
     keytimes: tuple[tuple[float, float], ...]
     config: WarpParams
-    up_axis: str = "y"
-    contact_params: RetimeParams | None = None
+    up_axis: str
+    contact_params: RetimeParams
 
 
 def load_motion(path: str | Path, config: Config) -> Motion:
@@ -142,10 +142,9 @@ def flight_phases(motion: Motion, result: WarpResult, opts: RetimeParams, up_axi
     except (ValueError, RetimeError):
         return []
     out = []
-    for a, b in flight_intervals(contacts.active, motion.fps):
-        if 0 < a and b < motion.duration:
-            ratio = 1.0 / playback_speed(result.times, a * motion.fps, b * motion.fps)
-            out.append({"source_s": b - a, "output_s": (b - a) * ratio, "ratio": ratio})
+    for a, b in inner_flights(contacts.active, motion.fps):
+        ratio = 1.0 / playback_speed(result.times, a * motion.fps, b * motion.fps)
+        out.append({"source_s": b - a, "output_s": (b - a) * ratio, "ratio": ratio})
     return out
 
 
@@ -171,7 +170,7 @@ def write_outputs(plan: WarpPlan, result: WarpResult, request: WarpRequest) -> d
         "input_s": plan.motion.duration, "output_s": (result.n_out - 1) / fps, "cost": result.cost,
         "upsample": result.upsample, "backward": result.backward, "heuristic": result.heuristic,
         "keytimes_s": [(i / fps, o / fps) for i, o in result.keytimes],
-        "flights": flight_phases(plan.motion, result, plan.contact_params or RetimeParams(), plan.up_axis),
+        "flights": flight_phases(plan.motion, result, plan.contact_params, plan.up_axis),
         "timings": result.timings,
     }
 

@@ -22,8 +22,14 @@ from motionweb.tasks.retime.pipeline import (
     prepare,
     retime_plan,
 )
-from motionweb.tasks.retime.report import flight_intervals, phase_times, report, shortest_duration
+from motionweb.tasks.retime.report import (
+    flight_intervals,
+    inner_flights,
+    phase_times,
+    report,
+    shortest_duration,
+)
 from motionweb.tasks.retime.spline import RetimeResult
 
 __all__ = ["RetimeError", "RetimeParams", "RetimePlan", "RetimeResult", "clip_contacts", "flight_intervals",
-           "phase_times", "polygon_options", "prepare", "report", "retime_plan", "shortest_duration"]
+           "inner_flights", "phase_times", "polygon_options", "prepare", "report", "retime_plan", "shortest_duration"]

@@ -62,9 +62,9 @@ def free_fall(plan: RetimePlan) -> dict[str, Any]:
     m, body = plan.motion, plan.body
     g0 = float(np.linalg.norm(body.default_gravity()))
     fits, per_flight = [], {}
-    for s0, s1 in flight_intervals(plan.contacts.active, m.fps):
+    for s0, s1 in inner_flights(plan.contacts.active, m.fps):
         frames = np.arange(round(s0 * m.fps) + 1, round(s1 * m.fps))
-        if s0 <= 0.0 or s1 >= m.duration or s1 - s0 < FREE_FALL_MIN_S or len(frames) < 4:
+        if s1 - s0 < FREE_FALL_MIN_S or len(frames) < 4:
             continue
         fits.append(fall_rate(centre_of_mass(body, plan.terms.q[frames])[:, body.up_axis], m.fps))
         per_flight[s0] = fits[-1]
@@ -124,6 +124,12 @@ def flight_intervals(active: np.ndarray, fps: float) -> list[tuple[float, float]
     edges = np.flatnonzero(np.diff(np.concatenate([[0], none.astype(np.int8), [0]])))
     return [((s - 1) / fps if s > 0 else 0.0, e / fps if e < len(none) else (len(none) - 1) / fps)
             for s, e in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def inner_flights(active: np.ndarray, fps: float) -> list[tuple[float, float]]:
+    """:func:`flight_intervals` with a contact on both sides (not at the clip's first or last frame)."""
+    end = (len(active) - 1) / fps
+    return [(a, b) for a, b in flight_intervals(active, fps) if a > 0 and b < end]
 
 
 def output_time(res: RetimeResult, src_time: float) -> float:
@@ -263,9 +269,7 @@ def report(plan: RetimePlan, res: RetimeResult) -> dict[str, Any]:
     outside = np.flatnonzero(~inside).tolist()
     fall = free_fall(plan)
     flights = []
-    for s0, s1 in flight_intervals(cont.active, m.fps):
-        if s0 <= 0.0 or s1 >= m.duration:
-            continue
+    for s0, s1 in inner_flights(cont.active, m.fps):
         o0, o1 = output_time(res, s0), output_time(res, s1)
         flights.append({"source": [s0, s1], "output": [o0, o1], "source_duration": s1 - s0,
                         "output_duration": o1 - o0, "ratio": (o1 - o0) / (s1 - s0),

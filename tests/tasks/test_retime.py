@@ -11,7 +11,6 @@ from motionweb.store.kinematics import hold_ends
 from motionweb.tasks.retime import (
     RetimeError,
     RetimeParams,
-    flight_intervals,
     polygon_options,
     prepare,
     retime_plan,
@@ -19,7 +18,7 @@ from motionweb.tasks.retime import (
 )
 from motionweb.tasks.retime.objective import evaluate
 from motionweb.tasks.retime.polygons import N_ROOT, FrameLP
-from motionweb.tasks.retime.report import free_fall, held_up
+from motionweb.tasks.retime.report import free_fall, held_up, inner_flights
 from motionweb.tasks.retime.spline import TimingSpline, check_keytimes, objective_function
 from naive import evaluate_numpy
 from scipy.optimize import linprog
@@ -183,7 +182,7 @@ def real_jump(deepmimic_dir):
 
 
 def _inner_flight(plan, motion) -> tuple[float, float]:
-    flights = [(a, b) for a, b in flight_intervals(plan.contacts.active, motion.fps) if a > 0 and b < motion.duration]
+    flights = inner_flights(plan.contacts.active, motion.fps)
     assert len(flights) == 1
     return flights[0]
 

@@ -23,7 +23,13 @@ from motionweb.tasks.retime.limits import (
 )
 from motionweb.tasks.retime.pipeline import clip_contacts, clip_physics, observed_torques
 from motionweb.tasks.retime.reachable import fastest_timing
-from motionweb.tasks.retime.report import free_fall, held_up, original_feasibility, shortest_duration
+from motionweb.tasks.retime.report import (
+    free_fall,
+    held_up,
+    inner_flights,
+    original_feasibility,
+    shortest_duration,
+)
 
 OPTS = RetimeParams()
 
@@ -40,8 +46,7 @@ def walk(cmu16: Path):
 
 
 def _flights(plan) -> list[tuple[float, float]]:
-    m = plan.motion
-    return [(a, b) for a, b in flight_intervals(plan.contacts.active, m.fps) if a > 0 and b < m.duration]
+    return inner_flights(plan.contacts.active, plan.motion.fps)
 
 
 def _ratio(res, t0: float, t1: float) -> float:
