@@ -361,9 +361,12 @@ def run_query(cfg: Config, request) -> dict:
 def print_query(res: dict) -> None:
     """The query line, the matches table and where the outputs are."""
     q = res["query"]
+    eps = "none" if res["epsilon"] is None else f"{res['epsilon']:.4g}"
     typer.echo(f"query {q['clip']} frames {q['start_frame']}-{q['end_frame']} at {q['rate']:g} Hz, "
-               f"ε = {res['epsilon']:.4g}, generation {res['generation']}")
-    if not res["matches"]:
+               f"ε = {eps}, generation {res['generation']}")
+    if res.get("message"):
+        typer.echo(f"no matches: {res['message']}")
+    elif not res["matches"]:
         typer.echo("no matches: raise --threshold / --quantile, or search --all-categories")
     else:
         typer.echo(matches_table(res["matches"]))

@@ -28,7 +28,7 @@ from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
-from motionweb.tasks.ranking import default_epsilon, nearest_costs
+from motionweb.tasks.ranking import NO_MATCH, default_epsilon, nearest_costs
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
 from prefect import flow, get_run_logger, task
@@ -71,10 +71,12 @@ class QueryResult:
     out: str
     generation: str
     query: dict[str, Any]
-    epsilon: float
+    epsilon: float | None
     matches: list[dict[str, Any]]
     files: list[str]
     timings: dict[str, float]
+    #: why there are no matches when the query matches nothing at any threshold (else empty)
+    message: str = ""
 
 
 def committed_generation(store_url: str) -> tuple[MotionStore, Generation]:
@@ -256,8 +258,10 @@ def write_warps(reg: Registration, rows: list[dict[str, Any]], out: Path) -> lis
 
 # ----------------------------------------------------------------------------------- the flow
 @task(name="search", cache_policy=NO_CACHE)
-def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[MatchGraph, float]:
-    """Choose ε and run the tiered search on the committed generation; (graph, ε)."""
+def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[MatchGraph, float | None]:
+    """Choose ε and run the tiered search on the committed generation; (graph, ε). With the
+    default rule and no nearest match ε is None and the graph holds the query alone
+    (``tasks.ranking.NO_MATCH`` says why)."""
     scfg = cfg.search if request.tiers is None else cfg.search.model_copy(update={"max_tiers": request.tiers})
     if request.threshold is not None:
         eps = request.threshold
@@ -266,6 +270,8 @@ def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[M
     else:
         near = nearest_costs(MatchSearch(q.webs, scfg, q.gen_cfg.matchweb), q.segment)
         eps = default_epsilon(near, scfg.eps_nearest_ratio)
+        if eps is None:
+            return MatchSearch(q.webs, scfg, q.gen_cfg.matchweb).query_only(q.segment), None
     return search(q.segment, eps, q.webs, scfg, q.gen_cfg.matchweb), eps
 
 
@@ -303,13 +309,13 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     t0 = time.perf_counter()
     q = prepare_query(cfg, request)
     graph, eps = search_task(q, cfg, request)
-    logger.info("query %s [%d, %d]: ε = %.4g, %d matches", q.segment.clip, q.segment.start, q.segment.end,
-                eps, len(graph.nodes) - 1)
+    logger.info("query %s [%d, %d]: ε = %s, %d matches", q.segment.clip, q.segment.start, q.segment.end,
+                "none" if eps is None else f"{eps:.4g}", len(graph.nodes) - 1)
     return write_outputs(cfg, request, q, graph, eps, Path(request.out or cfg.output),
                          Path(request.export) if request.export else None, t0, register_task)
 
 
-def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: MatchGraph, eps: float, out: Path,
+def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: MatchGraph, eps: float | None, out: Path,
                   export: Path | None, t0: float, register_fn: Callable[..., Registration] = register_graph
                   ) -> dict[str, Any]:
     """Write a searched query's outputs (the module docstring's list) into ``out`` (and the
@@ -321,7 +327,8 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
     clips = {c["path"]: c for c in gen.clips}
     rows = match_rows(graph, clips)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"generation": gen.id, "store": cfg.store.path, "epsilon": eps, "request": asdict(request),
+    message = NO_MATCH if eps is None else ""
+    meta = {"generation": gen.id, "store": cfg.store.path, "epsilon": eps, "message": message, "request": asdict(request),
             "config_digest": cfg.digest(), "versions": package_versions()}
     files = [out / "matches.json", out / "graph.json", out / "graph.png"]
     files[0].write_text(json.dumps({**meta, "matches": rows}, indent=1))
@@ -356,4 +363,4 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
             files.append(p)
     timings["total_s"] = time.perf_counter() - t0
     return asdict(QueryResult(out=str(out), generation=gen.id, query=rows[0], epsilon=eps, matches=rows[1:],
-                              files=[str(f) for f in files], timings=timings))
+                              files=[str(f) for f in files], timings=timings, message=message))

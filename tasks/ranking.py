@@ -29,16 +29,24 @@ def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
     return best
 
 
-def default_epsilon(nearest: dict[str, float], ratio: float) -> float:
+#: what a query with no nearest match is told (its result holds the query alone)
+NO_MATCH = ("the query matches no other clip at any threshold: no path of a match web crosses its frames "
+            "(a window that ends on a clip's last frames often has none: try one that ends earlier, or "
+            "--all-categories)")
+
+
+def default_epsilon(nearest: dict[str, float], ratio: float) -> float | None:
     """The default threshold: ``ratio`` times the query's nearest match in another clip (design §5).
 
     KG04 §3.3 leaves ε to the user; an absolute ε means little (web values scale with the
     skeleton and the motion's speed) and a quantile of the webs' values depends on what else the
     library holds. The nearest match measures how close the closest logically similar motion is
-    for *this* query, so ``ratio`` × it admits the matches about as good as that one.
+    for *this* query, so ``ratio`` × it admits the matches about as good as that one. None when
+    the query has no nearest match: nothing matches it at any threshold, and its search result is
+    the query alone (:meth:`~motionweb.tasks.search.MatchSearch.query_only`, with :data:`NO_MATCH`).
     """
     if not nearest:
-        raise ValueError("the query matches no other clip at any threshold: nothing to rank")
+        return None
     return float(ratio) * min(nearest.values())
 
 

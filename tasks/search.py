@@ -117,6 +117,8 @@ class WalkGraph:
     web_rows: np.ndarray
     start_off: np.ndarray
     starts: np.ndarray
+    #: steps of malformed webs that did not advance (dropped by :func:`walk_graph`; 0 for sound webs)
+    dropped_steps: int = 0
     clip_names: list[str] = field(init=False, repr=False)
     clip_rank: np.ndarray = field(init=False, repr=False)
     _work: tuple[np.ndarray, ...] = field(init=False, repr=False, default=())
@@ -140,8 +142,32 @@ class WalkGraph:
         return self._work
 
 
+def _check_web(web: MatchWeb) -> None:
+    """The structure :func:`walk_graph` relies on, checked before packing (ValueError): cells inside
+    the web's shape, junction indices inside their paths. A web read from a damaged or foreign
+    store fails here, not in the compiled walk."""
+    fa, fb = web.shape
+    for what, cells in (("path", web.paths_cells), ("bridge", web.bridges_cells)):
+        if len(cells) and (cells.min(initial=0) < 0 or cells[:, 0].max() >= fa or cells[:, 1].max() >= fb):
+            raise ValueError(f"a {what} cell of the web lies outside its {fa}x{fb} grid")
+    if len(web.bridges):
+        lens = np.diff(web.paths_offsets)
+        p, q = web.bridges[:, 0], web.bridges[:, 2]
+        if (p.min() < 0 or q.min() < 0 or p.max() >= web.n_paths or q.max() >= web.n_paths
+                or np.any(web.bridges[:, 1] < 0) or np.any(web.bridges[:, 3] < 0)
+                or np.any(web.bridges[:, 1] >= lens[np.clip(p, 0, len(lens) - 1)])
+                or np.any(web.bridges[:, 3] >= lens[np.clip(q, 0, len(lens) - 1)])):
+            raise ValueError("a bridge of the web joins a path cell that does not exist")
+
+
 def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
-    """States, successors and branches of one web, numbered from ``base`` (vectorised)."""
+    """States, successors and branches of one web, numbered from ``base`` (vectorised).
+
+    A bridge of fewer than two cells (two paths that share a cell: the junction's cells coincide)
+    is a switch of path at that cell, not a step: its branches go from the shared cell of the
+    leaving path straight to the successors of the joined path's cell (the next cell of that path
+    and its bridges of two or more cells), so the shared cell is counted once and no step stays in
+    place (KG04 §3.3 walks advance a row or a column per step; :func:`walk_graph` relies on it)."""
     n_cells = len(web.paths_cells)
     offs = web.paths_offsets
     nxt = np.arange(base + 1, base + n_cells + 1, dtype=np.int64)
@@ -152,19 +178,36 @@ def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
     from_state = base + offs[web.bridges[:, 0]] + web.bridges[:, 1]
     to_state = base + offs[web.bridges[:, 2]] + web.bridges[:, 3]
     keep = np.ones(len(web.bridges_cells), bool)
-    keep[web.bridges_offsets[:-1]] = False
-    keep[web.bridges_offsets[1:] - 1] = False
+    keep[web.bridges_offsets[:-1][lens > 0]] = False
+    keep[web.bridges_offsets[1:][lens > 0] - 1] = False
     inner_cells = web.bridges_cells[keep]
     n_inner = int(inner.sum())
     inner_nxt = np.arange(base + n_cells + 1, base + n_cells + n_inner + 1, dtype=np.int64)
     last_inner = (inner_start + inner - 1)[inner > 0] - (base + n_cells)
     inner_nxt[last_inner] = to_state[inner > 0]
+    # a switch (bridge of < 2 cells) leads to what follows the joined cell: its path's next cell and
+    # the proper bridges leaving it
+    switch = (lens < 2) | (web.paths_cells[from_state - base] == web.paths_cells[to_state - base]).all(axis=1)
+    proper = ~switch
+    b_from, b_to = from_state[proper], np.where(inner > 0, inner_start, to_state)[proper]
+    if switch.any():
+        sw_from, sw_to = from_state[switch], to_state[switch]
+        after = nxt[sw_to - base]
+        extra_from = [sw_from[after >= 0]]
+        extra_to = [after[after >= 0]]
+        order = np.argsort(b_from, kind="stable")
+        lo = np.searchsorted(b_from[order], sw_to, "left")
+        hi = np.searchsorted(b_from[order], sw_to, "right")
+        extra_from.append(np.repeat(sw_from, hi - lo))
+        extra_to.append(b_to[order[np.repeat(lo, hi - lo) + _ranges(hi - lo)]])
+        b_from = np.concatenate([b_from, *extra_from])
+        b_to = np.concatenate([b_to, *extra_to])
     return {
         "cells": np.concatenate([web.paths_cells, inner_cells]).astype(np.int32),
         "values": np.concatenate([web.paths_values, web.bridges_values[keep]]).astype(np.float64),
         "nxt": np.concatenate([nxt, inner_nxt]),
-        "branch_from": from_state,
-        "branch_to": np.where(inner > 0, inner_start, to_state).astype(np.int64),
+        "branch_from": b_from.astype(np.int64),
+        "branch_to": b_to.astype(np.int64),
         "path_first": base + offs[:-1],
         "path_last": base + offs[1:] - 1,
     }
@@ -181,7 +224,11 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
         raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
     n_frames = frames.pop()
     parts, base = [], 0
-    for _, w in webs:
+    for other, w in webs:
+        try:
+            _check_web(w)
+        except ValueError as exc:
+            raise ValueError(f"match web with {other!r}: {exc}; run motionweb index to recompute it") from None
         s = _web_states(w, base)
         parts.append(s)
         base += len(s["cells"])
@@ -194,9 +241,23 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     new[order] = np.arange(base)
     nxt = cat["nxt"][order]
     nxt = np.where(nxt >= 0, new[np.maximum(nxt, 0)], -1)
-    by_from = np.argsort(new[cat["branch_from"]], kind="stable")  # bridges by new from-state, packing order kept
+    # every step must go up and/or right (row + col grows: the walk's topological order, _collect;
+    # rows never fall: the band of rows a..b, _nearest): a step of a malformed web that does not is
+    # dropped, so the compiled walks only ever see a DAG within their bands
+    r_new, c_new = rows[order].astype(np.int64), cols[order].astype(np.int64)
+
+    def advances(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return (r_new[v] >= r_new[u]) & (c_new[v] >= c_new[u]) & (r_new[v] + c_new[v] > r_new[u] + c_new[u])
+
+    bad_nxt = (nxt >= 0) & ~advances(np.arange(base), np.maximum(nxt, 0))
+    nxt[bad_nxt] = -1
+    b_from, b_to = new[cat["branch_from"]], new[cat["branch_to"]]
+    good = advances(b_from, b_to)
+    dropped = int(bad_nxt.sum()) + int((~good).sum())
+    b_from, b_to = b_from[good], b_to[good]
+    by_from = np.argsort(b_from, kind="stable")  # bridges by new from-state, packing order kept
     branch_off = np.zeros(base + 1, np.int64)
-    np.cumsum(np.bincount(new[cat["branch_from"]], minlength=base), out=branch_off[1:])
+    np.cumsum(np.bincount(b_from, minlength=base), out=branch_off[1:])
     # the earliest row-r cell of each path crossing row r: a path cell whose predecessor on the path
     # lies in a lower row (or that starts the path) starts the rows above that predecessor's up to its own
     first, last = cat["path_first"], cat["path_last"]
@@ -219,7 +280,7 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
         rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs),
         rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
         values=cat["values"][order], nxt=nxt, branch_off=branch_off,
-        branch_to=new[cat["branch_to"][by_from]], web_rows=np.searchsorted(key, want).astype(np.int64),
+        branch_to=b_to[by_from], dropped_steps=dropped, web_rows=np.searchsorted(key, want).astype(np.int64),
         start_off=start_off, starts=new[e_state[e_order]],
     )
 
@@ -239,6 +300,10 @@ def _ranges(n: np.ndarray) -> np.ndarray:
 def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
     """States reachable from s0 within rows ≤ b, sorted by row + col (a topological order);
     ``local[s]`` is set to each state's position in ``reach``. Returns their count.
+
+    Bounds: ``local`` marks each state once, so ``reach`` and ``stack`` (``n_states`` long) hold at
+    most ``n_states`` entries; the counting sort's ranks lie in [rank(s0), max rank] because every
+    step raises row + col (:func:`walk_graph` drops any step of a malformed web that does not).
 
     The successors of state s (here, in :func:`_dp` and :func:`_nearest`, written out in each:
     numba calls in these loops cost several times the loop): below row b the next cell of its
@@ -334,7 +399,14 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
           local, reach, stack, cost, total, length, pred):
     """Every match of rows a..b with average ≤ eps, per (start path, terminal cell), each with its
     least-average walk, start paths in path order. Returns (webs, c, d, averages, cells (K, 2),
-    offsets)."""
+    offsets).
+
+    Bounds: the work buffers (``n_states`` each, :attr:`WalkGraph.work`) are indexed by state or by
+    position in ``reach`` (< ``n_states``, see :func:`_collect`); a walk's cells are its
+    predecessor chain, of exactly ``length[q]`` states because the states are processed in a
+    topological order (each ``pred``/``length`` pair is final before it is read); the outputs
+    are typed lists, grown as needed. Requires 0 ≤ a ≤ b < n_frames (checked by
+    :func:`_walk_arrays`)."""
     o_web = []
     o_c = []
     o_d = []
@@ -368,6 +440,8 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
                 cells = np.empty((m, 2), np.int32)
                 r = q
                 for i in range(m - 1, -1, -1):
+                    if r < 0:  # cannot happen in a DAG walked in topological order (see above)
+                        raise IndexError("match walk shorter than its length")
                     cells[i, 0] = rows[reach[r]]
                     cells[i, 1] = cols[reach[r]]
                     r = pred[r]
@@ -409,7 +483,12 @@ def _nearest(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a,
     (λ = 0 at first), one shortest-path pass of (value − λ) over the web's states of rows a..b in
     (row, col) order — the contiguous states ``web_rows[w, a]..web_rows[w, b + 1] − 1`` — until the
     average stops falling. Cost O(S · passes) for the S states of all webs in rows a..b (two to
-    four passes), independent of how many paths cross row a."""
+    four passes), independent of how many paths cross row a.
+
+    Bounds: the per-web buffers have the largest band ``web_rows[w, b + 1] − web_rows[w, a]`` and
+    are indexed by ``state − web_rows[w, a]`` for states of that band: a step never goes to a lower
+    row (:func:`walk_graph`) and targets past the band are skipped; ``best``/``bc``/``bd`` by slots
+    < ``n_slots`` (checked by :func:`nearest_by_clip`). Requires 0 ≤ a ≤ b < n_frames."""
     n_webs, n_frames = web_rows.shape[0], web_rows.shape[1] - 1
     best = np.empty(n_slots)  # (np.full with a dtype costs a Python call per use in numba)
     bc = np.empty(n_slots, np.int64)
@@ -513,6 +592,7 @@ def _walk_arrays(graph: WalkGraph, a: int, b: int, eps: float):
     """:func:`_walk` on ``graph``, one entry per (clip, c, d) kept: the least average, the first
     such walk found on ties (KG04 §3.3). Returns (clip ranks, c, d, averages, cells, offsets,
     entries) with ``entries`` indexing the walk outputs in the order each key first appears."""
+    _check_rows(graph, a, b)
     webs, cs, ds, avgs, flat, off = _walk(
         graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.start_off,
         graph.starts, len(graph.others), graph.n_frames, int(a), int(b), float(eps), *graph.work)
@@ -526,6 +606,12 @@ def _walk_arrays(graph: WalkGraph, a: int, b: int, eps: float):
     np.minimum.at(first, group, order)  # where each key first appears
     chosen = chosen[np.argsort(first, kind="stable")]
     return rank, cs, ds, avgs, flat, off, chosen
+
+
+def _check_rows(graph: WalkGraph, a: int, b: int) -> None:
+    """Rows a..b must lie inside the clip (the compiled walks index per-row tables by them)."""
+    if not 0 <= a <= b < graph.n_frames:
+        raise ValueError(f"query rows {a}..{b} are outside the clip's frames 0..{graph.n_frames - 1}")
 
 
 def _as_matches(graph: WalkGraph, arrays, entries: np.ndarray) -> list[WebMatch]:
@@ -669,6 +755,12 @@ class MatchSearch:
         keep = _redundant_order(rank[ok], cs[ok], ds[ok], avgs[ok], self.cfg.overlap_redundant)
         return g, arrays, entries[keep]
 
+    def query_only(self, query: Segment) -> MatchGraph:
+        """The match graph of a query that matches nothing (checked as :meth:`search` checks it):
+        the query node alone."""
+        g = self.check(query)
+        return _finish(g.rate, [MatchNode(query, tier=0, cost=0.0, distance=0.0)], [])
+
     def search(self, query: Segment, eps: float) -> MatchGraph:
         """The tiered search from ``query`` (KG04 §3.3): a match graph, nodes sorted by distance.
 
@@ -726,8 +818,11 @@ def place_matches(clip, start, end, where, n, new_below, merge_above):
     interval is averaged with the match's (rounded half to even; the query node 0 is never
     changed); otherwise discarded. ``where`` (3, ≥ n + matches) holds per node (clip, start,
     end), ``n`` nodes so far; new nodes are appended. Returns per match (its node or −1, whether
-    it is new, the node it moved or −1). O(matches × nodes)."""
+    it is new, the node it moved or −1). O(matches × nodes). Bounds: at most one node per match is
+    appended, so ``where`` needs n + matches columns (checked, ValueError otherwise)."""
     m = clip.shape[0]
+    if where.shape[1] < n + m:
+        raise ValueError("place_matches: where has fewer columns than nodes + matches")
     node = np.full(m, -1, np.int64)
     new = np.zeros(m, np.bool_)
     moved = np.full(m, -1, np.int64)
@@ -810,6 +905,10 @@ def nearest_by_clip(graph: WalkGraph, a: int, b: int, slots: np.ndarray, n_slots
     """:func:`nearest_matches` reduced to ``n_slots`` slots (e.g. clips): per slot s, the least
     average over the webs w with ``slots[w] == s`` (the first such web on ties), with its c and
     d; ∞ / −1 where none. Webs with ``slots[w] < 0`` (e.g. the query's own clip) are not searched."""
+    _check_rows(graph, a, b)
+    slots = np.asarray(slots, np.int64)
+    if len(slots) != len(graph.others) or (len(slots) and slots.max(initial=-1) >= n_slots):
+        raise ValueError(f"slots must give one slot < {n_slots} per web ({len(graph.others)}), got {len(slots)}")
     return _nearest(graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to,
                     graph.web_rows, graph.start_off, graph.starts, int(a), int(b), int(min_span), int(slope_k),
                     np.asarray(slots, np.int64), int(n_slots))

@@ -55,6 +55,13 @@ def ref_matches(web: MatchWeb, a: int, b: int, max_sequences: int | None = None
 
     def run_bridge(bi: int, seq: list[float], c: int) -> None:
         cells, vals = web.bridge(bi)
+        if is_switch(web, bi):  # two paths share a cell: go on along the joined path past it
+            q, j = int(web.bridges[bi][2]), int(web.bridges[bi][3])
+            for bj in leaving[(q, j)]:
+                if not is_switch(web, bj):
+                    run_bridge(bj, seq, c)
+            run_path(q, j + 1, seq, c)
+            return
         for u in range(1, len(cells) - 1):
             seq = [*seq, float(vals[u])]
             if cells[u][0] == b and cells[u + 1][0] != b:
@@ -70,14 +77,37 @@ def ref_matches(web: MatchWeb, a: int, b: int, max_sequences: int | None = None
     return {k: (v[0], v[2]) for k, v in best.items()}
 
 
+def is_switch(web: MatchWeb, bi: int) -> bool:
+    """A bridge of fewer than two cells, or whose junction cells coincide: two paths share a cell
+    and the walk switches path there (no step of its own)."""
+    p, i, q, j = web.bridges[bi].tolist()
+    return len(web.bridge(bi)[0]) < 2 or tuple(web.path(p)[0][i]) == tuple(web.path(q)[0][j])
+
+
 def ref_walk_steps(web: MatchWeb) -> list[tuple[tuple[int, int], tuple[int, int], float]]:
     """Every step a walk can take in ``web`` (KG04 §3.3), as (cell, next cell, next cell's value):
-    along each path, and from a path cell through a bridge's interior onto the path cell it joins."""
+    along each path, from a path cell through a bridge's interior onto the path cell it joins, and
+    through a switch (:func:`is_switch`) from the shared cell to the first step of what follows it
+    on the joined path (its next cell, and the first cell of each proper bridge leaving it)."""
     out = []
     for p in range(web.n_paths):
         cells, vals = web.path(p)
         out += [(tuple(cells[i]), tuple(cells[i + 1]), float(vals[i + 1])) for i in range(len(cells) - 1)]
+    first_steps = defaultdict(list)  # (path, index) -> the first steps of its proper bridges
     for bi, (p, i, q, j) in enumerate(web.bridges.tolist()):
+        if is_switch(web, bi):
+            continue
+        cells, vals = web.bridge(bi)
+        nxt = (tuple(cells[1]), float(vals[1])) if len(cells) > 2 else (tuple(web.path(q)[0][j]), float(web.path(q)[1][j]))
+        first_steps[(p, i)].append(nxt)
+    for bi, (p, i, q, j) in enumerate(web.bridges.tolist()):
+        if is_switch(web, bi):
+            here = tuple(web.path(p)[0][i])
+            qc, qv = web.path(q)
+            if j + 1 < len(qc):
+                out.append((here, tuple(qc[j + 1]), float(qv[j + 1])))
+            out += [(here, c, v) for c, v in first_steps[(q, j)]]
+            continue
         cells, vals = web.bridge(bi)
         vals = [*vals[:-1], web.path(q)[1][j]]  # the joined cell keeps its path value
         cells = [tuple(web.path(p)[0][i]), *map(tuple, cells[1:-1]), tuple(web.path(q)[0][j])]

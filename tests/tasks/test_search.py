@@ -435,8 +435,9 @@ def test_default_epsilon_and_ranking_find_the_planted_copies(planted) -> None:
     assert set(r.ranking[:len(pc.expected)]) == set(pc.expected) and pc.query.clip not in r.ranking
     assert [r.score[c] for c in r.ranking] == sorted(r.score.values())
     assert len(r.windows) >= 3 and r.windows[0].start == pc.query.start and r.windows[-1].end == pc.query.end
-    with pytest.raises(ValueError, match="matches no other clip"):
-        default_epsilon({}, 2.0)
+    assert default_epsilon({}, 2.0) is None  # no nearest match: the query alone (MatchSearch.query_only)
+    alone = ms.query_only(pc.query)
+    assert [n.segment for n in alone.nodes] == [pc.query] and not alone.edges
     with pytest.raises(ValueError, match="tiers"):
         rank_trials(ms, pc.query, tiers=0)
 

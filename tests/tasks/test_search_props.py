@@ -1,0 +1,209 @@
+"""Property-based tests of the compiled search walks (KG04 §3.3) against the slow enumeration.
+
+Random match webs, small enough to enumerate, with what real webs hold and the first version of
+the walk did not survive (issue 22): paths that share a cell joined by one-cell bridges
+("switches"), bridges of two cells, webs of one row or one column, webs of very different lengths
+packed into one graph, queries on a clip's first and last frame, ε = 0 and ε huge. Run with
+``NUMBA_BOUNDSCHECK=1`` (CI's second pass) any write out of bounds is an IndexError here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from motionweb.store.web import MatchWeb
+from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.search import MatchSearch, SearchParams, nearest_matches, walk_graph, walk_web
+from motionweb.tasks.matchweb.params import MatchWebParams
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+from naive import TooManySequences, ref_matches, ref_walk_steps  # noqa: E402
+
+SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _staircase(draw, start: tuple[int, int], end: tuple[int, int]) -> list[tuple[int, int]]:
+    """A monotone path of cells from ``start`` to ``end`` (up, right or diagonal steps)."""
+    (i, j), (i1, j1) = start, end
+    cells = [(i, j)]
+    while (i, j) != (i1, j1):
+        moves = [(di, dj) for di, dj in ((1, 0), (0, 1), (1, 1)) if i + di <= i1 and j + dj <= j1]
+        di, dj = moves[draw(st.integers(0, len(moves) - 1))]
+        i, j = i + di, j + dj
+        cells.append((i, j))
+    return cells
+
+
+@st.composite
+def webs(draw, rows: int | None = None) -> MatchWeb:
+    """A random web: monotone paths (some through a cell of an earlier path), proper bridges
+    between path cells and switches where two paths share a cell."""
+    fa = rows if rows is not None else draw(st.integers(1, 14))
+    fb = draw(st.integers(1, 14))
+    paths: list[list[tuple[int, int]]] = []
+    for _ in range(draw(st.integers(0, 4))):
+        if paths and draw(st.booleans()):  # through a cell of an earlier path: a shared cell
+            p = paths[draw(st.integers(0, len(paths) - 1))]
+            mid = p[draw(st.integers(0, len(p) - 1))]
+            a = (draw(st.integers(0, mid[0])), draw(st.integers(0, mid[1])))
+            b = (draw(st.integers(mid[0], fa - 1)), draw(st.integers(mid[1], fb - 1)))
+            cells = _staircase(draw, a, mid)[:-1] + _staircase(draw, mid, b)
+        else:
+            a = (draw(st.integers(0, fa - 1)), draw(st.integers(0, fb - 1)))
+            b = (draw(st.integers(a[0], fa - 1)), draw(st.integers(a[1], fb - 1)))
+            cells = _staircase(draw, a, b)
+        paths.append(cells)
+    bridges, bcells = [], []
+    where: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for p, cells in enumerate(paths):
+        for i, c in enumerate(cells):
+            where.setdefault(c, []).append((p, i))
+    for c, at in where.items():  # switches: every ordered pair of paths sharing a cell, sometimes
+        for p, i in at:
+            for q, j in at:
+                if p != q and draw(st.booleans()):
+                    bridges.append((p, i, q, j))
+                    bcells.append([c])
+    if len(paths) >= 2:
+        for _ in range(draw(st.integers(0, 4))):
+            p, q = draw(st.integers(0, len(paths) - 1)), draw(st.integers(0, len(paths) - 1))
+            if p == q:
+                continue
+            i, j = draw(st.integers(0, len(paths[p]) - 1)), draw(st.integers(0, len(paths[q]) - 1))
+            x, y = paths[p][i], paths[q][j]
+            if y[0] >= x[0] and y[1] >= x[1] and y != x:
+                bridges.append((p, i, q, j))
+                bcells.append(_staircase(draw, x, y))
+    values = st.floats(0.0, 1.0, allow_nan=False, width=32)
+    pc = [c for cells in paths for c in cells]
+    bc = [c for cells in bcells for c in cells]
+    return MatchWeb(
+        rate=30.0, shape=(fa, fb),
+        paths_cells=np.array(pc, np.int32).reshape(-1, 2),
+        paths_values=np.array([draw(values) for _ in pc], np.float32),
+        paths_offsets=np.cumsum([0, *map(len, paths)]),
+        bridges=np.array(bridges, np.int64).reshape(-1, 4),
+        bridges_cells=np.array(bc, np.int32).reshape(-1, 2),
+        bridges_values=np.array([draw(values) for _ in bc], np.float32),
+        bridges_offsets=np.cumsum([0, *map(len, bcells)]),
+    )
+
+
+def _query(draw, fa: int, web: MatchWeb | None = None) -> tuple[int, int]:
+    """Rows a..b: the first and last rows among the choices, and where ``web`` has a switch below
+    its last row mostly a range across it (the case the enumeration tells apart)."""
+    if web is not None and web.n_bridges and draw(st.integers(0, 3)) > 0:
+        rows = [int(web.bridges_cells[web.bridges_offsets[k], 0]) for k in range(web.n_bridges)
+                if web.bridges_offsets[k + 1] - web.bridges_offsets[k] == 1]
+        rows = [r for r in rows if r < fa - 1]
+        if rows:
+            x = draw(st.sampled_from(rows))
+            return draw(st.integers(0, x)), draw(st.integers(x + 1, fa - 1))
+    a = draw(st.sampled_from(sorted({0, fa - 1, draw(st.integers(0, fa - 1))})))
+    b = draw(st.sampled_from(sorted({a, fa - 1, draw(st.integers(a, fa - 1))})))
+    return a, b
+
+
+@SETTINGS
+@given(st.data())
+def test_walk_equals_the_enumeration(data) -> None:
+    """Every match of rows a..b (per (c, d): the least average) is the enumeration's, for ε huge
+    and ε = 0 and ε at a match's own average, on webs with switches and two-cell bridges."""
+    web = data.draw(webs())
+    a, b = _query(data.draw, web.shape[0], web)
+    try:
+        ref = ref_matches(web, a, b, max_sequences=20000)
+    except TooManySequences:
+        return
+    got = {(m.start, m.end): m for m in walk_web(web, a, b, 1e30)}
+    assert set(got) == set(ref)
+    for key, (least, _) in ref.items():
+        m = got[key]
+        assert m.cost == pytest.approx(least, rel=1e-9, abs=1e-12)
+        assert m.cells[0, 0] == a and m.cells[-1, 0] == b and tuple(m.cells[[0, -1], 1]) == key
+        assert np.all(np.diff(m.cells.astype(np.int64), axis=0) >= 0)
+    assert {(m.start, m.end) for m in walk_web(web, a, b, 0.0)} == {k for k, v in ref.items() if v[0] <= 0.0}
+    if ref:
+        eps = data.draw(st.sampled_from(sorted(v[0] for v in ref.values())))
+        assert {(m.start, m.end) for m in walk_web(web, a, b, eps)} == {k for k, v in ref.items() if v[0] <= eps}
+    # the one-pass nearest match is the least of them all
+    cost, c, d = nearest_matches(walk_graph([("x", web)]), a, b)
+    if ref:
+        assert cost[0] == pytest.approx(min(v[0] for v in ref.values()), rel=1e-9, abs=1e-12)
+        assert (int(c[0]), int(d[0])) in ref
+    else:
+        assert cost[0] == np.inf and c[0] == -1 and d[0] == -1
+
+
+@SETTINGS
+@given(st.data())
+def test_packed_steps_advance_and_equal_the_reference(data) -> None:
+    """The packed graph holds exactly the reference's steps, and every step goes up or right."""
+    web = data.draw(webs())
+    g = walk_graph([("x", web)])
+    assert g.dropped_steps == 0
+    got = []
+    for s in range(g.n_states):
+        succ = ([g.nxt[s]] if g.nxt[s] >= 0 else []) + list(g.branch_to[g.branch_off[s]:g.branch_off[s + 1]])
+        for t in succ:
+            assert g.rows[t] >= g.rows[s] and g.cols[t] >= g.cols[s] and g.rows[t] + g.cols[t] > g.rows[s] + g.cols[s]
+        got += [((int(g.rows[s]), int(g.cols[s])), (int(g.rows[t]), int(g.cols[t])), float(g.values[t])) for t in succ]
+    assert sorted(got) == sorted(ref_walk_steps(web))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_tiered_search_over_webs_of_very_different_lengths(data) -> None:
+    """Several clips, each clip's webs of very different column counts packed into one graph, a
+    tiered search from every kind of query: never an error other than the documented ValueErrors,
+    every node inside its clip."""
+    n_clips = data.draw(st.integers(1, 4))
+    frames = [data.draw(st.sampled_from([1, 2, 5, 13, 40])) for _ in range(n_clips)]
+    names = [f"c{k}" for k in range(n_clips)]
+    source: dict[str, list[tuple[str, MatchWeb]]] = {n: [] for n in names}
+    for i in range(n_clips):
+        for j in range(n_clips):
+            w = data.draw(webs(rows=frames[i]))
+            w = MatchWeb(rate=w.rate, shape=(frames[i], frames[j]), **{
+                k: v for k, v in w.to_arrays().items() if k not in ("rate", "shape", "self_pair")
+            }) if w.shape[1] <= frames[j] else None
+            if w is not None and (len(w.paths_cells) == 0 or w.paths_cells[:, 1].max() < frames[j]):
+                source[names[i]].append((names[j], w))
+    clip = data.draw(st.sampled_from(names))
+    if not source[clip]:
+        return
+    a, b = _query(data.draw, frames[names.index(clip)])
+    ms = MatchSearch(source, SearchParams(max_tiers=data.draw(st.sampled_from([1, 3, 20]))),
+                     MatchWebParams(min_chain_s=0.0))
+    eps = data.draw(st.sampled_from([0.0, 0.3, 1e30]))
+    graph = ms.search(Segment(clip, a, b), eps)
+    for n in graph.nodes:
+        f = frames[names.index(n.segment.clip)]
+        assert 0 <= n.segment.start <= n.segment.end < f
+
+
+def test_malformed_webs_are_refused_or_cut_not_walked_out_of_bounds() -> None:
+    """A web whose cells lie outside its grid or whose junctions name missing cells is refused
+    with a ValueError naming the web; steps that go back are dropped, not walked."""
+    good = MatchWeb(rate=30.0, shape=(5, 5), paths_cells=[[0, 0], [1, 1], [2, 2]], paths_values=[0.1, 0.1, 0.1],
+                    paths_offsets=[0, 3])
+    outside = MatchWeb(rate=30.0, shape=(2, 2), paths_cells=[[0, 0], [1, 1], [2, 2]], paths_values=[0.1] * 3,
+                       paths_offsets=[0, 3])
+    with pytest.raises(ValueError, match="'x'.*outside its 2x2 grid"):
+        walk_graph([("x", outside)])
+    dangling = MatchWeb(rate=30.0, shape=(5, 5), paths_cells=good.paths_cells, paths_values=good.paths_values,
+                        paths_offsets=[0, 3], bridges=[[0, 0, 0, 7]], bridges_cells=[[0, 0], [2, 2]],
+                        bridges_values=[0.1, 0.1], bridges_offsets=[0, 2])
+    with pytest.raises(ValueError, match="does not exist"):
+        walk_graph([("x", dangling)])
+    back = MatchWeb(rate=30.0, shape=(5, 5), paths_cells=[[0, 0], [2, 2], [1, 1], [3, 3]], paths_values=[0.1] * 4,
+                    paths_offsets=[0, 4])
+    g = walk_graph([("x", back)])
+    assert g.dropped_steps == 1
+    assert {(m.start, m.end) for m in walk_web(back, 0, 3, 1e30)} == set()  # the path is cut at the step back
+    for a in range(4):
+        for b in range(a, 4):
+            for m in walk_web(back, a, b, 1e30):
+                assert np.all(np.diff(m.cells.astype(np.int64), axis=0) >= 0)
