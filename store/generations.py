@@ -209,7 +209,8 @@ def check_current(store: MotionStore) -> str | None:
         ids = generation_ids(store)
         if not ids:
             return None
-        raise damaged(POINTER, f"is missing (generations/ holds {len(ids)} manifests)") from None
+        many = f"{len(ids)} manifest{'s' if len(ids) != 1 else ''}"
+        raise damaged(POINTER, f"is missing (generations/ holds {many})") from None
     if not raw.strip():
         raise damaged(POINTER, "is empty (truncated)")
     try:

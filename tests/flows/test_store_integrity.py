@@ -200,6 +200,24 @@ def test_damaged_pointer_fails_verify_and_index_repairs_it(app_store, tmp_path: 
     assert index_library(load_config(cfg_path))["repaired"] == ""  # repaired once
 
 
+@pytest.mark.parametrize("kind", ["garbage pointer", "edited manifest"])
+def test_the_app_reads_around_a_damaged_pointer(app_store, tmp_path: Path, kind: str) -> None:
+    """The service's engine (through ``current_id``): a damaged pointer serves the intact
+    generation; with no intact generation every request gets the error naming the file."""
+    from motionweb.flows.app.engine import Engine
+    from motionweb.store.generations import PointerError
+
+    cfg_path, store, gen_id = demo_copy(app_store, tmp_path)
+    key = damage(Path(store.url), kind, gen_id)
+    engine = Engine(load_config(cfg_path), warm=False)
+    if key == "current":
+        assert engine.current().gen.id == gen_id
+    else:
+        with pytest.raises(PointerError, match="motionweb index") as info:
+            engine.current()
+        assert info.value.key == key and "never indexed" not in str(info.value)
+
+
 @pytest.mark.parametrize("kind", ["truncated pointer", "truncated manifest"])
 def test_repair_run_of_the_cli_prints_no_traceback(app_store, tmp_path: Path, kind: str) -> None:
     """`motionweb index` as a user runs it (its own process and Prefect server): it repairs the
