@@ -33,11 +33,13 @@ from motionweb.flows.workers import compute_features_batch, compute_web_batch
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
     Generation,
+    PointerError,
+    check_current,
     commit,
-    current_id,
     gc,
     load_generation,
     package_versions,
+    repair_current,
     same_content,
 )
 from motionweb.store.keys import (
@@ -322,6 +324,8 @@ class IndexSummary:
     broken: list[dict[str, str]] = field(default_factory=list)
     skeleton_minority: list[str] = field(default_factory=list)
     params_changed: bool = False
+    #: what the run found damaged in the pointer or current manifest and how it repaired it
+    repaired: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -341,6 +345,8 @@ def format_summary(s: IndexSummary | dict[str, Any]) -> str:
         + (" (new parameter hash: results are not mixed with the previous generation's)"
            if d.get("params_changed") else ""),
     ]
+    if d.get("repaired"):
+        lines.append(f"  repaired: {d['repaired']}")
     if d["skeleton_minority"]:
         lines.append(f"  {len(d['skeleton_minority'])} clips with a minority skeleton, indexed only "
                      f"against compatible clips: {', '.join(d['skeleton_minority'])}")
@@ -494,6 +500,19 @@ def commit_task(gen: Generation, store_url: str) -> str:
 
 
 # ------------------------------------------------------------------------------------ flow
+def _repair_note(damage: PointerError) -> str:
+    """One line saying what was damaged and what the run does about it (see
+    :func:`motionweb.store.generations.repair_current`)."""
+    what = f"{damage.key} {damage.reason}"
+    if damage.manifest_damaged:
+        base = (f"current now names generation {damage.fallback} (the newest intact one)" if damage.fallback
+                else "no generation manifest is intact")
+        return f"{what}: {base}; this run commits a fresh generation"
+    if damage.fallback:
+        return f"{what}: rewritten to name generation {damage.fallback} (the newest intact one)"
+    return f"{what}, and no generation manifest is intact: this run commits a fresh generation"
+
+
 @flow(name="index-library")
 def index_library(config: str | Config) -> dict[str, Any]:
     """Index a motion library into match webs (design §1, §10); returns the run summary.
@@ -506,8 +525,12 @@ def index_library(config: str | Config) -> dict[str, Any]:
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     store = MotionStore(cfg.store.path)
-    parent = current_id(store)
+    damage = repair_current(store)  # a damaged pointer names the newest intact generation again
+    parent = check_current(store) if damage is None else damage.fallback
     prev = load_generation(store, parent) if parent else None
+    repaired = "" if damage is None else _repair_note(damage)
+    if repaired:
+        logger.warning("%s: %s", store.url, repaired)
 
     catalog = catalog_task(cfg)
     if not catalog.entries:
@@ -545,7 +568,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     keys = [w["key"] for w in gen.webs] + sorted({k for rs in gen.features.values() for k in rs.values()})
     gen.checksums = {k: c for k in keys if (c := store.recorded_checksum(k)) is not None}
     gen.timings["before_commit_s"] = time.perf_counter() - t0
-    if prev is not None and same_content(prev, gen):
+    if prev is not None and same_content(prev, gen) and not (damage and damage.manifest_damaged):
         logger.info("nothing changed: generation %s stays current", prev.id)
         gen.id = prev.id  # no manifest repeating the current one
     else:
@@ -564,6 +587,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
         store_bytes=store.size_bytes(), broken=gen.broken,
         skeleton_minority=[m for p in plans for m in p.skeleton.minority],
         params_changed=prev is not None and prev.params.get("webs") != gen.params["webs"],
+        repaired=repaired,
     )
     logger.info("generation %s: %d clips, %d pairs (%d computed, %d cached), %d broken files, %.1f s",
                 gen.id, summary.clips, summary.pairs, summary.pairs_computed, summary.pairs_cached,

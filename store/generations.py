@@ -7,8 +7,17 @@ Layout under the store root, beside the objects of ``store/zarr_store.py``::
 
 A generation becomes visible only when its manifest is written and ``current`` is switched to
 it (an atomic rename on local disks, a single-object put on object stores), so readers never see
-a half-written index and a crashed run leaves the previous one current. A pointer or current
-manifest that cannot be read falls back, with a warning, to the newest manifest that can.
+a half-written index and a crashed run leaves the previous one current. The pointer records the
+SHA-256 of the manifest's bytes, so a manifest damaged after its commit is found even when it
+still parses.
+
+The pointer is part of the store (issue 22): :func:`check_current` tells a store that was never
+indexed (no pointer, no manifest: None) from one whose pointer is missing, truncated, garbage or
+names a missing generation, or whose current manifest is unreadable or differs from its checksum
+(:class:`PointerError`, naming the store and the damaged file). ``motionweb verify`` reports
+that; ``motionweb index`` repairs it (:func:`repair_current`). Readers (search, the app) go on
+with the newest intact generation and log a warning that says to run ``motionweb index``
+(:func:`current_id`): the last good index stays usable while the store waits for its repair.
 :func:`gc` keeps the current generation and the ``keep - 1`` committed before it and removes
 everything else: older and uncommitted manifests, temporary files of killed writes, objects no
 kept manifest lists, incomplete objects and shards that serve no kept web.
@@ -16,6 +25,8 @@ kept manifest lists, incomplete objects and shards that serve no kept web.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import os
 from dataclasses import asdict, dataclass, field
@@ -104,51 +115,189 @@ def same_content(a: Generation, b: Generation) -> bool:
     return content(a) == content(b)
 
 
-def _manifest(store: MotionStore, gen_id: str) -> Generation:
-    return Generation.from_dict(store.read_json(f"generations/{gen_id}.json"))
+#: how ``motionweb index`` repairs a damaged pointer or current manifest (in messages)
+REPAIR = "run `motionweb index CONFIG` to repair it"
 
 
-def _readable_fallback(store: MotionStore, why: str) -> str | None:
-    """The newest manifest that reads, after a warning saying why the pointer was not used."""
+class PointerError(StoreError):
+    """The store's ``current`` pointer, or the manifest it names, cannot be used.
+
+    ``key`` is the damaged file (``current`` or ``generations/<id>.json``), ``reason`` what is
+    wrong with it, ``fallback`` the newest intact generation (None: there is none) and
+    ``named`` the generation the pointer names when it could be read."""
+
+    def __init__(self, url: str, key: str, reason: str, fallback: str | None = None,
+                 named: str | None = None):
+        self.fallback, self.named = fallback, named
+        super().__init__(url, key, reason)
+
+    @property
+    def manifest_damaged(self) -> bool:
+        """True when the pointer is sound but the manifest it names is damaged."""
+        return self.key != POINTER
+
+    def __str__(self) -> str:
+        after = (f"the newest intact generation is {self.fallback}" if self.fallback
+                 else "no generation manifest is intact")
+        return f"{super().__str__()}; {after}; {REPAIR}"
+
+
+def _manifest_path(gen_id: str) -> str:
+    return f"generations/{gen_id}.json"
+
+
+def _manifest(store: MotionStore, gen_id: str, sha256: str | None = None) -> Generation:
+    """A generation's manifest, checked: it parses, names itself and was completed (and its
+    bytes have the SHA-256 the pointer recorded, when given). ValueError (or OSError) saying why."""
+    raw = store.fs.cat_file(store.path(_manifest_path(gen_id)))
+    try:
+        data = json.loads(raw)
+    except UnicodeDecodeError:
+        raise ValueError("is not text (garbage bytes)") from None
+    except ValueError as exc:
+        raise ValueError(f"is truncated or not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"holds a JSON {type(data).__name__}, not a manifest")  # noqa: TRY004 - damage, not a caller's type error
+    try:
+        gen = Generation.from_dict(data)
+    except TypeError as exc:
+        raise ValueError(f"is not a manifest ({exc})") from None
+    if gen.id != gen_id:
+        raise ValueError(f"holds generation {gen.id!r}, not {gen_id!r}")
+    if not gen.completed:
+        raise ValueError("was never completed")
+    if sha256 is not None and hashlib.sha256(raw).hexdigest() != sha256:
+        raise ValueError("differs from the checksum recorded in the pointer")
+    return gen
+
+
+def newest_intact(store: MotionStore, exclude: str | None = None) -> str | None:
+    """The newest generation whose manifest reads and checks (see :func:`_manifest`), None if none.
+
+    Any such manifest is a complete index: :func:`commit` writes a manifest only after checking
+    that every object it lists is complete, and the pointer only says which one is published.
+    ``exclude``: a generation not to return (a current manifest that parses but differs from
+    the checksum the pointer recorded)."""
     for gid in reversed(generation_ids(store)):
-        try:
-            g = _manifest(store, gid)
-        except (OSError, ValueError, TypeError):
+        if gid == exclude:
             continue
-        if g.completed:
-            log.warning("%s: %s; falling back to generation %s", store.url, why, gid)
-            return gid
-    log.warning("%s: %s and no manifest is readable", store.url, why)
+        try:
+            _manifest(store, gid)
+        except (OSError, ValueError):
+            continue
+        return gid
     return None
 
 
-def current_id(store: MotionStore) -> str | None:
-    """Id of the current (last completely committed) generation, None for a new store.
+def _valid_id(value: Any) -> bool:
+    return (isinstance(value, str) and bool(value) and not value.startswith(".")
+            and "/" not in value and "\\" not in value and value.isprintable())
 
-    A pointer that is unreadable or names an unreadable manifest falls back to the newest
-    readable manifest, with a warning."""
+
+def check_current(store: MotionStore) -> str | None:
+    """Id of the current generation, strictly: None for a store that was never indexed (no
+    pointer and no manifest); :class:`PointerError` when the pointer is missing (manifests
+    exist), truncated, garbage or names a missing generation, or the manifest it names is
+    unreadable, incomplete or differs from the checksum the pointer recorded."""
+    def damaged(key: str, reason: str, named: str | None = None) -> PointerError:
+        exclude = named if key != POINTER else None
+        return PointerError(store.url, key, reason, newest_intact(store, exclude), named)
+
     try:
-        gid = store.read_json(POINTER)["generation"]
+        raw = store.fs.cat_file(store.path(POINTER))
     except FileNotFoundError:
-        return _readable_fallback(store, "no 'current' pointer") if generation_ids(store) else None
-    except (ValueError, TypeError, KeyError) as exc:
-        return _readable_fallback(store, f"the 'current' pointer is damaged ({type(exc).__name__})")
+        ids = generation_ids(store)
+        if not ids:
+            return None
+        many = f"{len(ids)} manifest{'s' if len(ids) != 1 else ''}"
+        raise damaged(POINTER, f"is missing (generations/ holds {many})") from None
+    if not raw.strip():
+        raise damaged(POINTER, "is empty (truncated)")
     try:
-        _manifest(store, gid)
-    except (OSError, ValueError, TypeError) as exc:
-        return _readable_fallback(store, f"current manifest {gid} is unreadable ({type(exc).__name__})")
+        data = json.loads(raw)
+    except UnicodeDecodeError:
+        raise damaged(POINTER, "is not text (garbage bytes)") from None
+    except ValueError as exc:
+        raise damaged(POINTER, f"is truncated or not valid JSON ({exc})") from None
+    gid = data.get("generation") if isinstance(data, dict) else None
+    if not _valid_id(gid):
+        raise damaged(POINTER, f"names no generation (it holds {raw[:60]!r})")
+    sha = data.get("manifest_sha256")
+    try:
+        _manifest(store, gid, sha if isinstance(sha, str) else None)
+    except FileNotFoundError:
+        raise damaged(POINTER, f"names generation {gid}, whose manifest {_manifest_path(gid)} is missing",
+                      gid) from None
+    except (OSError, ValueError) as exc:
+        reason = f"(the manifest of current generation {gid}) {exc}"
+        raise damaged(_manifest_path(gid), reason, gid) from None
     return gid
 
 
+#: (store url, damaged key, reason) already warned about by :func:`current_id` in this process
+_WARNED: set[tuple[str, str, str]] = set()
+
+
+def current_id(store: MotionStore) -> str | None:
+    """Id of the current generation for readers; None for a store that was never indexed.
+
+    When the pointer or the current manifest is damaged (:func:`check_current`), readers go on
+    with the newest intact generation and log one warning per damage that names the damaged file
+    and says to run ``motionweb index``: the last good index stays usable (a running ``motionweb
+    app`` keeps serving) while the store waits for its repair. With no intact generation at all
+    the :class:`PointerError` is raised (never "was never indexed" for a damaged store)."""
+    try:
+        return check_current(store)
+    except PointerError as exc:
+        if exc.fallback is None:
+            raise
+        if (sig := (store.url, exc.key, exc.reason)) not in _WARNED:
+            _WARNED.add(sig)
+            log.warning("%s: %s %s; falling back to generation %s (the newest intact one); %s",
+                        store.url, exc.key, exc.reason, exc.fallback, REPAIR)
+        return exc.fallback
+
+
+def repair_current(store: MotionStore) -> PointerError | None:
+    """Make a damaged pointer sound again; returns the damage found (None: nothing to repair).
+
+    The pointer is rewritten to the newest intact generation (:func:`newest_intact`), the one
+    readers already fall back to, instead of waiting for the index run to commit a new one:
+    the last good index is current and readable at once, a run that then fails or is killed
+    leaves a sound store, and nothing is deleted (the damaged manifest is left for :func:`gc`
+    after the run's next commit). When it is the current manifest that is damaged, its listing
+    is lost: the caller commits a fresh generation (``motionweb index`` does, even when it lists
+    the same content as the fallback) so that the store's newest generation is intact again.
+    With no intact generation the pointer is left as it is and the run's commit replaces it."""
+    if store.read_only:
+        raise PermissionError(f"{store.url}: store opened read-only")
+    try:
+        check_current(store)
+    except PointerError as exc:
+        if exc.fallback is not None:
+            _point_to(store, _manifest(store, exc.fallback))
+        return exc
+    return None
+
+
+def _point_to(store: MotionStore, gen: Generation) -> None:
+    """Switch ``current`` to a written manifest, recording the SHA-256 of its bytes."""
+    raw = store.fs.cat_file(store.path(_manifest_path(gen.id)))
+    store.write_json(POINTER, {"generation": gen.id, "committed": gen.completed,
+                               "manifest_sha256": hashlib.sha256(raw).hexdigest()})
+
+
 def load_generation(store: MotionStore, gen_id: str | None = None) -> Generation | None:
-    """A generation's manifest (the current one by default); None when there is none."""
+    """A generation's manifest (the current one by default, see :func:`current_id`); None when
+    the store was never indexed."""
     gen_id = gen_id or current_id(store)
     if gen_id is None:
         return None
     try:
         return _manifest(store, gen_id)
-    except (OSError, ValueError, TypeError) as exc:
-        raise StoreError(store.url, f"generations/{gen_id}.json", f"is unreadable ({type(exc).__name__})") from None
+    except (OSError, ValueError) as exc:
+        raise StoreError(store.url, _manifest_path(gen_id), str(exc) if isinstance(exc, ValueError)
+                         else f"is unreadable ({type(exc).__name__})") from None
 
 
 def generation_ids(store: MotionStore) -> list[str]:
@@ -202,8 +351,8 @@ def commit(store: MotionStore, gen: Generation) -> str:
                            f"e.g. {missing[0]}")
     store.ensure_root()
     gen.completed = gen.completed or now_iso()
-    store.write_json(f"generations/{gen.id}.json", gen.to_dict())
-    store.write_json(POINTER, {"generation": gen.id, "committed": gen.completed})
+    store.write_json(_manifest_path(gen.id), gen.to_dict())
+    _point_to(store, gen)
     return gen.id
 
 
@@ -214,12 +363,14 @@ def gc(store: MotionStore, keep: int = 3) -> list[str]:
     other manifests (older ones, and uncommitted ones newer than the current), ``*.tmp-*`` files
     of killed writes, feature and grid objects no kept manifest lists (or left incomplete), and
     shards that serve no kept web (orphans of killed runs, superseded or damaged shards). Never
-    run it concurrently with an index run (``motionweb index`` runs it after its commit).
+    run it concurrently with an index run (``motionweb index`` runs it after its commit). A store
+    whose pointer or current manifest is damaged is not touched (:class:`PointerError`): which
+    generations are committed is unknown until ``motionweb index`` repairs it.
     """
     if keep < 1:
         raise ValueError(f"gc keeps at least the current generation (keep={keep})")
     ids = generation_ids(store)
-    cur = current_id(store)
+    cur = check_current(store)
     if cur is None:
         return []
     committed = [i for i in ids if i <= cur]
@@ -228,7 +379,7 @@ def gc(store: MotionStore, keep: int = 3) -> list[str]:
     for gid in sorted(kept):
         try:
             g = _manifest(store, gid)
-        except (OSError, ValueError, TypeError):
+        except (OSError, ValueError):
             kept.discard(gid)
             continue
         live |= {w["key"] for w in g.webs} | {grid_key(w["key"]) for w in g.webs}

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from fixtures import wiggle
 from motionweb.flows.cli import app
-from motionweb.flows.config import Config, resolve_paths
-from motionweb.flows.index import index_library
+from motionweb.flows.config import Config, load_config, resolve_paths
+from motionweb.flows.index import format_summary, index_library
 from motionweb.store.bvh import write_bvh
-from motionweb.store.generations import current_id, generation_ids, load_generation
+from motionweb.store.generations import check_current, current_id, generation_ids, load_generation
 from motionweb.store.zarr_store import MotionStore
 from typer.testing import CliRunner
 
@@ -99,14 +99,142 @@ def test_damaged_current_manifest_falls_back(prefect_harness, tmp_path: Path, ca
     manifest = root / "generations" / f"{second['generation']}.json"
     manifest.write_text(manifest.read_text()[:100])  # truncated
     store = MotionStore(cfg.store.path)
-    assert current_id(store) == first["generation"]
+    assert current_id(store) == first["generation"]  # readers go on with the last intact generation
     assert "falling back to generation" in caplog.text
-    r = runner.invoke(app, ["verify", str(cfg_path)])
-    assert r.exit_code == 0 and first["generation"] in r.output, r.output
+    r = runner.invoke(app, ["verify", str(cfg_path)])  # the store is damaged: verify says which file
+    assert r.exit_code == 1 and f"generations/{second['generation']}.json" in r.output, r.output
+    assert "motionweb index" in r.output and "Traceback" not in r.output, r.output
     third = index_library(cfg)  # the store is not stuck: a new complete generation
+    assert "is truncated" in third["repaired"] and third["generation"] not in (first["generation"],
+                                                                                second["generation"])
     assert current_id(store) == third["generation"] and load_generation(store).stats["clips"] == 4
+    assert runner.invoke(app, ["verify", str(cfg_path)]).exit_code == 0
     (root / "current").write_text("not json")
     assert current_id(store) == third["generation"]
+
+
+# ---------------------------------------------------------------- the pointer is part of the store
+def demo_copy(app_store: Path, tmp_path: Path) -> tuple[Path, MotionStore, str]:
+    """A copy of the small demo store of ``tests/flows/conftest.py`` (config, corpus, store),
+    indexed again where it lies (its paths are recorded) and with that one generation only:
+    (its config path, the store, its current generation)."""
+    import shutil
+
+    from motionweb.store.generations import gc
+
+    work = tmp_path / "work"
+    shutil.copytree(app_store.parent, work, ignore=shutil.ignore_patterns("out", "disc*"))
+    index_library(load_config(work / "config.yaml"))
+    store = MotionStore(str(work / "store"))
+    gc(store, keep=1)
+    assert len(generation_ids(store)) == 1
+    return work / "config.yaml", store, check_current(store)
+
+
+def damage(store_dir: Path, kind: str, gen_id: str) -> str:
+    """Damage a store's pointer or current manifest; returns the damaged file's key."""
+    pointer, manifest = store_dir / "current", store_dir / "generations" / f"{gen_id}.json"
+    if kind == "truncated pointer":
+        pointer.write_bytes(pointer.read_bytes()[:17])
+    elif kind == "deleted pointer":
+        pointer.unlink()
+    elif kind == "garbage pointer":
+        pointer.write_bytes(os.urandom(64).replace(b"{", b"x"))
+    elif kind == "pointer to a missing generation":
+        pointer.write_text(json.dumps({"generation": "20991231T000000000000Z-00dead"}))
+    elif kind == "truncated manifest":
+        manifest.write_bytes(manifest.read_bytes()[:200])
+    elif kind == "edited manifest":  # still valid JSON: found by the checksum in the pointer
+        data = json.loads(manifest.read_text())
+        data["clips"] = data["clips"][1:]
+        manifest.write_text(json.dumps(data))
+    else:
+        raise AssertionError(kind)
+    return "current" if "pointer" in kind else f"generations/{gen_id}.json"
+
+
+DAMAGE = ["truncated pointer", "deleted pointer", "garbage pointer", "pointer to a missing generation",
+          "truncated manifest", "edited manifest"]
+
+
+def search_args(cfg_path: Path, out: Path) -> list[str]:
+    return ["search", str(cfg_path), "--clip", "walk_00", "--start", "1", "--end", "2.5", "--quantile", "0.8",
+            "--out", str(out)]
+
+
+@pytest.mark.parametrize("kind", DAMAGE)
+def test_damaged_pointer_fails_verify_and_index_repairs_it(app_store, tmp_path: Path, kind: str,
+                                                           caplog) -> None:
+    cfg_path, store, gen_id = demo_copy(app_store, tmp_path)
+    key = damage(Path(store.url), kind, gen_id)
+
+    r = runner.invoke(app, ["verify", str(cfg_path)])
+    assert r.exit_code == 1 and "Traceback" not in r.output, r.output
+    assert f"{store.url}: object {key} " in r.output and "motionweb index" in r.output, r.output
+    assert "never indexed" not in r.output
+    assert runner.invoke(app, ["gc", str(cfg_path)]).exit_code == 1  # nothing removed from a damaged store
+    assert (Path(store.url) / "generations" / f"{gen_id}.json").exists()
+
+    # readers: the pointer's damage falls back to the intact generation, with a warning; a damaged
+    # manifest (the only generation) is a one-line error that says to run motionweb index
+    r = runner.invoke(app, search_args(cfg_path, tmp_path / "out"))
+    assert "Traceback" not in r.output, r.output
+    if key == "current":
+        assert r.exit_code == 0 and f"generation {gen_id}" in r.output, r.output
+        assert "falling back to generation" in caplog.text and "motionweb index" in caplog.text
+    else:
+        assert r.exit_code == 2 and key in r.output and "motionweb index" in r.output, r.output
+        assert "never indexed" not in r.output
+
+    summary = index_library(load_config(cfg_path))
+    assert key in summary["repaired"] and key in format_summary(summary)
+    if key == "current":  # the pointer names the intact generation again: nothing recomputed
+        assert summary["generation"] == gen_id and summary["pairs_computed"] == 0
+    else:  # a fresh generation replaces the damaged manifest (its content-addressed objects reused)
+        assert summary["generation"] != gen_id and summary["pairs_computed"] == 0
+    assert check_current(store) == summary["generation"]
+    r = runner.invoke(app, ["verify", str(cfg_path)])
+    assert r.exit_code == 0 and ", 0 missing or damaged" in r.output, r.output
+    r = runner.invoke(app, search_args(cfg_path, tmp_path / "out"))
+    assert r.exit_code == 0 and f"generation {summary['generation']}" in r.output, r.output
+    assert index_library(load_config(cfg_path))["repaired"] == ""  # repaired once
+
+
+@pytest.mark.parametrize("kind", ["garbage pointer", "edited manifest"])
+def test_the_app_reads_around_a_damaged_pointer(app_store, tmp_path: Path, kind: str) -> None:
+    """The service's engine (through ``current_id``): a damaged pointer serves the intact
+    generation; with no intact generation every request gets the error naming the file."""
+    from motionweb.flows.app.engine import Engine
+    from motionweb.store.generations import PointerError
+
+    cfg_path, store, gen_id = demo_copy(app_store, tmp_path)
+    key = damage(Path(store.url), kind, gen_id)
+    engine = Engine(load_config(cfg_path), warm=False)
+    if key == "current":
+        assert engine.current().gen.id == gen_id
+    else:
+        with pytest.raises(PointerError, match="motionweb index") as info:
+            engine.current()
+        assert info.value.key == key and "never indexed" not in str(info.value)
+
+
+@pytest.mark.parametrize("kind", ["truncated pointer", "truncated manifest"])
+def test_repair_run_of_the_cli_prints_no_traceback(app_store, tmp_path: Path, kind: str) -> None:
+    """`motionweb index` as a user runs it (its own process and Prefect server): it repairs the
+    store, exits 0 and prints no traceback, neither of the flow nor of Prefect's shutdown."""
+    import subprocess
+    import sys
+
+    cfg_path, store, gen_id = demo_copy(app_store, tmp_path)
+    key = damage(Path(store.url), kind, gen_id)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
+    r = subprocess.run([sys.executable, "-m", "motionweb.flows.cli", "index", str(cfg_path), "--no-progress"],
+                       check=False, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr
+    assert f"repaired: {key} " in r.stdout, r.stdout
+    r = runner.invoke(app, ["verify", str(cfg_path)])
+    assert r.exit_code == 0 and ", 0 missing or damaged" in r.output, r.output
 
 
 def test_empty_corpus_is_refused(prefect_harness, tmp_path: Path) -> None:

@@ -7,7 +7,17 @@ import json
 import numpy as np
 import pytest
 from fixtures import ragged_web
-from motionweb.store.generations import Generation, commit, current_id, gc, generation_ids, load_generation
+from motionweb.store.generations import (
+    Generation,
+    PointerError,
+    check_current,
+    commit,
+    current_id,
+    gc,
+    generation_ids,
+    load_generation,
+    repair_current,
+)
 from motionweb.store.keys import web_key
 from motionweb.store.zarr_store import MotionStore, new_id, now_iso
 
@@ -102,17 +112,97 @@ def test_gc_removes_leftovers_of_killed_runs(tmp_path):
     assert len(fresh.leaf_keys("webs/shards", 2)) == 1 and current_id(fresh) == g.id
 
 
-def test_damaged_pointer_or_manifest_falls_back(tmp_path, caplog):
+def _two_generations(tmp_path) -> tuple[MotionStore, Generation, Generation]:
     store = MotionStore(str(tmp_path / "s"))
     g1, g2 = _gen(store, []), _gen(store, [])
     commit(store, g1)
     commit(store, g2)
-    (tmp_path / "s" / "generations" / f"{g2.id}.json").write_text('{"id": ')
-    assert current_id(store) == g1.id and "falling back to generation " + g1.id in caplog.text
-    (tmp_path / "s" / "current").write_bytes(b"\x00\xff")
-    assert current_id(store) == g1.id
-    (tmp_path / "s" / "current").unlink()
-    assert load_generation(store).id == g1.id
+    return store, g1, g2
+
+
+def _damage(tmp_path, kind: str, g2: Generation) -> str:
+    """Damage the store of :func:`_two_generations`; returns the damaged file's key."""
+    root = tmp_path / "s"
+    pointer, manifest = root / "current", root / "generations" / f"{g2.id}.json"
+    if kind == "truncated pointer":
+        pointer.write_text(pointer.read_text()[:20])
+    elif kind == "empty pointer":
+        pointer.write_text("")
+    elif kind == "deleted pointer":
+        pointer.unlink()
+    elif kind == "garbage pointer":
+        pointer.write_bytes(b"\x00\xff\x13garbage")
+    elif kind == "pointer without id":
+        pointer.write_text('{"generation": "../../etc/passwd"}')
+    elif kind == "pointer to a missing generation":
+        pointer.write_text(json.dumps({"generation": "20990101T000000000000Z-000000"}))
+    elif kind == "truncated manifest":
+        manifest.write_text(manifest.read_text()[:30])
+        return f"generations/{g2.id}.json"
+    elif kind == "edited manifest":  # still parses: found by the checksum the pointer recorded
+        manifest.write_text(manifest.read_text().replace('"clips": []', '"clips": [{"path": "x"}]'))
+        return f"generations/{g2.id}.json"
+    return "current"
+
+
+POINTER_DAMAGE = ["truncated pointer", "empty pointer", "deleted pointer", "garbage pointer",
+                  "pointer without id", "pointer to a missing generation"]
+MANIFEST_DAMAGE = ["truncated manifest", "edited manifest"]
+
+
+@pytest.mark.parametrize("kind", POINTER_DAMAGE + MANIFEST_DAMAGE)
+def test_damaged_pointer_is_reported_read_around_and_repaired(tmp_path, caplog, kind):
+    store, g1, g2 = _two_generations(tmp_path)
+    assert check_current(store) == g2.id and repair_current(store) is None
+    key = _damage(tmp_path, kind, g2)
+    with pytest.raises(PointerError) as info:
+        check_current(store)
+    err = info.value
+    assert err.key == key and str(tmp_path / "s") in str(err) and f"object {key} " in str(err)
+    assert "motionweb index" in str(err) and "Traceback" not in str(err)
+    fallback = g1.id if key != "current" else g2.id
+    assert err.fallback == fallback and err.manifest_damaged == (key != "current")
+    # readers go on with the newest intact generation, with one warning naming the damage
+    assert current_id(store) == fallback and load_generation(store).id == fallback
+    assert f"falling back to generation {fallback}" in caplog.text and key in caplog.text
+    caplog.clear()
+    current_id(store)
+    assert not caplog.text  # once per damage, not per request
+    with pytest.raises(PointerError):
+        gc(store)  # which generations are committed is unknown: nothing is removed
+    assert generation_ids(store) == [g1.id, g2.id]
+    # the repair: the pointer names the newest intact generation again
+    found = repair_current(store)
+    assert found is not None and found.key == key
+    assert check_current(store) == fallback and repair_current(store) is None
+    assert (tmp_path / "s" / f"generations/{g2.id}.json").exists()  # the repair deletes nothing
+
+
+def test_never_indexed_is_not_damage(tmp_path):
+    store = MotionStore(str(tmp_path / "s"))
+    assert check_current(store) is None and current_id(store) is None and repair_current(store) is None
+    (tmp_path / "s" / "generations").mkdir()
+    assert check_current(store) is None  # an empty generations/ folder
+
+
+@pytest.mark.parametrize("kind", ["deleted pointer", "truncated manifest"])
+def test_no_intact_generation_is_damage_not_never_indexed(tmp_path, kind):
+    store = MotionStore(str(tmp_path / "s"))
+    g = _gen(store, [])
+    commit(store, g)
+    manifest = tmp_path / "s" / "generations" / f"{g.id}.json"
+    manifest.write_text(manifest.read_text()[:30])
+    if kind == "deleted pointer":
+        (tmp_path / "s" / "current").unlink()
+    with pytest.raises(PointerError, match="no generation manifest is intact") as info:
+        current_id(store)  # readers too: not "was never indexed"
+    assert info.value.fallback is None
+    assert repair_current(store) is not None
+    with pytest.raises(PointerError):  # left for the index run's commit
+        check_current(store)
+    g2 = _gen(store, [])
+    commit(store, g2)
+    assert check_current(store) == g2.id
 
 
 def test_verify_generation_names_clip_and_web(tmp_path):
