@@ -47,7 +47,6 @@ from motionweb.flows.query import (
     match_rows,
     plot_graph,
     query_segment,
-    register_graph,
     resolve_clip,
     segment_motion,
     write_outputs,
@@ -86,13 +85,13 @@ class QueryCrashed(RuntimeError):
     """A search crashed the worker that ran it (the API answers 500 with the message and the
     query); the service goes on with the standby worker."""
 
-    def __init__(self, query: dict[str, Any], how: str):
+    def __init__(self, query: dict[str, Any], how: str, work: str = "search"):
         self.query, self.how = query, how
         what = f"clip {query['clip']!r}, start {query['start']:g} s, end {query['end']:g} s"
         extra = ", ".join(f"{k} {query[k]}" for k in ("threshold", "quantile", "tiers", "all_categories")
                           if query.get(k) is not None)
-        super().__init__(f"the search ({what}{', ' + extra if extra else ''}) crashed its worker process "
-                         f"({how}); the service goes on, but this query cannot be answered: please report it")
+        super().__init__(f"the {work} of the query ({what}{', ' + extra if extra else ''}) crashed its worker "
+                         f"process ({how}); the service goes on, but this query cannot be answered: please report it")
 
 
 def clip_id(path: str) -> str:
@@ -193,6 +192,11 @@ class Result:
         rows = [{**r, "id": clip_id(r["clip"])} for r in self.rows]
         return {"result": self.id, "generation": self.snap.gen.id, "epsilon": self.epsilon, "query": rows[0],
                 "matches": rows[1:], "graph": g, "timings": self.timings, "request": asdict(self.request)}
+
+
+def query_fields(request: QueryRequest) -> dict[str, Any]:
+    """A request's fields but its local folders (what an error names)."""
+    return {k: v for k, v in asdict(request).items() if k not in ("out", "export")}
 
 
 def draw_frames(frames: np.ndarray) -> np.ndarray:
@@ -377,8 +381,7 @@ class Engine:
         try:
             graph, eps = self.workers.search(job)
         except WorkerCrashed as exc:
-            raise QueryCrashed({k: v for k, v in asdict(request).items() if k not in ("out", "export")},
-                               exc.how) from None
+            raise QueryCrashed(query_fields(request), exc.how) from None
         res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, float(eps),
                      match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})
         self.results.put(res.id, res)
@@ -386,6 +389,13 @@ class Engine:
             self.on_query("search", asdict(request), {"result": res.id, "generation": snap.gen.id, "epsilon": eps,
                                                       "matches": len(res.rows) - 1, **res.timings})
         return res
+
+    def registration(self, gen_id: str, graph: MatchGraph, request: QueryRequest) -> Registration:
+        """``graph``'s registration (KG04 §4.1), computed by the search worker."""
+        try:
+            return self.workers.register(gen_id, graph)
+        except WorkerCrashed as exc:
+            raise QueryCrashed(query_fields(request), exc.how, "registration") from None
 
     def result(self, rid: str) -> Result:
         res = self.results.get(rid)
@@ -401,8 +411,7 @@ class Engine:
             if res.registration is None and len(res.graph.nodes) > 1:
                 t = time.perf_counter()
                 snap = res.snap
-                res.registration = register_graph(MotionStore(snap.url, read_only=True), snap.gen, snap.gen_cfg,
-                                                  res.graph, snap.by_path)
+                res.registration = self.registration(snap.gen.id, res.graph, res.request)
                 res.timings["register_s"] = time.perf_counter() - t
                 if self.on_query:
                     self.on_query("register", {"result": rid}, {"nodes": len(res.graph.nodes),
@@ -472,7 +481,8 @@ class Engine:
         try:
             with self._plot_lock:
                 out = write_outputs(cfg, request, q, res.graph, res.epsilon, tmp / "out",
-                                    tmp / "export" if export else None, t0, register_graph)
+                                    tmp / "export" if export else None, t0,
+                                    lambda _store, gen, _cfg, graph, _clips: self.registration(gen.id, graph, request))
             out["files"] = [Path(f).relative_to(tmp).as_posix() for f in out["files"]]
             out["out"], out["result"] = "out", res.id
             buf = io.BytesIO()

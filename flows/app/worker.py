@@ -2,8 +2,9 @@
 
 The searches' compiled kernels (numba) run in a **worker process** that holds the webs (read once
 per generation and scope, packed into walk graphs, as :class:`~motionweb.tasks.search.MatchSearch`
-keeps them). The service (the parent: HTTP, catalog, poses, registration, downloads) sends it one
-:class:`SearchJob` at a time over a socket pair and gets back the match graph and ε. One search
+keeps them). The service (the parent: HTTP, catalog, poses, downloads, drawing) sends it one
+:class:`SearchJob` at a time over a socket pair and gets back the match graph and ε; a result's
+registration (KG04 §4.1, compiled DTW kernels too) is computed there as well. One search
 at a time, as before (one :class:`MatchSearch` per scope shares its work buffers, and its kernels
 hold the GIL): requests that arrive meanwhile wait their turn in the parent.
 
@@ -21,8 +22,8 @@ in.
 
 Test hook (off by default): with ``MOTIONWEB_TEST_CRASH_CLIP=NAME`` in the service's environment,
 a worker that gets a search of the clip ``NAME`` (corpus path or stem) sends itself SIGSEGV after
-the request's checks; ``NAME:abort`` calls :func:`os.abort` instead (SIGABRT); several clips are
-separated by commas.
+the request's checks; ``NAME:abort`` calls :func:`os.abort` instead (SIGABRT); ``NAME:register``
+sends SIGSEGV when registering a result whose query is of ``NAME``; several are separated by commas.
 
 Run as ``python -m motionweb.flows.app.worker FD STORE_URL`` by :class:`Worker` only.
 """
@@ -105,12 +106,11 @@ class _State:
         self.url = url
         self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope]]] = OrderedDict()
 
-    def scope(self, gen_id: str, category: str | None) -> _Scope:
+    def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope]]:
+        """(generation, its indexed config, its scopes), opened once."""
         from motionweb.flows.query import indexed_config
         from motionweb.store.generations import load_generation
-        from motionweb.store.webs import StoreWebs
         from motionweb.store.zarr_store import MotionStore
-        from motionweb.tasks.search import MatchSearch, SearchParams
 
         if gen_id not in self.gens:
             gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
@@ -118,7 +118,14 @@ class _State:
             while len(self.gens) > KEEP_GENERATIONS:
                 self.gens.popitem(last=False)
         self.gens.move_to_end(gen_id)
-        gen, gen_cfg, scopes = self.gens[gen_id]
+        return self.gens[gen_id]
+
+    def scope(self, gen_id: str, category: str | None) -> _Scope:
+        from motionweb.store.webs import StoreWebs
+        from motionweb.store.zarr_store import MotionStore
+        from motionweb.tasks.search import MatchSearch, SearchParams
+
+        gen, gen_cfg, scopes = self.generation(gen_id)
         sc = scopes.get(category)
         if sc is None:
             webs = StoreWebs(MotionStore(self.url, read_only=True), gen, category)
@@ -153,10 +160,23 @@ class _State:
         return sc.search.search(job.segment, eps), float(eps)
 
 
-def _test_crash(clip: str) -> None:
+    def register(self, gen_id: str, graph: Any) -> Any:
+        """The registration of a search's match graph (KG04 §4.1)."""
+        from motionweb.flows.query import register_graph
+        from motionweb.store.zarr_store import MotionStore
+
+        gen, gen_cfg, _ = self.generation(gen_id)
+        _test_crash(graph.nodes[0].segment.clip, "register")
+        return register_graph(MotionStore(self.url, read_only=True), gen, gen_cfg, graph,
+                              {c["path"]: c for c in gen.clips})
+
+
+def _test_crash(clip: str, stage: str = "search") -> None:
     """The test hook (see the module docstring): crash on a search of ``$MOTIONWEB_TEST_CRASH_CLIP``."""
     for target in os.environ.get(CRASH_ENV, "").split(","):
         name, _, how = target.strip().partition(":")
+        if (how == "register") != (stage == "register"):
+            continue
         if name and (clip == name or clip.rsplit("/", 1)[-1].rsplit(".", 1)[0] == name):
             if how == "abort":
                 os.abort()
@@ -185,6 +205,8 @@ def child_main(fd: int, url: str) -> None:
                 out = ("ok", state.search(payload))
             elif kind == "warm":
                 out = ("ok", state.warm(*payload))
+            elif kind == "register":
+                out = ("ok", state.register(*payload))
             elif kind == "ping":
                 out = ("ok", os.getpid())
             else:
@@ -372,20 +394,28 @@ class SearchWorkers:
         """(match graph, ε) of ``job``, computed by the primary worker. ValueError for a bad
         request (the CLI's messages), :class:`WorkerCrashed` if the worker died running it (the
         next call gets the standby)."""
+        out = self._run("search", job, f"a search of {job.segment.clip} [{job.segment.start}, {job.segment.end}]")
+        self._learn(job)
+        return out
+
+    def register(self, gen_id: str, graph: Any) -> Any:
+        """The :class:`~motionweb.tasks.register.Registration` of ``graph`` (a search's answer on
+        generation ``gen_id``), computed by the primary worker; errors as :meth:`search`."""
+        q = graph.nodes[0].segment
+        return self._run("register", (gen_id, graph), f"a registration of {q.clip} [{q.start}, {q.end}]")
+
+    def _run(self, kind: str, payload: Any, what: str) -> Any:
         with self._call:
             w = self._primary_worker()
             try:
-                out = w.call("search", job)
-                self._learn(job)
-                return out
+                return w.call(kind, payload)
             except WorkerCrashed as exc:
                 with self._state:
                     self.crashes += 1
                     self.last_crash = exc.how
                     if self._primary is w:
                         self._primary = None
-                log.error("search worker %d died (%s) running a search of %s [%d, %d]", w.pid, exc.how,
-                          job.segment.clip, job.segment.start, job.segment.end)
+                log.error("search worker %d died (%s) running %s", w.pid, exc.how, what)
                 threading.Thread(target=self._after_crash, name="search-restart", daemon=True).start()
                 raise
 

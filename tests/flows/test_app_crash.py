@@ -15,8 +15,9 @@ import psutil
 import pytest
 from motionweb.flows.app.worker import CRASH_ENV
 
-#: run_02 makes the worker SIGSEGV, run_01 abort (SIGABRT)
-CRASHES = "run_02,run_01:abort"
+#: a search of run_02 makes the worker SIGSEGV, of run_01 abort (SIGABRT); registering a result of
+#: walk_01 makes it SIGSEGV
+CRASHES = "run_02,run_01:abort,walk_01:register"
 NORMAL = [{"clip": "walk_00", "start": 1.0, "end": 2.5, "quantile": 0.8},
           {"clip": "walk_01", "start": 0.5, "end": 2.0, "quantile": 0.5, "tiers": 2},
           {"clip": "run_00", "start": 0.5, "end": 1.5, "threshold": 1.0},
@@ -143,6 +144,21 @@ def test_a_crashing_search_costs_only_itself(crashy) -> None:
     assert len(alive) == 2 and len(seen_workers) >= 5
     assert set(crashy.engine.workers.pids()) == alive
     crashy.seen_workers = seen_workers
+
+
+def test_a_crashing_registration_costs_only_itself(crashy) -> None:
+    port = crashy.port
+    wait_for(lambda: standby_ready(port), 60, "a standby worker")
+    status, res = call(port, "POST", "/api/search", NORMAL[1])  # walk_01
+    assert status == 200 and res["matches"], res
+    status, err = call(port, "GET", f"/api/results/{res['result']}/registration")
+    assert status == 500 and "registration" in err["error"] and "walk_01" in err["error"] and "SIGSEGV" in err["error"]
+    assert err["query"]["clip"] == "walk_01" and "Traceback" not in err["error"]
+    status, ok = call(port, "POST", "/api/search", NORMAL[0])
+    assert status == 200
+    status, reg = call(port, "GET", f"/api/results/{ok['result']}/registration")
+    assert status == 200 and len(reg["nodes"]) == 1 + len(ok["matches"])
+    crashy.seen_workers = getattr(crashy, "seen_workers", set()) | worker_pids()
 
 
 def test_no_worker_is_left_after_shutdown(crashy) -> None:
