@@ -36,9 +36,24 @@ def call(port: int, method: str, path: str, body: dict | None = None) -> tuple[i
         conn.close()
 
 
+#: workers of other engines of this test session (e.g. test_app's), not the service's of this module
+OTHERS: set[int] = set()
+SEEN: set[int] = set()
+
+
 def worker_pids() -> set[int]:
-    return {p.pid for p in psutil.Process().children(recursive=True)
-            if "motionweb.flows.app.worker" in " ".join(p.cmdline())}
+    """The search workers this module's service started, running or zombie."""
+    def is_worker(p: psutil.Process) -> bool:
+        try:
+            return "motionweb.flows.app.worker" in " ".join(p.cmdline())
+        except psutil.ZombieProcess:
+            return p.pid in SEEN  # a zombie keeps no command line: one of ours if seen before
+        except psutil.NoSuchProcess:
+            return False
+
+    found = {p.pid for p in psutil.Process().children(recursive=True) if p.pid not in OTHERS and is_worker(p)}
+    SEEN.update(found)
+    return found
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +63,7 @@ def crashy(app_store, tmp_path_factory):
     from motionweb.flows.config import load_config
 
     old = {k: os.environ.get(k) for k in (CRASH_ENV, "MOTIONWEB_APP_DIR")}
+    OTHERS.update(worker_pids())
     os.environ[CRASH_ENV] = CRASHES
     os.environ["MOTIONWEB_APP_DIR"] = str(tmp_path_factory.mktemp("disc-crash"))
     svc = Service(load_config(app_store), port=0, record=False)
