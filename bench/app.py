@@ -103,7 +103,7 @@ def wait_warm(api: Api, timeout: float = 1200) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         s = api.json("GET", "/api/status")
-        if s.get("warm"):
+        if s.get("warm") and s.get("worker", {}).get("standby", True):  # and the standby search worker warm
             return s
         time.sleep(0.5)
     raise RuntimeError("the service did not warm up in time")

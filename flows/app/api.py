@@ -2,7 +2,8 @@
 
 Routes (every one answers JSON errors ``{"error": message}`` with the CLI's messages, never a
 traceback: 400 bad request, 401 bad token, 404 unknown clip or result, 409 store not indexed,
-413 request too large):
+413 request too large, 500 a search that crashed its worker process, with ``"query"``: the
+request's clip, start, end and options; the service goes on with a standby worker):
 
     GET  /                                       the page (static/index.html)
     GET  /api/status                             generation, clip and web counts, categories
@@ -40,7 +41,7 @@ from fastapi import FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
-from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed
+from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed, QueryCrashed
 from motionweb.flows.app.spaces import Spaces
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -183,6 +184,10 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     @app.exception_handler(NotIndexed)
     async def not_indexed(_: Request, exc: NotIndexed) -> JSONResponse:
         return error(409, str(exc))
+
+    @app.exception_handler(QueryCrashed)
+    async def crashed(_: Request, exc: QueryCrashed) -> JSONResponse:
+        return JSONResponse({"error": str(exc), "query": exc.query}, status_code=500)
 
     @app.exception_handler(ValidationError)
     async def invalid_model(_: Request, exc: ValidationError) -> JSONResponse:

@@ -2,11 +2,12 @@
 
 A :class:`Snapshot` is one committed generation of the store opened once: its clip records (each
 with an opaque id, the first 12 hex digits of the SHA-256 of its corpus path, so no request names
-a path), and per search scope (a category, or all of them) a :class:`~motionweb.store.webs.StoreWebs`
-and a :class:`~motionweb.tasks.search.MatchSearch` that keep the webs read and packed (KG04 §3.3:
-the web is searched in memory). :class:`Engine` holds the current snapshot and, between requests,
-notices a newly committed generation (the store's pointer moved), opens it and reads its webs in
-the background, then swaps it in: a request works on the snapshot it started with from first to
+a path). The searches run in a supervised worker process (:mod:`motionweb.flows.app.worker`) that
+keeps, per search scope (a category, or all of them), the webs read and packed (KG04 §3.3: the web
+is searched in memory), so a crash in a search's compiled kernels costs that one request (HTTP
+500 naming the query, :class:`QueryCrashed`), never the service. :class:`Engine` holds the current
+snapshot and, between requests, notices a newly committed generation (the store's pointer moved),
+opens it and has its webs read in the background, then swaps it in: a request works on the snapshot it started with from first to
 last, so it never mixes two generations (design §9), and a killed index run, which never moves the
 pointer, changes nothing. Results keep their snapshot, so registering or exporting an older result
 reads its own generation.
@@ -26,6 +27,7 @@ import tempfile
 import threading
 import time
 import uuid
+import weakref
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable
@@ -34,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.app.worker import SearchJob, SearchWorkers, WorkerCrashed
 from motionweb.flows.config import Config
 from motionweb.flows.query import (
     PreparedQuery,
@@ -44,7 +47,6 @@ from motionweb.flows.query import (
     match_rows,
     plot_graph,
     query_segment,
-    register_graph,
     resolve_clip,
     segment_motion,
     write_outputs,
@@ -56,9 +58,8 @@ from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
-from motionweb.tasks.ranking import default_epsilon, nearest_costs
 from motionweb.tasks.register import Registration
-from motionweb.tasks.search import MatchSearch, SearchParams, epsilon_from_quantile
+from motionweb.tasks.search import SearchParams
 from pydantic import ValidationError
 
 #: bounds on what one request may ask for (design §10: requests are bounded)
@@ -78,6 +79,19 @@ class NotFound(KeyError):
 
 class NotIndexed(ValueError):
     """The store has no committed generation yet (the API answers 409)."""
+
+
+class QueryCrashed(RuntimeError):
+    """A search crashed the worker that ran it (the API answers 500 with the message and the
+    query); the service goes on with the standby worker."""
+
+    def __init__(self, query: dict[str, Any], how: str, work: str = "search"):
+        self.query, self.how = query, how
+        what = f"clip {query['clip']!r}, start {query['start']:g} s, end {query['end']:g} s"
+        extra = ", ".join(f"{k} {query[k]}" for k in ("threshold", "quantile", "tiers", "all_categories")
+                          if query.get(k) is not None)
+        super().__init__(f"the {work} of the query ({what}{', ' + extra if extra else ''}) crashed its worker "
+                         f"process ({how}); the service goes on, but this query cannot be answered: please report it")
 
 
 def clip_id(path: str) -> str:
@@ -106,23 +120,6 @@ class LRU:
                 self._items.popitem(last=False)
 
 
-@dataclass
-class Scope:
-    """The webs one kind of query searches (a category, or every chunk) and their search; the
-    lock serializes searches (a :class:`MatchSearch` shares work buffers) and web reads."""
-
-    webs: StoreWebs
-    search: MatchSearch
-    lock: threading.Lock = field(default_factory=threading.Lock)
-    quantiles: dict[float, float] = field(default_factory=dict)
-
-    def epsilon(self, q: float) -> float:
-        """ε as the ``q`` quantile of the scope's web values (cached per q; call under the lock)."""
-        if q not in self.quantiles:
-            self.quantiles[q] = epsilon_from_quantile(self.webs.all_webs(), q)
-        return self.quantiles[q]
-
-
 class Snapshot:
     """One committed generation, opened once (see the module docstring)."""
 
@@ -132,8 +129,7 @@ class Snapshot:
         self.rate = max(float(r) for r in self.gen_cfg.features.rates)
         self.by_path = {c["path"]: c for c in gen.clips}
         self.by_id = {clip_id(c["path"]): c for c in gen.clips}
-        self._scopes: dict[str | None, Scope] = {}
-        self._scopes_lock = threading.Lock()
+        self.categories = sorted({c.get("category", "") for c in gen.clips})
         self.motions = LRU(KEEP_MOTIONS)
         self.warmed = threading.Event()
 
@@ -148,23 +144,11 @@ class Snapshot:
         except ValueError as exc:
             raise NotFound(str(exc)) from None
 
-    def scope(self, category: str | None) -> Scope:
-        with self._scopes_lock:
-            sc = self._scopes.get(category)
-            if sc is None:
-                # each scope its own store object: scopes are searched from different threads
-                webs = StoreWebs(MotionStore(self.url, read_only=True), self.gen, category)
-                sc = self._scopes[category] = Scope(webs, MatchSearch(webs, SearchParams(), self.gen_cfg.matchweb))
-            return sc
-
-    def warm(self) -> None:
-        """Read every category's webs and pack every clip's walk graph (KG04 §3.4: in memory)."""
+    def warm(self, workers: SearchWorkers) -> None:
+        """Have the search workers read every category's webs and pack every clip's walk graph
+        (KG04 §3.4: in memory)."""
         try:
-            for cat in sorted({c.get("category", "") for c in self.gen.clips}):
-                sc = self.scope(cat)
-                with sc.lock:
-                    for clip in list(sc.webs):
-                        sc.search.graph(clip)
+            workers.prepare(self.gen.id, list(self.categories))
         finally:
             self.warmed.set()
 
@@ -210,6 +194,11 @@ class Result:
                 "matches": rows[1:], "graph": g, "timings": self.timings, "request": asdict(self.request)}
 
 
+def query_fields(request: QueryRequest) -> dict[str, Any]:
+    """A request's fields but its local folders (what an error names)."""
+    return {k: v for k, v in asdict(request).items() if k not in ("out", "export")}
+
+
 def draw_frames(frames: np.ndarray) -> np.ndarray:
     """At most :data:`MAX_DRAW_FRAMES` of ``frames`` (evenly subsampled, last kept)."""
     if len(frames) <= MAX_DRAW_FRAMES:
@@ -240,7 +229,9 @@ class Engine:
     """The current snapshot of one store and the queries on it (see the module docstring).
 
     ``on_query(kind, parameters, summary)`` is called after every answered query (the recorder
-    makes a Prefect flow run of it); ``warm`` reads all webs of a generation before serving it.
+    makes a Prefect flow run of it); ``warm`` reads all webs of a generation before serving it
+    and keeps a warm standby search worker. :meth:`close` ends the search workers (also done
+    when the engine is garbage-collected, and at exit).
     """
 
     def __init__(self, cfg: Config, on_query: Callable[[str, dict, dict], None] | None = None, warm: bool = True):
@@ -252,8 +243,14 @@ class Engine:
         self.results = LRU(KEEP_RESULTS)
         self._plot_lock = threading.Lock()  # one figure drawn at a time (they share font caches)
         self.switches = 0
+        self.workers = SearchWorkers(self.url, standby=warm)
+        self._finalize = weakref.finalize(self, self.workers.close)
         if warm:
             threading.Thread(target=prime_plots, name="prime-plots", daemon=True).start()
+
+    def close(self) -> None:
+        """End the search workers."""
+        self._finalize()
 
     # ------------------------------------------------------------------ generations
     def pointer(self) -> str | None:
@@ -266,7 +263,7 @@ class Engine:
     def _swap_after_warm(self, snap: Snapshot) -> None:
         try:
             if self.warm:
-                snap.warm()
+                snap.warm(self.workers)
         finally:
             with self._lock:
                 if self._snap is None or snap.gen.id > self._snap.gen.id:
@@ -287,7 +284,7 @@ class Engine:
                     self._snap, snap = new, new
                     self.switches += 1
                     if self.warm:
-                        threading.Thread(target=new.warm, name="warm", daemon=True).start()
+                        threading.Thread(target=new.warm, args=(self.workers,), name="warm", daemon=True).start()
                 else:
                     loading = self._loading = threading.Thread(target=self._swap_after_warm, args=(new,),
                                                                name="warm", daemon=True)
@@ -310,7 +307,7 @@ class Engine:
         return {"generation": snap.gen.id, "committed": snap.gen.completed, "clips": len(snap.gen.clips),
                 "webs": len(snap.gen.webs), "rate": snap.rate, "categories": cats,
                 "loading": self._loading is not None, "warm": snap.warmed.is_set(), "max_query_s": MAX_QUERY_S,
-                "max_tiers": MAX_TIERS}
+                "max_tiers": MAX_TIERS, "worker": self.workers.info()}
 
     # ------------------------------------------------------------------ catalog and clips
     def catalog(self, category: str | None = None, name: str | None = None, min_s: float | None = None,
@@ -377,17 +374,14 @@ class Engine:
         if request.tiers is not None:
             params = params.model_copy(update={"max_tiers": request.tiers})
         all_cats = params.all_categories if request.all_categories is None else request.all_categories
-        scope = snap.scope(None if all_cats else rec.get("category", ""))
-        with scope.lock:
-            scope.search.cfg = params
-            scope.search.check(seg)
-            if request.threshold is not None:
-                eps = request.threshold
-            elif request.quantile is not None:
-                eps = scope.epsilon(request.quantile)
-            else:  # the query flow's default rule: a multiple of the query's nearest match
-                eps = default_epsilon(nearest_costs(scope.search, seg), params.eps_nearest_ratio)
-            graph = scope.search.search(seg, eps)
+        # ε: the threshold, the quantile of the scope's webs, or else the query flow's default
+        # rule (a multiple of the query's nearest match); all computed in the worker
+        job = SearchJob(snap.gen.id, None if all_cats else rec.get("category", ""), seg, params.model_dump(),
+                        request.threshold, request.quantile)
+        try:
+            graph, eps = self.workers.search(job)
+        except WorkerCrashed as exc:
+            raise QueryCrashed(query_fields(request), exc.how) from None
         res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, float(eps),
                      match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})
         self.results.put(res.id, res)
@@ -395,6 +389,13 @@ class Engine:
             self.on_query("search", asdict(request), {"result": res.id, "generation": snap.gen.id, "epsilon": eps,
                                                       "matches": len(res.rows) - 1, **res.timings})
         return res
+
+    def registration(self, gen_id: str, graph: MatchGraph, request: QueryRequest) -> Registration:
+        """``graph``'s registration (KG04 §4.1), computed by the search worker."""
+        try:
+            return self.workers.register(gen_id, graph)
+        except WorkerCrashed as exc:
+            raise QueryCrashed(query_fields(request), exc.how, "registration") from None
 
     def result(self, rid: str) -> Result:
         res = self.results.get(rid)
@@ -410,8 +411,7 @@ class Engine:
             if res.registration is None and len(res.graph.nodes) > 1:
                 t = time.perf_counter()
                 snap = res.snap
-                res.registration = register_graph(MotionStore(snap.url, read_only=True), snap.gen, snap.gen_cfg,
-                                                  res.graph, snap.by_path)
+                res.registration = self.registration(snap.gen.id, res.graph, res.request)
                 res.timings["register_s"] = time.perf_counter() - t
                 if self.on_query:
                     self.on_query("register", {"result": rid}, {"nodes": len(res.graph.nodes),
@@ -474,13 +474,15 @@ class Engine:
         # the config as the CLI's run records it: its search section, not the request's tiers
         cfg = self.cfg.model_copy(update={"search": self.search_params(search)})
         rec = snap.clip(request.clip)
-        q = PreparedQuery(MotionStore(snap.url, read_only=True), snap.gen, snap.gen_cfg, rec,
-                          res.graph.nodes[0].segment, snap.scope(rec.get("category", "")).webs)
+        store = MotionStore(snap.url, read_only=True)
+        q = PreparedQuery(store, snap.gen, snap.gen_cfg, rec, res.graph.nodes[0].segment,
+                          StoreWebs(store, snap.gen, rec.get("category", "")))
         tmp = Path(tempfile.mkdtemp(prefix="motionweb-app-"))
         try:
             with self._plot_lock:
                 out = write_outputs(cfg, request, q, res.graph, res.epsilon, tmp / "out",
-                                    tmp / "export" if export else None, t0, register_graph)
+                                    tmp / "export" if export else None, t0,
+                                    lambda _store, gen, _cfg, graph, _clips: self.registration(gen.id, graph, request))
             out["files"] = [Path(f).relative_to(tmp).as_posix() for f in out["files"]]
             out["out"], out["result"] = "out", res.id
             buf = io.BytesIO()

@@ -3,9 +3,10 @@
 Startup: check the host (loopback unless a token is given), bind the socket (so ``--port 0``
 picks a free port and the discovery file names the real one), find or start the Prefect server
 (in the background: the API serves at once, records follow when Prefect answers), open the
-committed generation and warm its webs in the background, write the discovery file
-(:mod:`motionweb.flows.app.client`). Shutdown (Ctrl-C, SIGTERM): remove the discovery file, stop
-a Prefect server of our own.
+committed generation and warm its webs in the background (in the search worker processes,
+:mod:`motionweb.flows.app.worker`), write the discovery file (:mod:`motionweb.flows.app.client`).
+Shutdown (Ctrl-C, SIGTERM): remove the discovery file, end the search workers, stop a Prefect
+server of our own.
 """
 
 from __future__ import annotations
@@ -89,8 +90,8 @@ class Service:
                      "prefect": self.prefect.url if self.prefect else None}
 
     def run(self) -> None:
-        """Serve until :meth:`stop`, SIGINT or SIGTERM; then remove the discovery file and stop a
-        Prefect server of our own."""
+        """Serve until :meth:`stop`, SIGINT or SIGTERM; then remove the discovery file, end the
+        search workers and stop a Prefect server of our own."""
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.stop())
@@ -100,6 +101,7 @@ class Service:
         finally:
             try:
                 remove_discovery(self.cfg.store.path, os.getpid())
+                self.engine.close()
                 if self.recorder:
                     self.recorder.close()
             finally:

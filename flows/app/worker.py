@@ -1,0 +1,486 @@
+"""The service's search work in a child process, so a crash in it cannot take the service down.
+
+The searches' compiled kernels (numba) run in a **worker process** that holds the webs (read once
+per generation and scope, packed into walk graphs, as :class:`~motionweb.tasks.search.MatchSearch`
+keeps them). The service (the parent: HTTP, catalog, poses, downloads, drawing) sends it one
+:class:`SearchJob` at a time over a socket pair and gets back the match graph and ε; a result's
+registration (KG04 §4.1, compiled DTW kernels too) is computed there as well. One search
+at a time, as before (one :class:`MatchSearch` per scope shares its work buffers, and its kernels
+hold the GIL): requests that arrive meanwhile wait their turn in the parent.
+
+If the worker dies (a segfault, an abort, a kill), the search it was running — the only one in
+it, so the culprit is known — fails with :class:`WorkerCrashed` (the API answers HTTP 500 naming
+the query and the signal), and :class:`SearchWorkers` puts the **standby** in its place: a second
+worker started in advance and warmed with the same generation, so the next request is answered at
+once; a new standby is then started and warmed in the background. Requests that arrive during the
+switch wait for it. Without a ready standby (two crashes in a row faster than a warm-up) the next
+request waits for a fresh worker's start (imports, ~1-2 s) and reads the webs it needs lazily.
+
+Memory: the primary and the standby each hold the webs of the current generation (twice the webs'
+memory); a new generation is warmed in a new worker while the old one keeps serving, then swapped
+in.
+
+Test hook (off by default): with ``MOTIONWEB_TEST_CRASH_CLIP=NAME`` in the service's environment,
+a worker that gets a search of the clip ``NAME`` (corpus path or stem) sends itself SIGSEGV after
+the request's checks; ``NAME:abort`` calls :func:`os.abort` instead (SIGABRT); ``NAME:register``
+sends SIGSEGV when registering a result whose query is of ``NAME``; several are separated by commas.
+
+Run as ``python -m motionweb.flows.app.worker FD STORE_URL`` by :class:`Worker` only.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field, replace
+from multiprocessing.connection import Connection
+from typing import Any
+
+CRASH_ENV = "MOTIONWEB_TEST_CRASH_CLIP"
+#: generations a worker keeps open (the current one and the one before, during a switch)
+KEEP_GENERATIONS = 2
+#: kinds of search (scope × ε rule) a standby rehearses, at most
+KEEP_EXAMPLES = 32
+log = logging.getLogger("motionweb.app")
+
+
+@dataclass(frozen=True)
+class SearchJob:
+    """One search for the worker: the generation and scope (a category, or ``None`` for every
+    chunk), the query segment at the web rate, the search section, and ε given as a threshold, as
+    a quantile of the scope's web values, or neither (the default rule: a multiple of the query's
+    nearest match)."""
+
+    generation: str
+    category: str | None
+    segment: Any  # motionweb.tasks.matchgraph.Segment
+    params: dict[str, Any]
+    threshold: float | None = None
+    quantile: float | None = None
+
+    def kind(self) -> tuple:
+        """What a standby rehearses once: the scope and the ε rule (a quantile per value)."""
+        rule = "threshold" if self.threshold is not None else self.quantile if self.quantile is not None else "default"
+        return self.category, rule
+
+
+class WorkerCrashed(RuntimeError):
+    """The worker died while it ran a job (``how``: e.g. "SIGSEGV", "exit code 1")."""
+
+    def __init__(self, how: str):
+        super().__init__(f"the search worker died ({how})")
+        self.how = how
+
+
+def describe_exit(code: int | None) -> str:
+    if code is None:
+        return "no exit code"
+    if code < 0:
+        try:
+            return signal.Signals(-code).name
+        except ValueError:
+            return f"signal {-code}"
+    return f"exit code {code}"
+
+
+# ---------------------------------------------------------------------------------- the child
+@dataclass
+class _Scope:
+    webs: Any  # StoreWebs
+    search: Any  # MatchSearch
+    quantiles: dict[float, float] = field(default_factory=dict)
+
+
+class _State:
+    """What a worker holds: per open generation, its scopes' webs and searches."""
+
+    def __init__(self, url: str):
+        self.url = url
+        self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope]]] = OrderedDict()
+
+    def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope]]:
+        """(generation, its indexed config, its scopes), opened once."""
+        from motionweb.flows.query import indexed_config
+        from motionweb.store.generations import load_generation
+        from motionweb.store.zarr_store import MotionStore
+
+        if gen_id not in self.gens:
+            gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
+            self.gens[gen_id] = (gen, indexed_config(gen), {})
+            while len(self.gens) > KEEP_GENERATIONS:
+                self.gens.popitem(last=False)
+        self.gens.move_to_end(gen_id)
+        return self.gens[gen_id]
+
+    def scope(self, gen_id: str, category: str | None) -> _Scope:
+        from motionweb.store.webs import StoreWebs
+        from motionweb.store.zarr_store import MotionStore
+        from motionweb.tasks.search import MatchSearch, SearchParams
+
+        gen, gen_cfg, scopes = self.generation(gen_id)
+        sc = scopes.get(category)
+        if sc is None:
+            webs = StoreWebs(MotionStore(self.url, read_only=True), gen, category)
+            sc = scopes[category] = _Scope(webs, MatchSearch(webs, SearchParams(), gen_cfg.matchweb))
+        return sc
+
+    def warm(self, gen_id: str, category: str | None) -> int:
+        """Read the scope's webs and pack every clip's walk graph; the number of clips."""
+        sc = self.scope(gen_id, category)
+        clips = list(sc.webs)
+        for clip in clips:
+            sc.search.graph(clip)
+        return len(clips)
+
+    def search(self, job: SearchJob) -> tuple[Any, float]:
+        from motionweb.tasks.ranking import default_epsilon, nearest_costs
+        from motionweb.tasks.search import SearchParams, epsilon_from_quantile
+
+        sc = self.scope(job.generation, job.category)
+        params = SearchParams.model_validate(job.params)
+        sc.search.cfg = params
+        sc.search.check(job.segment)
+        _test_crash(job.segment.clip)
+        if job.threshold is not None:
+            eps = job.threshold
+        elif job.quantile is not None:
+            if job.quantile not in sc.quantiles:
+                sc.quantiles[job.quantile] = epsilon_from_quantile(sc.webs.all_webs(), job.quantile)
+            eps = sc.quantiles[job.quantile]
+        else:
+            eps = default_epsilon(nearest_costs(sc.search, job.segment), params.eps_nearest_ratio)
+        return sc.search.search(job.segment, eps), float(eps)
+
+
+    def register(self, gen_id: str, graph: Any) -> Any:
+        """The registration of a search's match graph (KG04 §4.1)."""
+        from motionweb.flows.query import register_graph
+        from motionweb.store.zarr_store import MotionStore
+
+        gen, gen_cfg, _ = self.generation(gen_id)
+        _test_crash(graph.nodes[0].segment.clip, "register")
+        return register_graph(MotionStore(self.url, read_only=True), gen, gen_cfg, graph,
+                              {c["path"]: c for c in gen.clips})
+
+
+def _test_crash(clip: str, stage: str = "search") -> None:
+    """The test hook (see the module docstring): crash on a search of ``$MOTIONWEB_TEST_CRASH_CLIP``."""
+    for target in os.environ.get(CRASH_ENV, "").split(","):
+        name, _, how = target.strip().partition(":")
+        if (how == "register") != (stage == "register"):
+            continue
+        if name and (clip == name or clip.rsplit("/", 1)[-1].rsplit(".", 1)[0] == name):
+            if how == "abort":
+                os.abort()
+            os.kill(os.getpid(), signal.SIGSEGV)
+
+
+def child_main(fd: int, url: str) -> None:
+    """The worker's loop: ("search", job) / ("warm", (gen, category)) in, ("ok", answer) /
+    ("value", message) / ("error", type name) out; ends on EOF (the service closed or died)."""
+    import faulthandler
+
+    faulthandler.enable()  # a crash leaves a Python traceback in the service's log
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the service's to handle
+    conn = Connection(fd)
+    from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
+
+    state = _State(url)
+    conn.send(("ready", os.getpid()))
+    while True:
+        try:
+            kind, payload = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            if kind == "search":
+                out = ("ok", state.search(payload))
+            elif kind == "warm":
+                out = ("ok", state.warm(*payload))
+            elif kind == "register":
+                out = ("ok", state.register(*payload))
+            elif kind == "ping":
+                out = ("ok", os.getpid())
+            else:
+                out = ("error", f"unknown request {kind!r}")
+        except ValueError as exc:
+            out = ("value", str(exc))
+        except Exception as exc:
+            logging.getLogger("motionweb.app").exception("search worker: %s failed", kind)
+            out = ("error", type(exc).__name__)
+        try:
+            conn.send(out)
+        except (EOFError, OSError):
+            return
+
+
+# --------------------------------------------------------------------------------- the parent
+class Worker:
+    """One worker process and its end of the socket pair; :meth:`call` is one request at a time."""
+
+    def __init__(self, url: str):
+        mine, theirs = socket.socketpair()
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.proc = subprocess.Popen([sys.executable, "-m", "motionweb.flows.app.worker", str(theirs.fileno()), url],
+                                     pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.DEVNULL, env=env, close_fds=True)
+        theirs.close()
+        self.conn = Connection(mine.detach())
+        self.lock = threading.Lock()
+        self.ready = self.closing = self.rehearsed = False
+        self.warm: set[tuple[str, str | None]] = set()
+        self.lessons: queue.Queue[SearchJob | None] = queue.Queue()  # searches a standby rehearses
+        self.started = time.monotonic()
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def _died(self) -> WorkerCrashed:
+        try:
+            code = self.proc.wait(5)
+        except subprocess.TimeoutExpired:  # the pipe broke but the process lives on: end it
+            self.proc.kill()
+            code = self.proc.wait()
+        return WorkerCrashed(describe_exit(code))
+
+    def call(self, kind: str, payload: Any) -> Any:
+        """Send one request and wait for its answer. ValueError with the worker's message for a bad
+        request, RuntimeError for another failure, :class:`WorkerCrashed` if the worker died."""
+        with self.lock:
+            try:
+                if not self.ready:
+                    tag, _ = self.conn.recv()
+                    if tag != "ready":
+                        raise EOFError
+                    self.ready = True
+                self.conn.send((kind, payload))
+                tag, out = self.conn.recv()
+            except (EOFError, OSError):
+                raise self._died() from None
+        if tag == "ok":
+            return out
+        if tag == "value":
+            raise ValueError(out)
+        raise RuntimeError(f"the search worker failed ({out}); see the service's log")
+
+    def close(self, timeout: float = 5.0) -> None:
+        """End the worker (SIGTERM: it holds nothing to save; SIGKILL after ``timeout`` s), then
+        close its socket once no call uses it."""
+        self.closing = True
+        self.lessons.put(None)
+        if self.proc.poll() is None:
+            self.proc.terminate()
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        if self.lock.acquire(timeout=timeout):  # a call in flight ends with EOF now
+            try:
+                self.conn.close()
+            finally:
+                self.lock.release()
+
+
+class SearchWorkers:
+    """The supervised workers of one store (see the module docstring): :meth:`search` runs a job
+    on the primary; :meth:`prepare` warms a generation; :meth:`close` ends them all.
+
+    ``standby``: keep a second warmed worker ready to take over after a crash."""
+
+    def __init__(self, url: str, standby: bool = True):
+        self.url, self.standby = url, standby
+        self._call = threading.Lock()  # one job at a time on the primary
+        self._state = threading.Lock()  # guards the fields below
+        self._primary: Worker | None = None
+        self._spare: Worker | None = None
+        self._scopes: tuple[str, list[str | None]] | None = None  # the generation to warm and its scopes
+        self._closed = False
+        #: one answered search per kind (scope × ε rule): a standby runs each once, so that the
+        #: first search after a crash finds its code compiled and its ε quantiles computed
+        self._examples: dict[tuple, SearchJob] = {}
+        self.crashes = 0
+        self.last_crash: str | None = None
+
+    # -------------------------------------------------------------- workers
+    def _new_worker(self) -> Worker:
+        return Worker(self.url)
+
+    def _warm(self, w: Worker, gen_id: str, scopes: list[str | None]) -> None:
+        for cat in scopes:
+            if (gen_id, cat) in w.warm:
+                continue
+            w.call("warm", (gen_id, cat))
+            w.warm.add((gen_id, cat))
+
+    def _start_spare(self) -> None:
+        """Start a standby and warm it in the background (when there is none)."""
+        with self._state:
+            if not self.standby or self._closed or (self._spare is not None and self._spare.alive()):
+                return
+            w = self._spare = self._new_worker()
+            scopes = self._scopes
+
+        def warm() -> None:
+            try:
+                w.call("ping", None)  # its imports done
+                if scopes is not None:
+                    self._warm(w, *scopes)
+                self._rehearse(w, list(self._examples.values()))
+                w.rehearsed = True
+                while not w.closing:
+                    job = w.lessons.get()
+                    try:
+                        if job is not None:
+                            self._rehearse(w, [job])
+                    finally:
+                        w.lessons.task_done()
+            except (WorkerCrashed, RuntimeError, OSError) as exc:
+                if not w.closing:
+                    log.warning("search worker standby: %s", exc)
+
+        threading.Thread(target=warm, name="search-standby", daemon=True).start()
+
+    def _rehearse(self, w: Worker, jobs: list[SearchJob]) -> None:
+        """Run ``jobs`` on ``w`` for their side effects (compiled code loaded, webs read, ε cached)."""
+        want = self._scopes[0] if self._scopes is not None else None
+        for job in jobs:
+            try:
+                w.call("search", job if want is None else replace(job, generation=want))
+            except ValueError:  # e.g. the clip is gone from a new generation
+                pass
+
+    def _learn(self, job: SearchJob) -> None:
+        """Remember ``job`` as its kind's example (and have the standby rehearse it)."""
+        with self._state:
+            if job.kind() in self._examples or len(self._examples) >= KEEP_EXAMPLES:
+                return
+            self._examples[job.kind()] = job
+            spare = self._spare
+        if spare is not None:
+            spare.lessons.put(job)
+
+    def _primary_worker(self, spare: bool = True) -> Worker:
+        """The primary (under ``_call``): the standby promoted, or a new worker (then a new
+        standby is started, unless not ``spare``)."""
+        with self._state:
+            if self._closed:
+                raise RuntimeError("the service is stopping")
+            if self._primary is None or not self._primary.alive():
+                spare, self._spare = self._spare, None
+                self._primary = spare if spare is not None and spare.alive() else self._new_worker()
+                promoted = spare is self._primary
+            else:
+                return self._primary
+        log.info("search worker %d %s", self._primary.pid, "promoted from standby" if promoted else "started")
+        if spare:
+            self._start_spare()
+        return self._primary
+
+    # -------------------------------------------------------------- requests
+    def search(self, job: SearchJob) -> tuple[Any, float]:
+        """(match graph, ε) of ``job``, computed by the primary worker. ValueError for a bad
+        request (the CLI's messages), :class:`WorkerCrashed` if the worker died running it (the
+        next call gets the standby)."""
+        out = self._run("search", job, f"a search of {job.segment.clip} [{job.segment.start}, {job.segment.end}]")
+        self._learn(job)
+        return out
+
+    def register(self, gen_id: str, graph: Any) -> Any:
+        """The :class:`~motionweb.tasks.register.Registration` of ``graph`` (a search's answer on
+        generation ``gen_id``), computed by the primary worker; errors as :meth:`search`."""
+        q = graph.nodes[0].segment
+        return self._run("register", (gen_id, graph), f"a registration of {q.clip} [{q.start}, {q.end}]")
+
+    def _run(self, kind: str, payload: Any, what: str) -> Any:
+        with self._call:
+            w = self._primary_worker()
+            try:
+                return w.call(kind, payload)
+            except WorkerCrashed as exc:
+                with self._state:
+                    self.crashes += 1
+                    self.last_crash = exc.how
+                    if self._primary is w:
+                        self._primary = None
+                log.error("search worker %d died (%s) running %s", w.pid, exc.how, what)
+                threading.Thread(target=self._after_crash, name="search-restart", daemon=True).start()
+                raise
+
+    def _after_crash(self) -> None:
+        """Promote the standby now (so the next request finds it in place) and start a new one."""
+        with self._call:
+            if not self._closed:
+                self._primary_worker()
+
+    def prepare(self, gen_id: str, scopes: list[str | None]) -> None:
+        """Warm ``gen_id``'s ``scopes`` (category names; ``None`` for all categories) for searching.
+        The first generation is warmed in the primary, scope by scope between searches; a later
+        one in a new worker while the primary keeps serving, which then replaces it. The
+        standby is then replaced by one warmed for ``gen_id``."""
+        with self._state:
+            first = self._scopes is None
+            self._scopes = (gen_id, list(scopes))
+        if first:
+            for cat in scopes:
+                with self._call:
+                    w = self._primary_worker(spare=False)  # the standby after the warm-up
+                    try:
+                        self._warm(w, gen_id, [cat])
+                    except (WorkerCrashed, RuntimeError) as exc:
+                        log.warning("search worker: warming %s: %s", cat, exc)
+            self._start_spare()
+            return
+        fresh = self._new_worker()
+        try:
+            self._warm(fresh, gen_id, scopes)
+            self._rehearse(fresh, list(self._examples.values()))
+        except (WorkerCrashed, RuntimeError, ValueError) as exc:
+            log.warning("search worker: warming generation %s: %s", gen_id, exc)
+            fresh.close(0)
+            return
+        with self._call, self._state:
+            old, self._primary = self._primary, fresh
+            spare, self._spare = self._spare, None
+        for w in (old, spare):
+            if w is not None:
+                w.close()
+        self._start_spare()
+
+    def info(self) -> dict[str, Any]:
+        with self._state:
+            p, s = self._primary, self._spare
+            want = self._scopes
+            return {"pid": p.pid if p is not None and p.alive() else None, "crashes": self.crashes,
+                    "last_crash": self.last_crash,
+                    "standby": s is not None and s.alive() and s.rehearsed and s.lessons.unfinished_tasks == 0
+                    and (want is None or all((want[0], c) in s.warm for c in want[1]))}
+
+    def pids(self) -> list[int]:
+        with self._state:
+            return [w.pid for w in (self._primary, self._spare) if w is not None and w.alive()]
+
+    def close(self) -> None:
+        """End every worker (waits for a running search up to 5 s, then kills)."""
+        with self._state:
+            self._closed = True
+            workers, self._primary, self._spare = [self._primary, self._spare], None, None
+        for w in workers:
+            if w is not None:
+                w.close()
+
+
+if __name__ == "__main__":
+    child_main(int(sys.argv[1]), sys.argv[2])
