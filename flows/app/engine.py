@@ -58,6 +58,7 @@ from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
+from motionweb.tasks.ranking import NO_MATCH
 from motionweb.tasks.register import Registration
 from motionweb.tasks.search import SearchParams
 from pydantic import ValidationError
@@ -179,7 +180,7 @@ class Result:
     request: QueryRequest
     params: SearchParams
     graph: MatchGraph
-    epsilon: float
+    epsilon: float | None  # None: the query matches nothing at any threshold (tasks.ranking.NO_MATCH)
     rows: list[dict[str, Any]]
     timings: dict[str, float]
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -190,7 +191,8 @@ class Result:
         for e in g["edges"]:
             e.pop("cells")  # the page draws the graph, not the paths (they can be long)
         rows = [{**r, "id": clip_id(r["clip"])} for r in self.rows]
-        return {"result": self.id, "generation": self.snap.gen.id, "epsilon": self.epsilon, "query": rows[0],
+        return {"result": self.id, "generation": self.snap.gen.id, "epsilon": self.epsilon,
+                "message": NO_MATCH if self.epsilon is None else "", "query": rows[0],
                 "matches": rows[1:], "graph": g, "timings": self.timings, "request": asdict(self.request)}
 
 
@@ -382,7 +384,7 @@ class Engine:
             graph, eps = self.workers.search(job)
         except WorkerCrashed as exc:
             raise QueryCrashed(query_fields(request), exc.how) from None
-        res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, float(eps),
+        res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, None if eps is None else float(eps),
                      match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})
         self.results.put(res.id, res)
         if self.on_query:

@@ -140,7 +140,7 @@ class _State:
             sc.search.graph(clip)
         return len(clips)
 
-    def search(self, job: SearchJob) -> tuple[Any, float]:
+    def search(self, job: SearchJob) -> tuple[Any, float | None]:
         from motionweb.tasks.ranking import default_epsilon, nearest_costs
         from motionweb.tasks.search import SearchParams, epsilon_from_quantile
 
@@ -157,6 +157,8 @@ class _State:
             eps = sc.quantiles[job.quantile]
         else:
             eps = default_epsilon(nearest_costs(sc.search, job.segment), params.eps_nearest_ratio)
+            if eps is None:  # nothing matches at any threshold: the query alone (tasks.ranking.NO_MATCH)
+                return sc.search.query_only(job.segment), None
         return sc.search.search(job.segment, eps), float(eps)
 
 

@@ -333,3 +333,36 @@ def test_answered_queries_are_recorded_as_prefect_flow_runs(prefect_harness, cfg
         assert len(mine) == 1 and mine[0].state.is_completed()
         assert mine[0].parameters["kind"] == "search" and mine[0].parameters["parameters"]["clip"] == "walk_00"
 
+
+
+def test_a_query_that_matches_nothing_is_an_empty_result_with_a_message(client, cfg, tmp_path: Path) -> None:
+    """Issue 22: a window whose rows no path crosses (found here in-process: a window ending on a
+    clip's last frame) is answered with the query alone and a message, by the service and the
+    query flow alike, not with an error."""
+    from motionweb.flows.query import QueryRequest, query
+    from motionweb.tasks.ranking import NO_MATCH
+
+    store = MotionStore(cfg.store.path, read_only=True)
+    gen = load_generation(store)
+    found = None
+    for rec in sorted(gen.clips, key=lambda c: c["path"]):
+        webs = StoreWebs.for_query(store, rec["path"], generation=gen)
+        ms = MatchSearch(webs, cfg.search, cfg.matchweb)
+        g = ms.graph(rec["path"])
+        for length in (10, 20, 30):
+            for a in (g.n_frames - 1 - length, 0):
+                if a >= 0 and not nearest_costs(ms, Segment(rec["path"], a, a + length)):
+                    found = (rec["path"], a / g.rate, (a + length) / g.rate)
+                    break
+            if found:
+                break
+        if found:
+            break
+    assert found, "every window tried matches another clip: the fixture no longer has an empty query"
+    clip, start, end = found
+    got = client.post("/api/search", json={"clip": clip, "start": start, "end": end})
+    assert got.status_code == 200, got.text
+    body = got.json()
+    assert body["matches"] == [] and body["epsilon"] is None and body["message"] == NO_MATCH
+    res = query(cfg, QueryRequest(clip=clip, start=start, end=end, out=str(tmp_path)))
+    assert res["matches"] == [] and res["epsilon"] is None and res["message"] == NO_MATCH

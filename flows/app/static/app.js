@@ -238,8 +238,8 @@ function setEpsMode() {
   const s = $("eps");
   if ($("eps-mode").value === "quantile") { s.min = 0.05; s.max = 0.99; s.step = 0.01; s.value = 0.8; }
   else {
-    const top = state.result ? Math.max(state.result.epsilon * 2, 1e-3) : 1.0;
-    s.min = 0; s.max = top; s.step = top / 200; s.value = state.result ? state.result.epsilon : top / 2;
+    const top = state.result && state.result.epsilon !== null ? Math.max(state.result.epsilon * 2, 1e-3) : 1.0;
+    s.min = 0; s.max = top; s.step = top / 200; s.value = state.result && state.result.epsilon !== null ? state.result.epsilon : top / 2;
   }
   epsLabel();
 }
@@ -254,8 +254,9 @@ async function runSearch() {
   const res = await api("/api/search", { method: "POST", headers: { "Content-Type": "application/json" },
     body: JSON.stringify(body) });
   state.result = res;
-  $("result-info").textContent = `· ${res.matches.length} matches · ε = ${res.epsilon.toPrecision(4)} · ` +
-    `${(performance.now() - t0).toFixed(0)} ms`;
+  const eps = res.epsilon === null ? "none" : res.epsilon.toPrecision(4);
+  $("result-info").textContent = `· ${res.matches.length} matches · ε = ${eps} · ` +
+    `${(performance.now() - t0).toFixed(0)} ms` + (res.message ? ` · ${res.message}` : "");
   showRows(res);
   drawGraph(res);
   say("registering…");
