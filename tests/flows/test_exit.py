@@ -156,6 +156,12 @@ def _ppid(pid: int) -> int | None:
         return None
 
 
+def short(cmdlines) -> list[str]:
+    """What each command line runs, in a word (``uvicorn``, ``motionweb.flows.reaper``, ...)."""
+    return sorted(next((a for a in c.split()[1:] if not a.startswith("-")), c.split()[0]).rsplit("/", 1)[-1]
+                  for c in cmdlines)
+
+
 def report_of(stderr: str) -> Path:
     """The report named by the one crash line (the last line of stderr, the only ``error:`` one)."""
     errors = [ln for ln in stderr.splitlines() if ln.startswith("error:")]
@@ -175,8 +181,8 @@ def test_a_killed_search_returns_at_once_and_leaves_nothing(app_store: Path, tmp
     res = run_killed([*cli_command(), "search", str(tmp_cfg), "--clip", "walk_00", "--start", "1", "--end", "2.5"],
                      clean_env(tmp_path, uuid.uuid4().hex), sig)
     print(f"{signal.Signals(sig).name}: rc {res['rc']} after {res['done'] - res['killed']:.2f} s, "
-          f"{len(res['left'])} left at return, all gone after {res['all_gone_s']:.2f} s; "
-          f"started {sorted(res['started'].values())}")
+          f"{len(res['left'])} left at return {short(res['left'])}, all gone after {res['all_gone_s']:.2f} s; "
+          f"started {short(res['started'].values())}")
     assert res["rc"] == -sig
     assert res["done"] - res["killed"] < 10
     assert any("uvicorn" in c for c in res["started"].values())
@@ -205,7 +211,7 @@ def test_a_crashed_index_returns_at_once_and_leaves_no_worker(tmp_path: Path) ->
     res = run_killed([*cli_command(), "index", str(tmp_path / "c.yaml"), "--no-progress"],
                      clean_env(tmp_path, uuid.uuid4().hex), signal.SIGSEGV, need_dask=True)
     print(f"index SIGSEGV: rc {res['rc']} after {res['done'] - res['killed']:.2f} s, {len(res['left'])} left at "
-          f"return, all gone after {res['all_gone_s']:.2f} s; started {sorted(res['started'].values())}")
+          f"return {short(res['left'])}, all gone after {res['all_gone_s']:.2f} s; started {short(res['started'].values())}")
     assert res["rc"] == -signal.SIGSEGV
     assert res["done"] - res["killed"] < 10
     assert not res["left_after"] and res["all_gone_s"] < 10, res["left_after"]
