@@ -37,12 +37,15 @@ def fail(message: str, code: int = 2) -> NoReturn:
 def config_or_fail(path: Path | None) -> Config:
     """Load a config (the default one when ``path`` is None), turning errors into ``fail``."""
     from motionweb.flows.config import ConfigError, load_config
+    from motionweb.flows.guard import report_into
 
     try:
-        return load_config(path)
+        cfg = load_config(path)
     except ConfigError as exc:
         fail(str(exc))
         raise  # unreachable: fail() exits
+    report_into(cfg.output)  # a crash report (flows/guard.py) goes to the output folder
+    return cfg
 
 
 def catalog_table(catalog) -> str:
@@ -467,9 +470,13 @@ add_commands(app, fail, config_or_fail)
 def main() -> None:
     """The console script: run the CLI, and turn anything a command did not foresee (a Prefect
     server that fails to start, a full disk) into one line on stderr, exit 1, instead of a
-    traceback. ``MOTIONWEB_DEBUG=1`` shows the traceback."""
+    traceback. ``MOTIONWEB_DEBUG=1`` shows the traceback. :func:`motionweb.flows.guard.protect`
+    first: the services it starts never hold the caller's stdio, and a crash prints one line."""
     import os
 
+    from motionweb.flows.guard import protect
+
+    protect(" ".join(["motionweb", *sys.argv[1:2]]))
     try:
         app()
     except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback at the CLI
