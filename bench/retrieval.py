@@ -98,8 +98,11 @@ def _digest(obj: object) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def load_library(root: Path, cache: Path, fcfg: FeatureParams, wcfg: MatchWebParams) -> Library:
-    files = library_files(root)
+def load_library(root: Path, cache: Path, fcfg: FeatureParams, wcfg: MatchWebParams,
+                 files: dict[str, str] | None = None) -> Library:
+    """The webs of ``files`` ({path under ``root``: category}; default :func:`library_files`),
+    every pair of clips with the same skeleton, self pairs included, as one unsplit index."""
+    files = library_files(root) if files is None else files
     motions = {p: read_motion(root / p) for p in files}
     ops, frames, dtw = {}, {}, {}
     for p, m in motions.items():

@@ -50,3 +50,14 @@ def prefect_harness():
     with prefect_test_harness(server_startup_timeout=300), \
             temporary_settings({PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
         yield
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Mark every test of the pure stages (tests/tasks, tests/store: they call the compiled
+    kernels directly) ``compiled``: .ci/run runs those a second time with numba's bounds checking
+    on (issue 22)."""
+    here = Path(__file__).parent
+    for item in items:
+        parts = Path(str(item.path)).relative_to(here).parts if Path(str(item.path)).is_relative_to(here) else ()
+        if parts and parts[0] in ("tasks", "store"):
+            item.add_marker(pytest.mark.compiled)
