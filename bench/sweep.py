@@ -63,13 +63,19 @@ class SweepResult:
 
 
 def sweep(webs: Mapping[str, Sequence[tuple[str, MatchWeb]]], tiers: Sequence[int], lengths_s: Sequence[float],
-          step_s: float, web_cfg: MatchWebParams | None = None, clips: Sequence[str] | None = None) -> SweepResult:
+          step_s: float, web_cfg: MatchWebParams | None = None, clips: Sequence[str] | None = None,
+          progress: bool = False) -> SweepResult:
     """Every window of every clip of ``webs`` (:func:`windows`) searched with the default ε rule at
-    each number of tiers; an exception is a failure (query, tiers, the error's last frames)."""
+    each number of tiers; an exception is a failure (query, tiers, the error's last frames). With
+    ``progress`` a line per clip (so a long sweep's partial figures are on screen)."""
     web_cfg = web_cfg or MatchWebParams()
     out = SweepResult()
     t0 = time.perf_counter()
-    for clip in clips if clips is not None else sorted(webs):
+    todo = list(clips if clips is not None else sorted(webs))
+    for k, clip in enumerate(todo):
+        if progress:
+            print(f"  [{k + 1}/{len(todo)}] {clip}: {out.searches} searches so far, {len(out.failures)} failures, "
+                  f"{time.perf_counter() - t0:.0f} s", flush=True)
         ms = MatchSearch(webs, SearchParams(), web_cfg)
         g = ms.graph(clip)
         need = min_chain_extent(web_cfg, g.rate)
@@ -103,10 +109,11 @@ def _bounds_checked() -> None:
 
 
 def main() -> None:
-    from bench.retrieval import load_library
     from motionweb.flows.app.engine import MAX_TIERS
     from motionweb.store.datasets import mocap_root
     from motionweb.tasks.features import FeatureParams
+
+    from bench.retrieval import load_library
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tiers", type=int, nargs="+", default=[1, 3, MAX_TIERS])
@@ -131,7 +138,7 @@ def main() -> None:
     print(f"library: {len(lib.clips)} clips ({', '.join(cats)}), {sum(lib.frames.values())} frames at "
           f"{max(fcfg.rates):g} Hz, one unsplit index; NUMBA_BOUNDSCHECK={os.environ.get('NUMBA_BOUNDSCHECK')}")
     clips = lib.clips[:args.clips] if args.clips else lib.clips
-    res = sweep(lib.webs, args.tiers, args.windows, args.step, wcfg, clips)
+    res = sweep(lib.webs, args.tiers, args.windows, args.step, wcfg, clips, progress=True)
     if res.queries == 0:
         sys.exit("bench.sweep: no query was built")
     print(f"queries: {res.queries} windows x tiers {args.tiers} = {res.searches} searches "

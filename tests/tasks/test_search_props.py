@@ -11,15 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from motionweb.store.web import MatchWeb
 from motionweb.tasks.matchgraph import Segment
-from motionweb.tasks.search import MatchSearch, SearchParams, nearest_matches, walk_graph, walk_web
 from motionweb.tasks.matchweb.params import MatchWebParams
-
-hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-from naive import TooManySequences, ref_matches, ref_walk_steps  # noqa: E402
+from motionweb.tasks.search import MatchSearch, SearchParams, nearest_matches, walk_graph, walk_web
+from naive import TooManySequences, ref_matches, ref_walk_steps
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
