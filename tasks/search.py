@@ -358,7 +358,9 @@ def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
 
 @njit(cache=True)
 def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred) -> None:
-    """Least total of (value − lam) from reach[0] to every reachable state (KG04 §3.3 walks)."""
+    """Least total of (value − lam) from reach[0] to every reachable state (KG04 §3.3 walks).
+    Bounds: writes positions < n of ``cost``/``total``/``length``/``pred``, ``local`` of the n
+    states :func:`_collect` placed (every successor it reads is one of them)."""
     for q in range(n):
         cost[q] = INF
     s0 = reach[0]
