@@ -639,7 +639,8 @@ def walk_web(web: MatchWeb, a: int, b: int, eps: float, other: str = "") -> list
 def _greedy_disjoint(clip, start, end, overlap) -> np.ndarray:
     """KG04 §3.3 redundancy removal on matches already sorted best first: keep a match unless it
     overlaps (``Segment.overlap``: shared frames over the shorter length) a kept match of the same
-    clip by more than ``overlap``. Returns the kept positions. O(m · kept)."""
+    clip by more than ``overlap``. Returns the kept positions. O(m · kept). Bounds: at most one
+    kept entry per match, in a buffer of m."""
     kept = np.empty(len(clip), np.int64)
     n = 0
     for u in range(len(clip)):
