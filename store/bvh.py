@@ -157,7 +157,13 @@ def _parse_frames(buf, n_rows, n_cols, out, pow10):  # pragma: no cover - compil
     Returns (status, line index of the fault within ``buf`` (0-based), rows parsed). Values are
     mantissa / 10^k with an exact integer mantissa, i.e. correctly rounded for up to 15-16
     significant digits, like strtod.
+
+    Bounds: writes ``out[row, col]`` only after checking row < n_rows (else _TOO_MANY) and
+    col < n_cols (else _BAD_COUNT), with n_rows × n_cols no larger than ``out`` (checked here);
+    ``pow10`` is read at 0..22 only.
     """
+    if n_rows > out.shape[0] or n_cols > out.shape[1] or pow10.shape[0] < 23:
+        return _TOO_MANY, 0, 0
     n = buf.shape[0]
     i = 0
     line = 0

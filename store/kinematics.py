@@ -231,7 +231,10 @@ def forward_kinematics_of(motion: Motion, joints) -> tuple[np.ndarray, np.ndarra
 @njit(cache=True)
 def _fk_paths(local, trans, root, parents, order, gpos, grot):  # pragma: no cover - compiled
     """FK over ``order`` (parents first), frame by frame, with quat_mul's and quat_rotate's
-    formulas in their order of operations."""
+    formulas in their order of operations.
+
+    Bounds: writes frames < F and joints of ``order`` (indices < J, :func:`joint_paths`) of
+    ``gpos``/``grot`` (F, J, ·), the caller's arrays of the motion's shape."""
     for f in range(local.shape[0]):
         for j in order:
             if j == 0:

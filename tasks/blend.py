@@ -433,6 +433,11 @@ def leg_ik(gpos: np.ndarray, grot: np.ndarray, parents: np.ndarray, chain: tuple
     """
     hip, knee, ankle = chain
     f = len(gpos)
+    n_j = np.shape(gpos)[1] if np.ndim(gpos) == 3 else 0
+    if np.shape(grot)[:2] != (f, n_j) or np.shape(target) != (f, 3) or np.shape(fallback_axis) != (f, 3):
+        raise ValueError(f"leg_ik needs gpos (F, J, 3), grot (F, J, 4), target and fallback_axis (F, 3) for F = {f}")
+    if not all(0 <= int(k) < n_j for k in chain) or not -1 <= int(parents[hip]) < n_j:
+        raise ValueError(f"the leg {chain} is not a chain of joints of a {n_j}-joint skeleton")
     out = np.empty((3, f, 4))
     miss = np.empty(f)
     _leg_ik_kernel(np.ascontiguousarray(gpos, np.float64), np.ascontiguousarray(grot, np.float64),
@@ -451,7 +456,10 @@ def _qmul(aw, ax, ay, az, bw, bx, by, bz):  # pragma: no cover - compiled
 def _leg_ik_kernel(gpos, grot, parent, hip, knee, ankle, target, fallback, out, miss):  # pragma: no cover
     """Frame by frame: the bend about the knee axis, the swing about the hip (shortest rotation
     of the bent ankle onto the target; a half turn about any perpendicular axis), the new local
-    rotations into ``out`` (3, F, 4) = hip, knee, ankle and the miss (F,)."""
+    rotations into ``out`` (3, F, 4) = hip, knee, ankle and the miss (F,).
+
+    Bounds: writes frames f < F of ``out`` and ``miss``; reads joints hip, knee, ankle and parent
+    (< J, checked by :func:`leg_ik`)."""
     for f in range(gpos.shape[0]):
         hx, hy, hz = gpos[f, hip, 0], gpos[f, hip, 1], gpos[f, hip, 2]
         kx, ky, kz = gpos[f, knee, 0], gpos[f, knee, 1], gpos[f, knee, 2]
@@ -517,6 +525,9 @@ def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> t
     """Ankle corrections (F, 3) holding every planted run of ``plants`` (F,) at its mean ankle
     position (``ankles`` (F, 3)), eased to zero over ``ramp`` frames on either side (smoothstep;
     overlapping ramps average), and the frames (F,) that need IK. Compiled, O(F·ramp)."""
+    if len(plants) != n or np.shape(ankles) != (n, 3):
+        raise ValueError(f"ease_offsets needs {n} plant flags and ({n}, 3) ankles, got {len(plants)} and "
+                         f"{np.shape(ankles)}")
     off = np.zeros((n, 3))
     wsum = np.zeros(n)
     _ease_kernel(np.ascontiguousarray(plants, np.bool_), np.ascontiguousarray(ankles, np.float64), int(ramp), off, wsum)
@@ -525,6 +536,8 @@ def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> t
 
 @njit(cache=True)
 def _ease_kernel(plants, ankles, ramp, off, wsum):  # pragma: no cover - compiled
+    """Bounds: writes frames max(0, a − ramp) .. min(F, b + 1 + ramp) − 1 of ``off``/``wsum`` (F,) for
+    each planted run a..b: frames 0..F − 1 only, whatever ``ramp``."""
     n = len(plants)
     i = 0
     while i < n:

@@ -168,7 +168,9 @@ def prepare_pair(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
 @njit(cache=True, fastmath=True)
 def _combine(aa: np.ndarray, bb: np.ndarray, yy: np.ndarray, na: np.ndarray, nb: np.ndarray,
              out: np.ndarray) -> None:
-    """out = max(0, na_i + nb_j − 2 (sqrt(A² + B²) + Y)), one fused pass."""
+    """out = max(0, na_i + nb_j − 2 (sqrt(A² + B²) + Y)), one fused pass.
+
+    Bounds: writes only ``out``'s own (r, c) cells; aa, bb, yy are its shape (one GEMM each)."""
     r, c = out.shape
     for i in range(r):
         ni = na[i]
@@ -281,6 +283,8 @@ def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
 
 @njit(cache=True)
 def _cells_kernel(left, left_y, na, right, right_y, nb, rows, cols, out) -> None:
+    """Bounds: writes out[:len(rows)] (``out``, ``cols`` as long, checked by :func:`distance_cells`);
+    reads rows < Fa, cols < Fb."""
     for k in range(rows.shape[0]):
         out[k] = cell_distance(left, left_y, na, right, right_y, nb, rows[k], cols[k])
 
@@ -293,6 +297,10 @@ def distance_cells(pa: PreparedFeatures, pb: PreparedFeatures, rows: np.ndarray,
     """
     r = np.ascontiguousarray(rows, dtype=np.int64)
     c = np.ascontiguousarray(cols, dtype=np.int64)
+    if r.shape != c.shape or r.ndim != 1:
+        raise ValueError(f"rows and cols must be two 1-D arrays of one length, got {r.shape} and {c.shape}")
+    if len(r) and (r.min() < 0 or r.max() >= pa.n_frames or c.min() < 0 or c.max() >= pb.n_frames):
+        raise ValueError(f"cells outside the {pa.n_frames} × {pb.n_frames} grid")
     out = np.empty(r.shape[0], dtype=pa.norms.dtype)
     _cells_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, r, c, out)
     return out

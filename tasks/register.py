@@ -131,6 +131,8 @@ def guide_path(cells: np.ndarray, n: int, m: int) -> np.ndarray:
 
 @njit(cache=True)
 def _band_valid(lo, hi, off, vals, a):
+    """Bounds: writes only band cells (flat index ``off[t] + j − lo[t]`` with lo[t] ≤ j ≤ hi[t], or
+    :func:`band_index` ≥ 0), all below ``off[-1]``, the size of its output."""
     out = np.zeros(off[-1], np.bool_)
     for t in range(lo.shape[0]):
         for j in range(lo[t], hi[t] + 1):

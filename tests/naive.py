@@ -653,3 +653,21 @@ def greedy_free(vertices: list[np.ndarray], fps: float, duration: float, batch: 
         if length(x2) <= duration:
             freed, x = trial, x2
     return freed, x
+
+
+def ref_upsample_band(cells: np.ndarray, s: float, h: float, fa: int, fb: int) -> dict[int, tuple[int, int]]:
+    """``tasks.matchweb.refine.upsample_band`` cell by cell: each coarse cell (i, j) covers fine rows
+    ⌊(i − h)s⌋..⌈(i + h)s⌉ and columns ⌊(j − h)s⌋..⌈(j + h)s⌉ clipped to the fa × fb grid; each fine
+    row spans from the least to the greatest column any cell covers on it. {row: (lo, hi)}."""
+    import math
+
+    out: dict[int, tuple[int, int]] = {}
+    for i, j in np.asarray(cells).tolist():
+        a, b = max(0, math.floor((i - h) * s)), min(fa - 1, math.ceil((i + h) * s))
+        c1, c2 = max(0, math.floor((j - h) * s)), min(fb - 1, math.ceil((j + h) * s))
+        if a > b or c1 > c2:
+            continue
+        for r in range(a, b + 1):
+            lo, hi = out.get(r, (c1, c2))
+            out[r] = (min(lo, c1), max(hi, c2))
+    return out

@@ -179,7 +179,10 @@ def triple_index(n: int, skip: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 @numba.njit(cache=True)
 def _triples_kernel(pos, local, angle, up, j, a, b, root_motion, wp, wv, wa, out):  # pragma: no cover - compiled
     """Row t of ``out`` = [wp·pose, wv·vel, wa·acc] of triple (j−a, j, j+b), as :func:`triple_blocks`
-    followed by :meth:`FeatureSpec.combine`, without per-triple temporaries."""
+    followed by :meth:`FeatureSpec.combine`, without per-triple temporaries.
+
+    Bounds: writes columns < 9·J of rows t < N of ``out`` (N, 9J); reads frames j − a ≥ 0 and
+    j + b < F (checked by :func:`triple_features`)."""
     nj = pos.shape[1]
     p, q = (up + 1) % 3, (up + 2) % 3
     for t in range(j.shape[0]):
@@ -213,16 +216,23 @@ def triple_features(track: Track, j: np.ndarray, a: np.ndarray, b: np.ndarray, s
     (:func:`triple_blocks` weighted by ``spec``), built by one compiled pass: O(N·D)."""
     wp, wv, wa = (w / sc for w, sc in zip(spec.weights, spec.scales, strict=True))
     pos = np.ascontiguousarray(track.positions, dtype=np.float64)
+    j, a, b = (np.asarray(v, np.int64).reshape(-1) for v in (j, a, b))
+    if not len(j) == len(a) == len(b):
+        raise ValueError(f"triples need as many a and b as j, got {len(j)}, {len(a)}, {len(b)}")
+    if len(j) and (np.min(j - a) < 0 or np.max(j + b) >= len(pos) or np.min(a) < 0 or np.min(b) < 0):
+        raise ValueError(f"a triple (j − a, j, j + b) leaves the track's {len(pos)} frames")
     out = np.empty((len(j), 3 * pos.shape[1] * 3))
     _triples_kernel(pos, np.ascontiguousarray(torso_positions(track)), np.asarray(track.angle, np.float64), track.up,
-                    np.asarray(j, np.int64), np.asarray(a, np.int64), np.asarray(b, np.int64), spec.root_motion,
+                    j, a, b, spec.root_motion,
                     wp, wv, wa, out)
     return out
 
 
 @numba.njit(cache=True)
 def _kmin_mean(qq, zz, dots, k, out):  # pragma: no cover - compiled
-    """out[i] = mean of the k smallest sqrt(max(qq[i] + zz[r] - 2 dots[i, r], 0)) over r."""
+    """out[i] = mean of the k smallest sqrt(max(qq[i] + zz[r] - 2 dots[i, r], 0)) over r.
+
+    Bounds: k ≥ 1 slots of scratch (checked by :func:`knn_mean_distance`); writes out[:len(dots)]."""
     best = np.empty(k)
     for i in range(dots.shape[0]):
         best[:] = np.inf

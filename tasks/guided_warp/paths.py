@@ -12,7 +12,12 @@ import numpy as np
 
 @numba.njit(cache=True)
 def _fixed_length_kernel(table, lo, hi):  # pragma: no cover - compiled
-    """Layered DP c_p(j,k) = min_i c_{p-1}(i,j) + f(i,j,k) over the allowed windows [lo_p, hi_p]."""
+    """Layered DP c_p(j,k) = min_i c_{p-1}(i,j) + f(i,j,k) over the allowed windows [lo_p, hi_p].
+
+    Bounds: writes window offsets k − lo[p] < W = max(hi − lo + 1) of its (W, s) layers and
+    (layers, W, s) backpointers; backpointers 1..s fit int8 (s ≤ 127) and windows lie in
+    0..n − 1, both checked by :func:`fixed_length_path`.
+    """
     _n, s, _ = table.shape
     n_layers = lo.shape[0]
     width = 0
@@ -47,7 +52,10 @@ def _fixed_length_kernel(table, lo, hi):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _dag_kernel(table):  # pragma: no cover - compiled
-    """Unconstrained DAG shortest path over vertices (k - b, k) in increasing k."""
+    """Unconstrained DAG shortest path over vertices (k - b, k) in increasing k.
+
+    Bounds: writes its own (n, s) outputs; backpointers 1..s fit int8 (s ≤ 127, checked by
+    :func:`dag_path`)."""
     n, s, _ = table.shape
     cost = np.full((n, s), np.inf)
     back = np.zeros((n, s), dtype=np.int8)
@@ -71,6 +79,15 @@ def _dag_kernel(table):  # pragma: no cover - compiled
             cost[k, b - 1] = best
             back[k, b - 1] = arg
     return cost, back
+
+
+#: largest skip: the kernels keep backpointers 1..skip as int8
+MAX_SKIP = 127
+
+
+def _check_skip(s: int) -> None:
+    if not 1 <= s <= MAX_SKIP:
+        raise ValueError(f"skip must be in 1..{MAX_SKIP} (int8 backpointers), got {s}")
 
 
 def feasible_windows(n: int, m: int, skip: int, keys: Sequence[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -106,10 +123,15 @@ def fixed_length_path(table: np.ndarray, m: int, lo: np.ndarray | None = None,
     n, s, _ = table.shape
     if m < 2:
         raise ValueError(f"the output needs at least 2 frames, got {m}")
+    _check_skip(s)
     if lo is None or hi is None:
         lo, hi = feasible_windows(n, m, s, [(0, 0), (n - 1, m - 1)])
     lo = np.ascontiguousarray(lo, dtype=np.int64)
     hi = np.ascontiguousarray(hi, dtype=np.int64)
+    if lo.shape != (m,) or hi.shape != (m,):
+        raise ValueError(f"the windows lo/hi must have one bound per output frame ({m}), got {lo.shape} and {hi.shape}")
+    if np.any(lo < 0) or np.any(hi > n - 1):
+        raise ValueError(f"the windows must lie in the input's frames 0..{n - 1}")
     if lo[0] != 0 or hi[0] != 0 or lo[-1] != n - 1 or hi[-1] != n - 1:
         raise ValueError("the path must start on frame 0 and end on the last frame")
     if m == 2:
@@ -133,13 +155,18 @@ def fixed_length_path(table: np.ndarray, m: int, lo: np.ndarray | None = None,
 
 
 def dag_path(table: np.ndarray) -> tuple[np.ndarray, float]:
-    """Unconstrained shortest path from a vertex (0, ·) to a vertex (·, n-1): O(n s²) (HDP07 §3.3)."""
+    """Unconstrained shortest path from a vertex (0, ·) to a vertex (·, n-1): O(n s²) (HDP07 §3.3).
+
+    Returns (path, cost); an empty path and inf when no path of finite cost exists."""
     n, _s, _ = table.shape
     if n < 2:
         raise ValueError("the input needs at least 2 frames")
+    _check_skip(_s)
     cost, back = _dag_kernel(np.ascontiguousarray(table, dtype=np.float64))
     b = int(np.argmin(cost[n - 1])) + 1
     total = float(cost[n - 1, b - 1])
+    if not np.isfinite(total):  # no path: the backpointers hold 0 there (the walk back would not end)
+        return np.zeros(0, dtype=np.int64), np.inf
     out = [n - 1]
     k = n - 1
     while k - b > 0:

@@ -159,6 +159,8 @@ def guided_warp(
     if red.m is None:
         path, cost = dag_path(table)
         timings["optimization"] = time.perf_counter() - t0
+        if not np.isfinite(cost):
+            raise ValueError("no admissible warp: every path through the input has an infinite score")
     else:
         lo, hi = feasible_windows(red.n, red.m, skip, red.keys)
         path, cost = np.zeros(0, dtype=np.int64), np.inf

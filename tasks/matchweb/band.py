@@ -32,6 +32,11 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     or at a source. Outputs per (cell, state): total cost, cell count, predecessor state
     (−1 at a source, −2 unreached). O(cells · k) with the predecessors' flat indices carried
     along the rows (no per-cell index search).
+
+    Bounds: writes rows ``off[t] .. off[t] + hi[t] − lo[t]`` of ``cost``/``length``/``ptr`` (so at
+    most ``off[-1]`` rows: the caller sizes them from the band, ``off[t + 1] = off[t] + hi[t] − lo[t]
+    + 1``, empty rows have ``hi < lo``) and states ``0 .. 2·mrun`` (≤ 126, held by the int8 ``ptr``:
+    ``params.max_run`` caps slope_k at 64).
     """
     ns = 2 * mrun + 1
     c0 = mrun
@@ -92,12 +97,20 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
 
 @njit(cache=True)
 def band_backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
-    """Cells (n, 2) (absolute rows) of the path ending at band cell (t, j) in state s."""
+    """Cells (n, 2) (absolute rows) of the path ending at band cell (t, j) in state s.
+
+    Bounds: writes at most t + 1 + (j − min lo) ≤ rows + (max hi − min lo) + 1 cells, the length of
+    a monotone unit-step path inside the band, into scratch of rows + (max hi − min lo) + 2; a
+    predecessor chain not made by :func:`band_dp` that would run longer raises instead of writing
+    past it.
+    """
     c0 = mrun
     n = 0
     ti = np.empty(lo.shape[0] + (hi.max() - lo.min()) + 2, dtype=np.int64)
     tj = np.empty_like(ti)
     while True:
+        if n >= ti.shape[0] or t < 0 or t >= lo.shape[0] or j < lo[t] or j > hi[t]:
+            raise ValueError("band_backtrack: the predecessor chain leaves the band")
         ti[n] = t
         tj[n] = j
         n += 1

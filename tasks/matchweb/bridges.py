@@ -30,6 +30,10 @@ def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, fl
     finite cost (the slope rule only removes more): the search result is unchanged. Cost
     O(reached cells + their row spans), at most O(L²). ``src_a``, ``src_b``, ``row_v``, ``row_f``
     are (L,) scratch rows. Returns (rows, number of reached terminal cells).
+
+    Bounds: writes at most L·(L+1)/2 cells (row t holds columns d ≤ L − 1 − t: the triangle of
+    Manhattan length < L) into ``vals``/``init``/``flags`` (L·(L+1)/2 + 1), at most L rows into
+    ``lo``/``hi`` and L + 1 into ``off``, and column offsets d < L into the (L,) scratch rows.
     """
     fa, fb = g.shape
     sp, sc = src_a, src_b  # previous / current row: reached and may be left, by column offset d
@@ -101,6 +105,8 @@ def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, fl
 
 @njit(cache=True)
 def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
+    """Bounds: each search's band (:func:`_triangle`) holds at most L·(L+1)/2 cells, the size of
+    its DP buffers; at most one bridge per target chain and start chain (``touched``: nch)."""
     nch = offsets.shape[0] - 1
     ncell = L * (L + 1) // 2 + 1
     ns = 2 * mrun + 1
@@ -206,6 +212,14 @@ def find_bridges(grid: np.ndarray, valid: np.ndarray, chain_cells: np.ndarray, c
     fa, fb = g.shape
     cells = np.ascontiguousarray(chain_cells, dtype=np.int64).reshape(-1, 2)
     offsets = np.ascontiguousarray(chain_offsets, dtype=np.int64)
+    valid = np.asarray(valid)
+    if valid.shape != g.shape:
+        raise ValueError(f"the valid region has shape {valid.shape}, the grid {g.shape}")
+    if int(max_len) < 0:
+        raise ValueError(f"the bridge length bound must be >= 0 cells, got {max_len}")
+    if (len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != len(cells) or np.any(np.diff(offsets) < 0)
+            or (len(cells) and (cells.min() < 0 or cells[:, 0].max() >= fa or cells[:, 1].max() >= fb))):
+        raise ValueError("chain cells and offsets do not describe chains inside the grid")
     gid = np.full((fa, fb), -1, dtype=np.int64)
     gid[cells[:, 0], cells[:, 1]] = np.arange(len(cells))
     chain_of = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)).astype(np.int64)

@@ -24,8 +24,17 @@ def as_grid(grid: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(grid, dtype=np.float32)
 
 
+def _same_shape(minima: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``minima`` as C-contiguous uint8, checked to have the grid's shape (the kernels index both alike)."""
+    m = np.ascontiguousarray(minima, dtype=np.uint8)
+    if m.shape != g.shape:
+        raise ValueError(f"the minima have shape {m.shape}, the grid {g.shape}")
+    return m
+
+
 @njit(cache=True)
 def _local_minima(g: np.ndarray) -> np.ndarray:
+    """Bounds: writes only the cells of its own (Fa, Fb) output, the grid's shape."""
     fa, fb = g.shape
     out = np.zeros((fa, fb), dtype=np.uint8)
     for i in range(fa):
@@ -56,6 +65,8 @@ def local_minima(grid: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _valid_region(g: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
+    """Bounds: writes only cells of its own (Fa, Fb) output; each extension stops at the grid's
+    border (``minima`` has the grid's shape, checked by :func:`valid_region`)."""
     fa, fb = g.shape
     out = np.zeros((fa, fb), dtype=np.bool_)
     for i in range(fa):
@@ -92,11 +103,14 @@ def valid_region(grid: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
     Every minimum is extended along the direction(s) in which it is a minimum until a cell whose
     value is at least ``(1 + a)`` times the minimum's is reached (that cell excluded).
     """
-    return _valid_region(as_grid(grid), np.ascontiguousarray(minima, dtype=np.uint8), float(a))
+    g = as_grid(grid)
+    return _valid_region(g, _same_shape(minima, g), float(a))
 
 
 @njit(cache=True)
 def _find_chains(g: np.ndarray, minima: np.ndarray, mrun: int, min_extent: int):
+    """Bounds: writes at most N chain cells and N + 1 offsets for the N minima counted first: each
+    write takes a minimum not yet used, and a dropped chain releases exactly the cells it wrote."""
     fa, fb = g.shape
     used = np.zeros((fa, fb), dtype=np.bool_)
     n_min = 0
@@ -169,8 +183,8 @@ def find_chains(grid: np.ndarray, minima: np.ndarray, slope_k: int, min_extent: 
     slope rule allows. Chains spanning fewer than ``min_extent`` frames (max of row and column
     extents) are dropped and their minima released. O(Fa·Fb) scan plus O(minima) growth.
     """
-    return _find_chains(as_grid(grid), np.ascontiguousarray(minima, dtype=np.uint8),
-                        max_run(slope_k), int(min_extent))
+    g = as_grid(grid)
+    return _find_chains(g, _same_shape(minima, g), max_run(slope_k), int(min_extent))
 
 
 def mask_self_band(grid: np.ndarray, band: int) -> np.ndarray:

@@ -28,10 +28,15 @@ class MatchWebParams(Params):
 INF = np.inf
 
 
+#: largest slope_k: :func:`tasks.matchweb.band.band_dp` stores predecessor states 0..2·(k − 1) as int8
+MAX_SLOPE_K = 64
+
+
 def max_run(slope_k: int) -> int:
     """Consecutive steps allowed along one axis: ``k − 1`` (k cells per row/column, KG04 §3.1)."""
-    if slope_k < 1:
-        raise ValueError(f"slope_k must be >= 1, got {slope_k}")
+    if not 1 <= slope_k <= MAX_SLOPE_K:
+        raise ValueError(f"slope_k must be in 1..{MAX_SLOPE_K}, got {slope_k} (the band DP keeps its "
+                         f"2·(k − 1) + 1 run states in int8 predecessors)")
     return int(slope_k) - 1
 
 

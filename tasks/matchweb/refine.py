@@ -25,6 +25,11 @@ def upsample_band(cells, s, h, fa, fb):
     """Band of fine cells covering each coarse cell dilated by ``h − 0.5`` coarse cells.
 
     Coarse cell c covers fine indices [(c − h)·s, (c + h)·s]; returns (row0, lo, hi, off).
+
+    Bounds: rows and columns are clipped to the fa × fb grid; a row no cell covers (cells that do
+    not form a connected path) is empty (lo = fb, hi = −1) and counts 0 cells, so ``off`` never
+    decreases and every band cell's flat index is below ``off[-1]``; cells all outside the grid
+    give a band of no rows.
     """
     n = cells.shape[0]
     r_min = fa
@@ -32,8 +37,14 @@ def upsample_band(cells, s, h, fa, fb):
     for q in range(n):
         a = max(0, math.floor((cells[q, 0] - h) * s))
         b = min(fa - 1, math.ceil((cells[q, 0] + h) * s))
+        c1 = max(0, math.floor((cells[q, 1] - h) * s))
+        c2 = min(fb - 1, math.ceil((cells[q, 1] + h) * s))
+        if a > b or c1 > c2:
+            continue
         r_min = min(r_min, a)
         r_max = max(r_max, b)
+    if r_max < r_min:
+        return 0, np.empty(0, np.int64), np.empty(0, np.int64), np.zeros(1, np.int64)
     nr = r_max - r_min + 1
     lo = np.full(nr, fb, np.int64)
     hi = np.full(nr, -1, np.int64)
@@ -42,13 +53,15 @@ def upsample_band(cells, s, h, fa, fb):
         b = min(fa - 1, math.ceil((cells[q, 0] + h) * s))
         c1 = max(0, math.floor((cells[q, 1] - h) * s))
         c2 = min(fb - 1, math.ceil((cells[q, 1] + h) * s))
+        if c1 > c2:
+            continue
         for r in range(a, b + 1):
             t = r - r_min
             lo[t] = min(lo[t], c1)
             hi[t] = max(hi[t], c2)
     off = np.zeros(nr + 1, np.int64)
     for t in range(nr):
-        off[t + 1] = off[t] + hi[t] - lo[t] + 1
+        off[t + 1] = off[t] + max(0, hi[t] - lo[t] + 1)
     return r_min, lo, hi, off
 
 
@@ -58,7 +71,11 @@ TILE = 32
 
 @njit(cache=True)
 def _mark_tiles(cells, offsets, s, h, fa, fb, index) -> None:
-    """Mark (``index[ti, tj] = 0``) the TILE×TILE tiles that the bands of ragged paths touch."""
+    """Mark (``index[ti, tj] = 0``) the TILE×TILE tiles that the bands of ragged paths touch.
+
+    Bounds: band rows and columns lie in the fa × fb grid (:func:`upsample_band`), so the tiles
+    marked lie in the ⌈fa/TILE⌉ × ⌈fb/TILE⌉ ``index``.
+    """
     for p in range(offsets.shape[0] - 1):
         row0, lo, hi, _ = upsample_band(cells[offsets[p]:offsets[p + 1]], s, h, fa, fb)
         for t in range(lo.shape[0]):
@@ -85,6 +102,9 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
 
     Each cell is evaluated once per level: its value is kept in the tile ``pool`` and the bands
     of chains and bridges that overlap read it from there.
+
+    Bounds: writes ``out[off[t] .. off[t] + hi[t] − lo[t]]`` (``off[-1]`` cells, ``out``'s size) and
+    the pool tiles that :func:`_mark_tiles` numbered for the same band (index ≥ 0).
     """
     for t in range(lo.shape[0]):
         i = row0 + t
@@ -104,7 +124,10 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
 
 @njit(cache=True)
 def _near_cells(row0, lo, hi, off, ci, cj, radius):
-    """Flat indices of band cells within Chebyshev distance ``radius`` of (ci, cj)."""
+    """Flat indices of band cells within Chebyshev distance ``radius`` of (ci, cj).
+
+    Bounds: the output is sized by a first pass over the same rows and column ranges.
+    """
     nr = lo.shape[0]
     t_lo = max(0, math.floor(ci - radius) - row0)
     t_hi = min(nr - 1, math.ceil(ci + radius) - row0)
@@ -127,6 +150,9 @@ def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
     """Best slope-ruled path in a band from any source to any target, by total or average cost.
 
     Returns its cells (n, 2) (absolute), or an empty array when no target is reachable.
+
+    Bounds: its DP buffers hold the band's ``off[-1]`` cells; ``sources``/``targets`` are flat
+    indices of band cells (< ``off[-1]``).
     """
     n = off[-1]
     ns = 2 * mrun + 1
@@ -213,6 +239,7 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
 
 @njit(cache=True)
 def _concat_cells(parts):
+    """Bounds: the output is sized to the parts' total length."""
     n = 0
     for x in parts:
         n += x.shape[0]
@@ -226,6 +253,7 @@ def _concat_cells(parts):
 
 @njit(cache=True)
 def _concat_values(parts):
+    """Bounds: the output is sized to the parts' total length."""
     n = 0
     for x in parts:
         n += x.shape[0]
@@ -247,7 +275,10 @@ def _offsets_of(parts):
 
 @njit(cache=True)
 def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
-    """Band indices of the cells of ``path`` within Chebyshev ``radius`` of (ci, cj)."""
+    """Band indices of the cells of ``path`` within Chebyshev ``radius`` of (ci, cj).
+
+    Bounds: at most one per path cell, into scratch of the path's length.
+    """
     n = 0
     tmp = np.empty(path.shape[0], np.int64)
     for q in range(path.shape[0]):

@@ -487,6 +487,9 @@ def weight_jacobians(jac: np.ndarray, h: np.ndarray, mass: np.ndarray, support: 
 
     jac (F, 6, nv) world-frame Jacobians, h (F, B, 3) first moments m_b p_b, mass (B,),
     support (B, nv) bool, out (F, nv, B, 3). O(F · nv · B).
+
+    Bounds: writes exactly the (F, nv, B, 3) cells given by jac's and h's shapes, ``out``'s shape as
+    its caller allocates it.
     """
     f, _, nv = jac.shape
     nb = h.shape[1]

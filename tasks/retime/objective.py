@@ -184,9 +184,12 @@ def _edge_point(verts, inv_len2, fr, k, K, x0, x1):  # pragma: no cover - numba
 
 @njit(cache=True, inline="always")
 def _sample_value(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, u, x0, x1):  # pragma: no cover
-    """Density at source frame ``u`` (linear blend of its two frames): value, d/dx0, d/dx1, d/du."""
+    """Density at source frame ``u`` (linear blend of its two frames): value, d/dx0, d/dx1, d/du.
+
+    Bounds: reads frames 0..F−1 only (F ≥ 1; u is clamped to [0, F − 1], NaN to 0)."""
     f = verts.shape[0]
-    ui = min(max(u, 0.0), f - 1.0)
+    ui = max(0.0, u)  # NaN reads frame 0: int(floor(NaN)) would index anywhere
+    ui = min(f - 1.0, ui)
     i0 = min(int(np.floor(ui)), max(f - 2, 0))
     i1 = min(i0 + 1, f - 1)
     w = ui - i0
@@ -197,6 +200,7 @@ def _sample_value(verts, count, inv_len2, solid, center, theta0, theta, coef, al
 
 @njit(cache=True)
 def _evaluate_kernel(verts, count, inv_len2, solid, center, theta0, theta, coef, alpha, u, x):  # pragma: no cover
+    """Bounds: writes rows 0..S−1 of its own (S,) / (S, 2) outputs, S = len(u) = len(x)."""
     n = u.shape[0]
     val = np.empty(n)
     gx = np.empty((n, 2))
@@ -214,6 +218,9 @@ def objective_kernel(verts, count, inv_len2, solid, center, theta0, theta, coef,
 
     Sample s depends on control points ``ctrl[s]`` (4) with weights ``w[:, s]`` for p, ṗ, p̈
     (MPS06 §3.6: four control points per sample, so the gradient is linear in the samples).
+
+    Bounds: writes ``grad`` (len(c),) at ``ctrl[s]``, indices below len(c) (``TimingSpline.design``
+    makes them so; :func:`objective_function`'s callers pass its ``ctrl``).
     """
     n = ctrl.shape[0]
     grad = np.zeros(c.shape[0])
@@ -243,9 +250,14 @@ def evaluate(obj: BakedObjective, u: np.ndarray, x: np.ndarray) -> tuple[np.ndar
     Returns value (S,), d/dx (S, 2) and d/du (S,). O(S · K), compiled (numba); the numpy
     reference is ``evaluate_numpy`` in tests/naive.py.
     """
+    u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1)
+    x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, 2)
+    if len(u) != len(x):
+        raise ValueError(f"{len(u)} source frames but {len(x)} (p̈, ṗ²) points")
+    if len(u) and len(obj.verts) == 0:
+        raise ValueError("the objective has no frames to evaluate")
     return _evaluate_kernel(obj.verts, obj.count, obj.inv_len2, obj.solid, obj.center, obj.theta0, obj.theta, obj.coef,
-                            obj.alpha, np.ascontiguousarray(u, dtype=np.float64),
-                            np.ascontiguousarray(x, dtype=np.float64))
+                            obj.alpha, u, x)
 
 
 def contact_lambda(obj: BakedObjective, frame: int, x: np.ndarray) -> np.ndarray:

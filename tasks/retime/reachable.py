@@ -69,8 +69,12 @@ def padded(polys: FeasiblePolygons) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 @njit(cache=True)
 def _clip(pts, n, ca, cx, b):  # pragma: no cover - numba
-    """The convex polygon ``pts[:n]`` (a, x) cut to ca·a + cx·x ≤ b (Sutherland-Hodgman): (out, m)."""
-    out = np.empty((n + 2, 2))
+    """The convex polygon ``pts[:n]`` (a, x) cut to ca·a + cx·x ≤ b (Sutherland-Hodgman): (out, m).
+
+    Bounds: each edge emits at most its start and one crossing, so m ≤ 2n (≤ n + 1 for a convex
+    polygon, but rounding can make a thin one zigzag across the line); ``out`` holds 2n + 2.
+    """
+    out = np.empty((2 * n + 2, 2))
     m = 0
     tol = 1e-12 * (abs(b) + 1.0)  # a point on the line stays, whatever its rounding
     for k in range(n):
@@ -144,36 +148,53 @@ def _interval_polygon(verts, count, i, d, box):  # pragma: no cover - numba
 @njit(cache=True)
 def set_interval(verts, count, d, i, qv, qc, meet, box):  # pragma: no cover - numba
     """Store frame i's :func:`_interval_polygon` in ``qv[i], qc[i]`` (its own polygon where the
-    two frames' do not meet, ``meet[i]`` False)."""
+    two frames' do not meet, ``meet[i]`` False); returns ``qv``, widened (a copy) when the polygon
+    has more vertices than its rows hold.
+
+    Bounds: the cut polygon is the intersection of at most 4K + 12 half-planes (K = verts' width),
+    within the 4K + 16 columns :func:`interval_polygons` gives ``qv``; rounding can add vertices
+    (:func:`_clip`), and then ``qv`` grows rather than being written past.
+    """
     q, n = _interval_polygon(verts, count, i, d, box)
     meet[i] = n > 0
     if n == 0:
         q, n = _frame_polygon(verts, count, i, box)
+    if n > qv.shape[1]:
+        wider = np.zeros((qv.shape[0], 2 * n, 2))
+        wider[:, :qv.shape[1]] = qv
+        qv = wider
     qv[i, :n] = q[:n]
     qc[i] = n
+    return qv
 
 
 @njit(cache=True)
 def interval_polygons(verts, count, d, box):  # pragma: no cover - numba
     """Every frame's :func:`_interval_polygon`: (F, K', 2) vertices, (F,) counts, (F,) whether the
-    frame's polygon meets the next one's. O(F · K²)."""
+    frame's polygon meets the next one's. O(F · K²).
+
+    Bounds: (F, 4K + 16) vertex rows, widened by :func:`set_interval` if a polygon needs more."""
     f = verts.shape[0]
     qv = np.zeros((f, 4 * verts.shape[1] + 16, 2))
     qc = np.zeros(f, np.int64)
     meet = np.ones(f, np.bool_)
     for i in range(f):
-        set_interval(verts, count, d, i, qv, qc, meet, box)
+        qv = set_interval(verts, count, d, i, qv, qc, meet, box)
     return qv, qc, meet
 
 
 @njit(cache=True)
 def _backward(qv, qc, d):  # pragma: no cover - numba
     """Controllable sets [lo, hi] of ṗ² per frame (TOPP-RA's backward pass) over the interval
-    polygons, and where no way on inside was left."""
+    polygons, and where no way on inside was left.
+
+    Bounds: writes frames 0..F−1 of its (F,) outputs; no frames, empty outputs."""
     f = qv.shape[0]
     lo = np.zeros(f)
     hi = np.zeros(f)
     broken = np.zeros(f, np.bool_)
+    if f == 0:
+        return lo, hi, broken
     n = qc[f - 1]
     lo[f - 1], hi[f - 1] = qv[f - 1, :n, 1].min(), qv[f - 1, :n, 1].max()
     for i in range(f - 2, -1, -1):
@@ -190,9 +211,13 @@ def _backward(qv, qc, d):  # pragma: no cover - numba
 
 @njit(cache=True)
 def _forward(qv, qc, d, lo, hi, fastest):  # pragma: no cover - numba
-    """The fastest (slowest) profile in the controllable sets: TOPP-RA's greedy forward pass."""
+    """The fastest (slowest) profile in the controllable sets: TOPP-RA's greedy forward pass.
+
+    Bounds: writes frames 0..F−1 of its (F,) output; no frames, an empty profile."""
     f = qv.shape[0]
     x = np.empty(f)
+    if f == 0:
+        return x
     x[0] = hi[0] if fastest else lo[0]
     for i in range(f - 1):
         pts, n = qv[i], qc[i]
@@ -263,9 +288,13 @@ def _all_spent(x, freed, starts, unit):  # pragma: no cover - numba
 
 @njit(cache=True)
 def _set_units(verts, cnt, d, s, e, qv, qc, meet, box):  # pragma: no cover - numba
-    """Recompute the interval polygons that frames s..e−1 enter (frames s−1..e−1)."""
+    """Recompute the interval polygons that frames s..e−1 enter (frames s−1..e−1); returns ``qv``
+    (widened when needed, :func:`set_interval`).
+
+    Bounds: writes rows max(s − 1, 0)..e − 1 < F (e ≤ F)."""
     for i in range(max(s - 1, 0), e):
-        set_interval(verts, cnt, d, i, qv, qc, meet, box)
+        qv = set_interval(verts, cnt, d, i, qv, qc, meet, box)
+    return qv
 
 
 @njit(cache=True)
@@ -278,8 +307,15 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box, weight
     their savings, summed, stay within what is still missing. Then restores, in order, freed units
     no longer needed. Returns (freed mask, fastest profile, success); fails when nothing helps or
     more than ``max_outside`` output frames are left outside in the end (the steps give up at
-    twice that)."""
+    twice that).
+
+    Bounds: ``unit`` ≥ 1 (checked by the callers' wrapper, else ValueError here); units start at
+    0, unit, … < F and end at min(s + unit, F); ``weight`` has F entries. No frames: nothing to free."""
     f = count.shape[0]
+    if unit < 1:
+        raise ValueError("free_frames: unit must be >= 1")
+    if weight.shape[0] != f or verts.shape[0] != f:
+        raise ValueError("free_frames: verts, count and weight must have one row per frame")
     cnt = count.copy()
     freed = np.zeros(f, np.bool_)
     qv, qc, meet = interval_polygons(verts, cnt, d, box)
@@ -298,12 +334,14 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box, weight
             lo = max(s - 1, 0)
             saved_v, saved_c, saved_m, saved_cnt = qv[lo:e].copy(), qc[lo:e].copy(), meet[lo:e].copy(), cnt[s:e].copy()
             cnt[s:e] = 0
-            _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
+            qv = _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
             x2, _ = interval_profile(qv, qc, d, True)
             cnt[s:e] = saved_cnt
-            qv[lo:e], qc[lo:e], meet[lo:e] = saved_v, saved_c, saved_m
+            qv[lo:e, :saved_v.shape[1]], qc[lo:e], meet[lo:e] = saved_v, saved_c, saved_m
             saving[k] = dur - profile_duration(x2, d)
             gain[k] = saving[k] / _spent(x2, freed, s, e, weight)
+        if starts.shape[0] == 0:
+            return freed, x, False
         order = np.argsort(-gain, kind="mergesort")
         if gain[order[0]] <= 0.0:
             return freed, x, False
@@ -317,7 +355,7 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box, weight
             e = min(s + unit, f)
             freed[s:e] = True
             cnt[s:e] = 0
-            _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
+            qv = _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
         x, _ = interval_profile(qv, qc, d, True)
         dur = profile_duration(x, d)
         if _all_spent(x, freed, starts, unit) > 2.0 * max_outside:  # beyond what the restores could win back
@@ -327,14 +365,14 @@ def free_frames(verts, count, d, duration, unit, max_outside, batch, box, weight
         if not freed[s]:
             continue
         cnt[s:e] = count[s:e]
-        _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
+        qv = _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
         x2, _ = interval_profile(qv, qc, d, True)
         if profile_duration(x2, d) <= duration:
             freed[s:e] = False
             x = x2
         else:
             cnt[s:e] = 0
-            _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
+            qv = _set_units(verts, cnt, d, s, e, qv, qc, meet, box)
     return freed, x, _all_spent(x, freed, starts, unit) <= max_outside
 
 

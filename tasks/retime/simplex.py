@@ -153,6 +153,9 @@ def simplex(M: np.ndarray, lo: np.ndarray, hi: np.ndarray, cost: np.ndarray, hea
 
     Returns:
         (status, iterations). A singular starting basis is replaced by the slack basis.
+
+    Bounds: writes ``x``/``state`` (n + m,), ``head`` (m,) and ``Binv`` (m, m) at indices below
+    those sizes (``head`` holds variable indices < n + m); :class:`DenseLP` sizes them.
     """
     m, n = M.shape
     nt = n + m
@@ -349,6 +352,9 @@ def simplex_sequence(M: np.ndarray, lo: np.ndarray, hi: np.ndarray, cost: np.nda
     status[b]. Stops after an iteration limit or numerical trouble, and after the first solve that
     is not optimal when ``stop_at_first``. Returns the number of solves run; ``x`` and the basis
     are those of the last.
+
+    Bounds: writes cost[:k] (k ≤ n, checked by :meth:`DenseLP.solve_sequence`), rows b < B of
+    ``out`` (B, n) and ``status`` (B,).
     """
     n = M.shape[1]
     k = costs.shape[1]
@@ -433,6 +439,8 @@ class DenseLP:
         run: the sequence stops after an iteration limit or numerical trouble (the basis then
         restarts from the slacks), and at the first non-optimal solve when ``stop_at_first``."""
         costs = np.ascontiguousarray(costs, dtype=float)
+        if costs.ndim != 2 or costs.shape[1] > self.M.shape[1]:
+            raise ValueError(f"costs must be (B, k) with k <= {self.M.shape[1]} columns, got shape {costs.shape}")
         out = np.empty((len(costs), self.M.shape[1]))
         status = np.empty(len(costs), np.int64)
         b = simplex_sequence(self.M, self.lo, self.hi, self.cost, self.sign, costs, self.head, self.state, self.x,

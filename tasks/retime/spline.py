@@ -94,6 +94,8 @@ class TimingSpline:
 
     def controls(self, z: np.ndarray) -> np.ndarray:
         """The concatenated control points of all segments for parameters ``z``."""
+        if np.size(z) != self.n_params:
+            raise ValueError(f"the timing spline has {self.n_params} parameters, got {np.size(z)}")
         return _controls(np.asarray(z, float), np.asarray(self.n_ctrl, np.int64), self.src)
 
     def design(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -126,7 +128,10 @@ class TimingSpline:
 
 @njit(cache=True)
 def _controls(z, n_ctrl, src):  # pragma: no cover - numba
-    """Segment k's controls: src[k] + cumsum of softmax(z_k) · (src[k+1] − src[k]), last = src[k+1]."""
+    """Segment k's controls: src[k] + cumsum of softmax(z_k) · (src[k+1] − src[k]), last = src[k+1].
+
+    Bounds: writes Σ n_ctrl controls into its own output, segment k at oc..oc + n_ctrl[k] − 1;
+    reads Σ (n_ctrl − 1) parameters (len(z), checked by ``TimingSpline.controls``)."""
     c = np.empty(n_ctrl.sum())
     o = 0
     oc = 0
@@ -146,7 +151,9 @@ def _controls(z, n_ctrl, src):  # pragma: no cover - numba
 
 @njit(cache=True)
 def _chain(z, grad, n_ctrl, src):  # pragma: no cover - numba
-    """Gradient in z from the gradient in the controls of :func:`_controls`."""
+    """Gradient in z from the gradient in the controls of :func:`_controls`.
+
+    Bounds: writes len(z) = Σ (n_ctrl − 1) entries, segment k at o..o + n_ctrl[k] − 2."""
     out = np.empty(z.shape[0])
     o = 0
     oc = 0

@@ -1,0 +1,390 @@
+"""Property-based tests of the compiled kernels that write into buffers sized in advance (issue 22).
+
+Each kernel runs against its slow reference in tests/naive.py over random sizes, the extremes
+included: empty inputs, one frame, very unequal sizes, thresholds 0 and huge, bands and windows
+of 0 and of the whole grid, NaN and inf values. Run them with ``NUMBA_BOUNDSCHECK=1`` (and a
+``NUMBA_CACHE_DIR`` of their own) so that any write or read out of bounds raises IndexError.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from motionweb.tasks.blend import ease_offsets, leg_ik
+from motionweb.tasks.distance import distance_cells, prepare_pair
+from motionweb.tasks.guided_warp.features import knn_mean_distance
+from motionweb.tasks.guided_warp.paths import dag_path, fixed_length_path
+from motionweb.tasks.matchweb.band import optimal_path
+from motionweb.tasks.matchweb.bridges import find_bridges
+from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
+from motionweb.tasks.matchweb.params import max_run
+from motionweb.tasks.matchweb.refine import upsample_band
+from motionweb.tasks.register import Band, band_alignment, band_valid_region
+from motionweb.tasks.retime.objective import _evaluate_kernel
+from motionweb.tasks.retime.reachable import _clip, fastest_timing, interval_polygons, padded, set_interval
+from motionweb.tasks.retime.simplex import OPTIMAL, DenseLP
+from naive import (
+    brute_force,
+    numpy_ease_offsets,
+    numpy_leg_ik,
+    polygons_of,
+    ref_alignment_cost,
+    ref_bridges,
+    ref_chains,
+    ref_minima,
+    ref_upsample_band,
+    ref_valid,
+    slope_ok,
+    slow_grid,
+)
+
+SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def grids(max_rows: int = 7, max_cols: int = 7, min_side: int = 0, specials: bool = True):
+    """Small float grids of any shape (empty and one-row ones included), some cells inf (the
+    ignored band) and, with ``specials``, NaN."""
+    values = st.floats(0.0, 4.0, width=32) | st.just(np.inf)
+    if specials:
+        values = values | st.just(np.nan)
+    shape = st.tuples(st.integers(min_side, max_rows), st.integers(min_side, max_cols))
+    return hnp.arrays(np.float32, shape, elements=values)
+
+
+# ------------------------------------------------------------------------------------ match webs
+@SETTINGS
+@given(grids())
+def test_local_minima_match_the_reference(g: np.ndarray) -> None:
+    np.testing.assert_array_equal(local_minima(g), ref_minima(g))
+
+
+@SETTINGS
+@given(grids(), st.sampled_from([0.0, 0.15, 1.0, 1e30]))
+def test_valid_region_matches_the_reference(g: np.ndarray, a: float) -> None:
+    m = local_minima(g)
+    np.testing.assert_array_equal(valid_region(g, m, a), ref_valid(g, m, a))
+
+
+def test_valid_region_and_chains_refuse_minima_of_another_shape() -> None:
+    g = np.zeros((3, 4), np.float32)
+    with pytest.raises(ValueError, match="shape"):
+        valid_region(g, np.zeros((4, 3), np.uint8), 0.1)
+    with pytest.raises(ValueError, match="shape"):
+        find_chains(g, np.zeros((2, 4), np.uint8), 3, 1)
+
+
+@SETTINGS
+@given(grids(specials=False), st.integers(1, 4), st.integers(0, 8))
+def test_chains_match_the_reference(g: np.ndarray, k: int, min_extent: int) -> None:
+    m = local_minima(g)
+    cells, offsets = find_chains(g, m, k, min_extent)
+    want = ref_chains(g, m, k, min_extent)
+    got = [[tuple(c) for c in cells[a:b].tolist()] for a, b in itertools.pairwise(offsets)]
+    assert got == want
+    assert offsets[0] == 0 and offsets[-1] == len(cells) <= int((m != 0).sum())
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(grids(6, 6, specials=False), st.integers(0, 6), st.sampled_from([0.0, 0.3, 1e30]))
+def test_bridges_match_the_reference(g: np.ndarray, L: int, a: float) -> None:
+    """Every (C, C') pair the slow enumeration finds, with its least average, and no other; bridge
+    cells stay in the grid and keep the slope rule and the length bound."""
+    m = local_minima(g)
+    valid = valid_region(g, m, a)
+    cells, offs = find_chains(g, m, 3, 1)
+    br, bc, bo = find_bridges(g, valid, cells, offs, 3, L)
+    want = ref_bridges(g.astype(np.float64), valid, cells, offs, L)
+    got = {}
+    for b in range(len(br)):
+        path = bc[bo[b]:bo[b + 1]]
+        assert slope_ok(path, 3)
+        assert path[-1].sum() - path[0].sum() < max(L, 1)
+        got[(int(br[b, 0]), int(br[b, 2]))] = float(g[path[:, 0], path[:, 1]].astype(np.float64).mean())
+    assert got.keys() == want.keys()
+    for key, v in want.items():
+        assert got[key] == pytest.approx(v, rel=1e-5, abs=1e-6)
+
+
+def test_bridges_refuse_bad_inputs() -> None:
+    g = np.zeros((3, 3), np.float32)
+    with pytest.raises(ValueError, match="length bound"):
+        find_bridges(g, np.ones((3, 3), bool), np.zeros((0, 2)), np.zeros(1), 3, -1)
+    with pytest.raises(ValueError, match="valid region"):
+        find_bridges(g, np.ones((2, 3), bool), np.zeros((0, 2)), np.zeros(1), 3, 2)
+    with pytest.raises(ValueError, match="inside the grid"):
+        find_bridges(g, np.ones((3, 3), bool), np.array([[0, 5]]), np.array([0, 1]), 3, 2)
+
+
+@SETTINGS
+@given(grids(6, 6, min_side=1, specials=False), st.integers(1, 5))
+def test_band_dp_matches_the_reference(g: np.ndarray, k: int) -> None:
+    """The slope-ruled least total cost through the whole grid, on the rectangle (optimal_path)
+    and on the same rectangle as a band (registration's band_alignment)."""
+    want = ref_alignment_cost(g.astype(np.float64), k)
+    n, m = g.shape
+    for path in (optimal_path(g, (0, 0), (n - 1, m - 1), k),
+                 band_alignment(Band.rectangle(n, m), g.reshape(-1).astype(np.float64), k)):
+        if not np.isfinite(want):
+            assert path is None
+            continue
+        assert path is not None and slope_ok(path, k)
+        assert tuple(path[0]) == (0, 0) and tuple(path[-1]) == (n - 1, m - 1)
+        assert float(g[path[:, 0], path[:, 1]].astype(np.float64).sum()) == pytest.approx(want, rel=1e-6)
+
+
+@pytest.mark.parametrize("k", [0, 65, 1000])
+def test_slope_k_beyond_the_int8_states_is_refused(k: int) -> None:
+    with pytest.raises(ValueError, match="slope_k"):
+        max_run(k)
+
+
+def test_the_largest_slope_k_runs() -> None:
+    g = np.ones((3, 70), np.float32)
+    path = optimal_path(g, (0, 0), (2, 69), 64)
+    assert path is not None and slope_ok(path, 64)
+
+
+@SETTINGS
+@given(grids(6, 6, specials=False), st.sampled_from([0.0, 0.15, 1e30]))
+def test_band_valid_region_on_the_rectangle_is_the_grid_rule(g: np.ndarray, a: float) -> None:
+    n, m = g.shape
+    got = band_valid_region(Band.rectangle(n, m), g.reshape(-1).astype(np.float64), a)
+    np.testing.assert_array_equal(got.reshape(n, m), ref_valid(g, ref_minima(g), a))
+
+
+cell_lists = hnp.arrays(np.int64, st.tuples(st.integers(1, 6), st.just(2)), elements=st.integers(-3, 12))
+
+
+@SETTINGS
+@given(cell_lists, st.sampled_from([1.0, 1.5, 3.0]), st.sampled_from([0.5, 1.5, 4.0]), st.integers(1, 20),
+       st.integers(1, 20))
+def test_upsample_band_matches_the_reference(cells: np.ndarray, s: float, h: float, fa: int, fb: int) -> None:
+    """Any cells (disconnected, outside the grid): the band is the reference's rows, every flat
+    index lies below off[-1] and off never decreases."""
+    row0, lo, hi, off = upsample_band(cells, s, h, fa, fb)
+    want = ref_upsample_band(cells, s, h, fa, fb)
+    got = {row0 + t: (int(lo[t]), int(hi[t])) for t in range(len(lo)) if lo[t] <= hi[t]}
+    assert got == want
+    assert len(off) == len(lo) + 1 and off[0] == 0 and np.all(np.diff(off) >= 0)
+    assert off[-1] == sum(b - a + 1 for a, b in want.values())
+    assert np.all((lo > hi) | ((lo >= 0) & (hi < fb)))
+
+
+# ------------------------------------------------------------------------------------ distances
+@SETTINGS
+@given(st.integers(1, 5), st.integers(1, 9), st.integers(0, 12), st.randoms(use_true_random=False))
+def test_distance_cells_match_the_slow_grid(fa: int, fb: int, n: int, rnd) -> None:
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    a, b = rng.normal(size=(fa, 4, 3)), rng.normal(size=(fb, 4, 3))
+    w = rng.uniform(0.5, 1.5, 4)
+    rows, cols = rng.integers(0, fa, n), rng.integers(0, fb, n)
+    got = distance_cells(*prepare_pair(a, b, w, np.float64), rows, cols)
+    np.testing.assert_allclose(got, slow_grid(a, b, w)[rows, cols], atol=1e-9)
+
+
+def test_distance_cells_refuse_cells_off_the_grid() -> None:
+    pa, pb = prepare_pair(np.zeros((2, 3, 3)), np.zeros((3, 3, 3)), np.ones(3))
+    with pytest.raises(ValueError, match="grid"):
+        distance_cells(pa, pb, np.array([0, 2]), np.array([0, 0]))
+    with pytest.raises(ValueError, match="one length"):
+        distance_cells(pa, pb, np.array([0, 1]), np.array([0]))
+
+
+# ------------------------------------------------------------------------------------ guided warp
+@settings(max_examples=30, deadline=None)
+@given(st.integers(2, 7), st.integers(1, 3), st.data())
+def test_warp_paths_match_brute_force(n: int, s: int, data) -> None:
+    table = data.draw(hnp.arrays(np.float64, (n, s, s), elements=st.floats(0, 5) | st.just(np.inf)))
+    m = data.draw(st.integers(2, n))
+    cost, _ = brute_force(table, m)
+    try:
+        got_path, got = fixed_length_path(table, m)
+    except ValueError as e:  # the step limits admit no path of m frames at all
+        assert "no warp" in str(e) and not np.isfinite(cost)
+        got_path, got = np.zeros(0, np.int64), np.inf
+    assert got == pytest.approx(cost) if np.isfinite(cost) else not np.isfinite(got)
+    if np.isfinite(got) and m > 2:
+        assert len(got_path) == m and got_path[0] == 0 and got_path[-1] == n - 1
+    cost, _ = brute_force(table, None)
+    _, got = dag_path(table)
+    assert got == pytest.approx(cost) if np.isfinite(cost) else not np.isfinite(got)
+
+
+def test_warp_paths_refuse_what_int8_or_the_windows_cannot_hold() -> None:
+    with pytest.raises(ValueError, match="skip"):
+        dag_path(np.zeros((4, 128, 128)))
+    with pytest.raises(ValueError, match="skip"):
+        fixed_length_path(np.zeros((4, 128, 128)), 3)
+    table = np.zeros((4, 2, 2))
+    with pytest.raises(ValueError, match="one bound per output frame"):
+        fixed_length_path(table, 3, np.array([0, 1, 3, 3]), np.array([0, 2, 3, 3]))
+    with pytest.raises(ValueError, match="frames 0..3"):
+        fixed_length_path(table, 3, np.array([0, 1, 3]), np.array([0, 9, 3]))
+
+
+@SETTINGS
+@given(st.integers(0, 6), st.integers(1, 6), st.integers(1, 8), st.integers(1, 4), st.randoms(use_true_random=False))
+def test_knn_mean_matches_brute_force(n: int, r: int, k: int, d: int, rnd) -> None:
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    q, z = rng.normal(size=(n, d)), rng.normal(size=(r, d))
+    dist = np.sqrt(((q[:, None] - z[None]) ** 2).sum(-1))
+    want = np.sort(dist, axis=1)[:, :min(k, r)].mean(axis=1) if n else np.zeros(0)
+    np.testing.assert_allclose(knn_mean_distance(q, z, k, batch_cells=3), want, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------ blend
+@SETTINGS
+@given(st.integers(0, 12), st.integers(-1, 30), st.data())
+def test_ease_offsets_match_numpy(n: int, ramp: int, data) -> None:
+    plants = data.draw(hnp.arrays(np.bool_, n))
+    ankles = data.draw(hnp.arrays(np.float64, (n, 3), elements=st.floats(-2, 2)))
+    if ramp < 0:
+        ramp = 10**6  # ramps far past the clip's ends
+    got, mask = ease_offsets(n, plants, ankles, ramp)
+    want, wmask = numpy_ease_offsets(n, plants, ankles, ramp)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    np.testing.assert_array_equal(mask, wmask)
+
+
+def test_ease_offsets_refuse_mismatched_lengths() -> None:
+    with pytest.raises(ValueError, match="plant flags"):
+        ease_offsets(3, np.ones(5, bool), np.zeros((5, 3)), 2)
+
+
+@SETTINGS
+@given(st.integers(0, 5), st.randoms(use_true_random=False))
+def test_leg_ik_matches_numpy(f: int, rnd) -> None:
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    j = 5
+    parents = np.array([-1, 0, 1, 2, 3])
+    gpos = np.zeros((f, j, 3))
+    gpos[:, 1] = rng.normal(size=(f, 3))
+    gpos[:, 2] = gpos[:, 1] + [0, -0.45, 0.05] + 0.05 * rng.normal(size=(f, 3))
+    gpos[:, 3] = gpos[:, 2] + [0, -0.42, -0.05] + 0.05 * rng.normal(size=(f, 3))
+    grot = rng.normal(size=(f, j, 4))
+    grot /= np.linalg.norm(grot, axis=-1, keepdims=True)
+    target = gpos[:, 3] + 0.2 * rng.normal(size=(f, 3))
+    fallback = np.tile([1.0, 0.0, 0.0], (f, 1))
+    got = leg_ik(gpos, grot, parents, (1, 2, 3), target, fallback)
+    want = numpy_leg_ik(gpos, grot, parents, (1, 2, 3), target, fallback)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+def test_leg_ik_refuses_short_targets_and_foreign_joints() -> None:
+    gpos, grot = np.zeros((3, 4, 3)), np.zeros((3, 4, 4))
+    with pytest.raises(ValueError, match="target"):
+        leg_ik(gpos, grot, np.array([-1, 0, 1, 2]), (1, 2, 3), np.zeros((2, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="chain of joints"):
+        leg_ik(gpos, grot, np.array([-1, 0, 1, 2]), (1, 2, 9), np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+# ------------------------------------------------------------------------------------ retiming
+def _polygon(rng: np.random.Generator, kind: int) -> np.ndarray:
+    """A random counter-clockwise convex polygon (kind 0), a segment (1), a point (2), a thin sliver of
+    nearly collinear vertices (3) or nothing (4)."""
+    if kind == 4:
+        return np.zeros((0, 2))
+    if kind == 2:
+        return rng.uniform([-5, 0], [5, 5], (1, 2))
+    if kind == 1:
+        return np.sort(rng.uniform([-5, 0], [5, 5], (2, 2)), axis=0)
+    k = int(rng.integers(3, 9))
+    ang = np.sort(rng.uniform(0, 2 * np.pi, k))
+    r = np.array([4.0, 1e-9 if kind == 3 else 2.0])
+    return np.array([1.0, 3.0]) + np.stack([np.cos(ang), np.sin(ang)], 1) * r
+
+
+@SETTINGS
+@given(st.lists(st.integers(0, 4), min_size=0, max_size=6), st.randoms(use_true_random=False))
+def test_fastest_timing_on_any_polygons(kinds: list[int], rnd) -> None:
+    """Any number of frames (none, one), any mix of polygons (degenerate, empty, slivers): the
+    profile has one ṗ² per frame and every interval polygon fits its row (or its grown row)."""
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    verts = [_polygon(rng, k) for k in kinds]
+    polys = polygons_of(verts)
+    t = fastest_timing(polys, 30.0)
+    assert t.x.shape == (len(verts),)
+    assert np.all(t.x > 0) and np.isfinite(t.duration) and t.duration >= 0
+    v, c, box = padded(polys)
+    qv, qc, _ = interval_polygons(v, c, 1 / 30, box)
+    assert np.all(qc <= qv.shape[1])
+
+
+@SETTINGS
+@given(st.integers(0, 12), st.floats(-3, 3), st.floats(-3, 3), st.floats(-2, 2), st.randoms(use_true_random=False))
+def test_clip_of_any_point_list_stays_in_its_buffer(n: int, ca: float, cx: float, b: float, rnd) -> None:
+    """Sutherland-Hodgman on arbitrary (non-convex, zigzag) point lists emits at most 2n points, all
+    on the kept side; on convex ones at most n + 1."""
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    pts = rng.normal(size=(n, 2))
+    out, m = _clip(pts, n, ca, cx, b)
+    assert 0 <= m <= max(2 * n, 0) and out.shape[0] >= m
+    assert np.all(ca * out[:m, 0] + cx * out[:m, 1] <= b + 1e-9 * (1 + abs(b)) + 1e-9)
+    zig = np.stack([np.arange(n, dtype=float), np.where(np.arange(n) % 2, 1e-13, -1e-13)], 1)
+    out, m = _clip(zig, n, 0.0, 1.0, 0.0)
+    assert m <= 2 * n
+
+
+def test_set_interval_grows_a_row_too_short() -> None:
+    """A polygon with more vertices than its row holds widens the rows instead of writing past them."""
+    rng = np.random.default_rng(3)
+    polys = polygons_of([_polygon(rng, 0) for _ in range(3)])
+    v, c, box = padded(polys)
+    want_v, want_c, want_m = interval_polygons(v, c, 1 / 30, box)
+    qv, qc, meet = np.zeros((3, 1, 2)), np.zeros(3, np.int64), np.ones(3, bool)
+    for i in range(3):
+        qv = set_interval(v, c, 1 / 30, i, qv, qc, meet, box)
+    np.testing.assert_array_equal(qc, want_c)
+    np.testing.assert_array_equal(meet, want_m)
+    for i in range(3):
+        np.testing.assert_array_equal(qv[i, :qc[i]], want_v[i, :want_c[i]])
+
+
+@SETTINGS
+@given(st.integers(1, 4), st.integers(1, 5),
+       hnp.arrays(np.float64, st.integers(0, 8), elements=st.floats(-10, 10) | st.sampled_from([np.nan, np.inf, -np.inf])),
+       st.randoms(use_true_random=False))
+def test_objective_density_reads_only_its_frames(f: int, k: int, u: np.ndarray, rnd) -> None:
+    """u outside [0, F − 1] (±inf) reads the end frame, NaN frame 0 — never past the arrays."""
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    verts = rng.normal(size=(f, k, 2))
+    count = rng.integers(0, k + 1, f)
+    theta = np.sort(rng.uniform(0, 2 * np.pi, (f, k)), axis=1)
+    args = (verts, count, rng.uniform(0, 1, (f, k)), rng.integers(0, 2, f).astype(bool), rng.normal(size=(f, 2)),
+            rng.uniform(0, 1, f), theta, rng.normal(size=(f, k, 6)), rng.uniform(0, 1, f))
+    x = rng.normal(size=(len(u), 2))
+    got = _evaluate_kernel(*args, u, x)
+    clamped = np.where(np.isnan(u), 0.0, np.clip(u, 0, f - 1))
+    want = _evaluate_kernel(*args, clamped, x)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 4), st.integers(0, 4), st.integers(1, 3), st.randoms(use_true_random=False))
+def test_dense_lp_sequence_matches_highs(n: int, m: int, b: int, rnd) -> None:
+    from scipy.optimize import linprog
+
+    rng = np.random.default_rng(rnd.randint(0, 2**31))
+    M = rng.normal(size=(m, n))
+    lp = DenseLP(M, -np.ones(n), np.ones(n), -np.full(m, 0.5), np.full(m, 0.5))
+    costs = rng.normal(size=(b, n))
+    xs, status = lp.solve_sequence(costs)
+    assert len(xs) == len(status) == b
+    for c, x, s in zip(costs, xs, status, strict=True):
+        ref = linprog(c, A_ub=np.vstack([M, -M]) if m else None, b_ub=np.full(2 * m, 0.5) if m else None,
+                      bounds=[(-1, 1)] * n, method="highs")
+        assert s == OPTIMAL and ref.status == 0
+        assert c @ x == pytest.approx(ref.fun, abs=1e-7)
+
+
+def test_dense_lp_refuses_more_costs_than_columns() -> None:
+    lp = DenseLP(np.ones((1, 2)), -np.ones(2), np.ones(2), [-1.0], [1.0])
+    with pytest.raises(ValueError, match="columns"):
+        lp.solve_sequence(np.ones((2, 3)))
