@@ -38,18 +38,19 @@ _ROOT_TWICE = np.tile(np.arange(N_ROOT), 2)  # the root rows' two sides
 
 @dataclass(frozen=True)
 class PolygonOptions:
-    """Sweep settings: box of (p̈, ṗ²), initial directions, LP budget (from ``RetimeParams``,
-    see ``polygon_options``), refinement threshold."""
+    """Sweep settings (MPS06 §3.3-3.4): box of (p̈, ṗ²), initial directions, LP budget, root
+    tolerance and solver — required, their defaults live in ``RetimeParams`` only (see
+    ``polygon_options``) — and the sweep's own constants (refinement threshold, infeasibility)."""
 
     pdd_max: float
     speed_max: float
     directions: int
     max_lps: int
+    abs_tol: float  # root residual tolerance as a fraction of body weight (RetimeParams.root_tolerance)
+    solver: str  # "simplex" (tasks/retime/simplex.py, HiGHS as fallback) or "highs" (RetimeParams.lp_solver)
     edge_tol: float = 0.5
-    abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
     infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
     carried_max: float = 2.0  # the clip's own unexplained root wrench may scale in [0, carried_max]
-    solver: str = "simplex"  # "simplex" (tasks/retime/simplex.py, HiGHS as fallback) or "highs"
 
 
 @dataclass(frozen=True, eq=False)
