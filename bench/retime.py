@@ -206,7 +206,7 @@ def experiments() -> None:
     walk = clip("16_16")
     for label, kw in (("16_16 walk, normal physics", {}),
                       ("Fig. 10: 16_16, gravity 30 deg to the left", {"gravity": sideways(walk, 9.81, 30.0)}),
-                      ("Fig. 11: 16_16, left femur weight x10", {"weight": {"lfemur": 10.0}}),
+                      ("Fig. 11: 16_16, left femur weight x10", {"weight_factors": {"lfemur": 10.0}}),
                       ("  (its mass x10: inertia too)", {"mass": {"lfemur": 10.0}})):
         plan = prepare(walk, OPTS, **kw)
         _, res = retime_plan(plan, walk.duration, None, OPTS)

@@ -209,8 +209,8 @@ def retime(
     keytime: Annotated[list[str] | None, typer.Option(help="SRC_S:OUT_S, source time shown at output time.")] = None,
     gravity: Annotated[str | None, typer.Option(help="Gravity vector X,Y,Z in m/s² (default 0,-9.81,0 for Y up).")] = None,
     mass: Annotated[list[str] | None, typer.Option(help="JOINT=FACTOR, multiply a body's mass (inertia and weight).")] = None,
-    weight: Annotated[list[str] | None, typer.Option(
-        help="JOINT=FACTOR, multiply only a body's weight (gravity load), its inertia kept (MPS06 Fig. 11).")] = None,
+    weight_factors: Annotated[list[str] | None, typer.Option(
+        "--weight", help="JOINT=FACTOR, multiply only a body's weight (gravity load), its inertia kept (MPS06 Fig. 11).")] = None,
     objective: Annotated[str | None, typer.Option(help="match (original torques) or minimize (effort).")] = None,
     plot: Annotated[Path | None, typer.Option(help="Folder for p(t) and feasible-polygon plots.")] = None,
     config: Annotated[Path | None, typer.Option(help="Config file (retime section).")] = None,
@@ -235,7 +235,8 @@ def retime(
                 raise ValueError
         except ValueError:
             fail(f"--gravity {gravity!r}: expected X,Y,Z, e.g. 0,-4.9,0")
-    factors, weights = body_factors("--mass", mass), body_factors("--weight", weight)
+    factors = body_factors("--mass", mass)
+    weight_factors = body_factors("--weight", weight_factors)  # the same name down to RetimePlan.weight_factors
     cfg = config_or_fail(config)
     from motionweb.flows.retime import retime_flow
 
@@ -243,7 +244,7 @@ def retime(
         with reported_flow_errors():
             rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
                               mass=factors, objective=objective, plot_dir=str(plot) if plot else None,
-                              weight=weights)
+                              weight_factors=weight_factors)
     except ERRORS as exc:
         fail(str(exc))
     typer.echo(f"{rep['clip']}: {rep['duration_in']:.3f} s -> {rep['duration_out']:.3f} s, "

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from motionweb.flows.config import Config, DaskConfig, load_config
-from motionweb.flows.workers import compute_features_batch, compute_web_batch
+from motionweb.flows.workers import compute_features_batch, compute_web_batch, quiet_heartbeat
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
     Generation,
@@ -362,7 +362,11 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     """Address of the scheduler to use: ``dask.address``, or a local cluster for this run.
 
     The local default is sized to the machine (one single-threaded worker per core, at most 2
-    unless ``n_workers`` says otherwise); small runs use threads, which start in ~1 s.
+    unless ``n_workers`` says otherwise); small runs use threads, which start in ~1 s. It closes
+    client first, then the cluster; a worker whose last heartbeat meets the closing scheduler
+    would still print a traceback, so its ``distributed.worker`` log drops that one message from
+    then on (:func:`~motionweb.flows.workers.quiet_heartbeat`, in the workers and in this process
+    until the cluster is gone).
     """
     if dcfg.address:
         with _client_for(dcfg.address):
@@ -373,9 +377,19 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     n = dcfg.n_workers or max(1, min(2, os.cpu_count() or 1))
     processes = dcfg.processes if dcfg.processes is not None else not small
     kwargs: dict[str, Any] = {"host": "127.0.0.1"} if processes else {}
-    with LocalCluster(n_workers=n, threads_per_worker=dcfg.threads_per_worker, processes=processes,
-                      dashboard_address=None, **kwargs) as cluster, _client_for(cluster.scheduler_address):
-        yield cluster.scheduler_address
+    try:
+        with LocalCluster(n_workers=n, threads_per_worker=dcfg.threads_per_worker, processes=processes,
+                          dashboard_address=None, **kwargs) as cluster, _client_for(cluster.scheduler_address) as client:
+            try:
+                yield cluster.scheduler_address
+            finally:
+                quiet_heartbeat()
+                try:
+                    client.run(quiet_heartbeat)  # process workers: their own logs
+                except Exception as exc:  # noqa: BLE001 - a worker already gone needs no filter
+                    log.debug("quiet_heartbeat on the workers: %s", exc)
+    finally:
+        quiet_heartbeat(on=False)
 
 
 #: one Dask client per scheduler address while a run uses it, shared by the chunk tasks' threads

@@ -36,9 +36,9 @@ def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
 @task
 def prepare_task(motion: Motion, opts: RetimeParams, up_axis: str, gravity: np.ndarray | None,
                  mass: dict[str, float], humanoid: object | None, intervals: dict | None,
-                 weight: dict[str, float]) -> RetimePlan:
+                 weight_factors: dict[str, float]) -> RetimePlan:
     return prepare(motion, opts, up_axis=up_axis, gravity=gravity, mass=mass, humanoid=humanoid, contact_intervals=intervals,
-                   weight=weight)
+                   weight_factors=weight_factors)
 
 
 @task
@@ -96,14 +96,15 @@ def report_flights(plan: RetimePlan, res: RetimeResult) -> list[dict]:
 def retime_flow(input_path: str, cfg: Config, out: str, duration: float | None = None,
                 keytimes: list[tuple[float, float]] | None = None, gravity: list[float] | None = None,
                 mass: dict[str, float] | None = None, objective: str | None = None,
-                plot_dir: str | None = None, weight: dict[str, float] | None = None) -> dict:
-    """Retime one clip: write the BVH, a JSON report beside it, and optional plots. ``mass`` and
-    ``weight``: per joint name, a multiplier of the body's mass, or of its weight alone."""
+                plot_dir: str | None = None, weight_factors: dict[str, float] | None = None) -> dict:
+    """Retime one clip: write the BVH, a JSON report beside it, and optional plots (design §8,
+    MPS06 §3). ``mass`` and ``weight_factors`` (the CLI's ``--weight``): per joint name, a
+    multiplier of the body's mass, or of its weight alone."""
     motion, humanoid = load_clip(input_path, cfg)
     opts = cfg.retime if objective is None else cfg.retime.model_copy(update={"objective": objective})
     intervals = cfg.retime.contact_intervals.get(motion.name) or None
     plan = prepare_task(motion, opts, cfg.corpus.up_axis, None if gravity is None else np.asarray(gravity, float), mass or {},
-                        humanoid, intervals, weight or {})
+                        humanoid, intervals, weight_factors or {})
     keytimes = list(keytimes or [])
     total = duration if duration is not None else motion.duration
     retimed, res = retime_task(plan, total, keytimes, opts)

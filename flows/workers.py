@@ -14,6 +14,7 @@ worker count and any BLAS configuration (tests/flows/test_same_bytes.py).
 
 from __future__ import annotations
 
+import logging
 import time
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -29,6 +30,29 @@ from threadpoolctl import threadpool_limits
 
 if TYPE_CHECKING:
     from motionweb.flows.config import Config
+
+#: what a Dask worker logs, with a traceback, when the heartbeat it sent as its local cluster
+#: closed finds the scheduler gone (distributed.worker.Worker.heartbeat): nothing a user can act on
+HEARTBEAT_LOST = "Failed to communicate with scheduler during heartbeat"
+
+
+class ShutdownHeartbeat(logging.Filter):
+    """Drops :data:`HEARTBEAT_LOST` records (design §10, orchestration: the CLI's output is the tool's own)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(HEARTBEAT_LOST)
+
+
+SHUTDOWN_HEARTBEAT = ShutdownHeartbeat()
+
+
+def quiet_heartbeat(on: bool = True) -> None:
+    """Add (``on``) or remove the :class:`ShutdownHeartbeat` filter on ``distributed.worker`` in
+    this process: run on every worker of a local cluster, and in the process that owns it, just
+    before the cluster closes (``flows.index.dask_scheduler``); idempotent."""
+    log = logging.getLogger("distributed.worker")
+    log.addFilter(SHUTDOWN_HEARTBEAT) if on else log.removeFilter(SHUTDOWN_HEARTBEAT)
+
 
 @lru_cache(maxsize=1)
 def pin_blas_threads() -> None:

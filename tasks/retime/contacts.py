@@ -220,16 +220,19 @@ class ContactRule:
     that is on the floor can push whether or not the markers say it is still (swinging feet of
     subject 16 pass no lower than ~1.2 cm at > 2 m/s). ``floor``: the ground height, or None for
     the clip's own floor (:func:`clip_floor`).
+
+    Every field is required: their defaults are ``RetimeParams``' ``contact_*`` and
+    ``floor_height`` (``pipeline.contact_rule`` builds the rule from them).
     """
 
-    height_on: float = 0.04
-    height_off: float = 0.07
-    speed_on: float = 0.6
-    speed_off: float = 1.2
-    min_contact_s: float = 0.05
-    min_gap_s: float = 0.05
-    height_ground: float = 0.01
-    floor: float | None = None
+    height_on: float
+    height_off: float
+    speed_on: float
+    speed_off: float
+    min_contact_s: float
+    min_gap_s: float
+    height_ground: float
+    floor: float | None
 
 
 def clip_floor(corner_positions: np.ndarray, up_axis: int = 1, quantile: float = 0.05) -> float:
@@ -273,7 +276,7 @@ def one_sided_speed(step: np.ndarray, n_frames: int) -> np.ndarray:
     return np.minimum(np.concatenate([[np.inf], v]), np.concatenate([v, [np.inf]]))
 
 
-def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactRule | None = None
+def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactRule
                     ) -> tuple[np.ndarray, np.ndarray, float]:
     """Contact flags per foot (F, n_feet) and per sole corner (F, n_feet, K), and the floor used.
 
@@ -283,7 +286,6 @@ def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 
     down (heel strike, toes up) pushes with the heel corners. In a frame where a foot is in contact
     by gap closing only, all its corners may push. O(F · n_feet).
     """
-    rule = rule or ContactRule()
     f, nf = corner_positions.shape[:2]
     floor = clip_floor(corner_positions, up_axis) if rule.floor is None else float(rule.floor)
     h = corner_positions[..., up_axis] - floor  # (F, nf, 4)
@@ -370,16 +372,17 @@ def intervals_to_active(intervals: dict[str, list[tuple[float, float]]], feet: t
     return act
 
 
-def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, mu: float = 0.5, rule: ContactRule | None = None,
+def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, mu: float, rule: ContactRule,
                  intervals: dict[str, list[tuple[float, float]]] | None = None,
                  foot_corners: dict[int, np.ndarray] | None = None) -> Contacts:
-    """Feet, their contact flags (detected by ``rule``, or from ``intervals``) and force bases (MPS06 §3.2)."""
+    """Feet, their contact flags (detected by ``rule``, or from ``intervals``) and force bases (MPS06 §3.2).
+    ``mu`` (friction) and ``rule`` are required: ``RetimeParams`` holds their defaults."""
     feet = find_feet(body.skeleton, body.scale, body.up_axis, foot_corners or body.foot_corners or None)
     if not feet:
         raise ValueError("no feet found in the skeleton (no low leaf joints); give foot corners")
     basis, pos = contact_bases(body, q, feet, mu)
     active, corner, floor = detect_contacts(pos, fps, up_axis=body.up_axis, rule=rule)
-    active, corner, _ = missed_stances(body, q, pos, active, corner, floor, fps, rule or ContactRule())
+    active, corner, _ = missed_stances(body, q, pos, active, corner, floor, fps, rule)
     if intervals:
         active, corner = intervals_to_active(intervals, feet, q.shape[0], fps), None
     return Contacts(feet=feet, active=active, basis=basis, corner_positions=pos, ground=floor,

@@ -241,16 +241,17 @@ def build_body_model(
     skeleton: Skeleton,
     scale: float,
     *,
-    kind: str = "cylinders",
-    total_mass: float | None = None,
+    kind: str,
+    total_mass: float | None,
     radius_ratio: float = DEFAULT_RADIUS_RATIO,
     up_axis: int = 1,
     inertias: list[Any] | None = None,
 ) -> BodyModel:
     """A Pinocchio model of ``skeleton`` (free-flyer root, spherical joints), SI units.
 
-    ``kind='cylinders'``: each bone a water-density cylinder (MPS06 §4), rescaled to
-    ``total_mass`` when given. ``kind='table'``: ``total_mass`` (default 70 kg) split by the
+    ``kind`` and ``total_mass`` are required (their defaults: ``RetimeParams.body_model`` and
+    ``total_mass``). ``kind='cylinders'``: each bone a water-density cylinder (MPS06 §4), rescaled to
+    ``total_mass`` when given. ``kind='table'``: ``total_mass`` (None: 70 kg) split by the
     anthropometric table (:func:`segments` finds each body's segment from the skeleton's
     structure), each body's shape (inertia) from its cylinders.
     ``inertias`` (one ``pin.Inertia`` per skeleton joint, in the joint frame, SI) overrides both,
@@ -293,9 +294,11 @@ def _scaled(inertia: Any, k: float) -> Any:
     return pin.Inertia(inertia.mass * k, inertia.lever.copy(), inertia.inertia * k)
 
 
-def body_model_for(motion: Motion, *, kind: str = "cylinders", total_mass: float | None = None,
+def body_model_for(motion: Motion, *, kind: str, total_mass: float | None,
                    up_axis: int = 1, humanoid: Any | None = None) -> BodyModel:
-    """The body model of ``motion`` in metres (``Motion.metres()`` raises on an unknown unit).
+    """The body model of ``motion`` in metres (``Motion.metres()`` raises on an unknown unit), MPS06 §4.
+
+    ``kind``, ``total_mass``: as :func:`build_body_model` (required; ``RetimeParams`` holds their defaults).
 
     ``humanoid``: an object with per-joint ``mass`` (J,), ``com`` (J, 3, m, joint frame) and
     ``inertia`` (J, 3, 3, about the com) — e.g. ``store.deepmimic.HumanoidModel`` — whose real
@@ -334,7 +337,7 @@ def configurations(body: BodyModel, motion: Motion) -> np.ndarray:
     return q
 
 
-def path_derivatives(body: BodyModel, q: np.ndarray, fps: float, smoothing_s: float = 0.0
+def path_derivatives(body: BodyModel, q: np.ndarray, fps: float, smoothing_s: float
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Source-time derivatives q', q'' (F, nv): a local quadratic fit on the manifold (Savitzky-Golay).
 
@@ -347,7 +350,7 @@ def path_derivatives(body: BodyModel, q: np.ndarray, fps: float, smoothing_s: fl
     at m = 10 its q'' has 26x the variance of a full window's (its q' 97x; shifted: 15x), and a clip
     that ends mid-stride ends with hundreds of N·m that no motion asked for (16_49's last frames). m = 1 is the central difference
     q'_i = (d_1 − d_{−1}) / 2h, q''_i = (d_1 + d_{−1}) / h². Mocap at 120 fps differentiated twice
-    over one frame turns millimetres of marker noise into tens of m/s². The default ±80 ms
+    over one frame turns millimetres of marker noise into tens of m/s². ``RetimeParams.smoothing_s``'s ±80 ms
     (±10 frames at 120 fps; the q'' estimate's gain halves at ~5.5 Hz, ±40 ms: ~10.6 Hz) keeps
     the ground reaction forces of walks and runs and removes the ~9 Hz, ±0.3 g wobble of the body
     model's centre of mass that ±40 ms leaves in CMU flights (subject 16: runs' stance frames whose
@@ -422,10 +425,11 @@ class DynamicsTerms:
         return self.a @ w, self.b @ w, np.einsum("fvbk,b,k->fv", self.c, wg, g)
 
 
-def dynamics_terms(body: BodyModel, motion: Motion, smoothing_s: float = 0.0) -> DynamicsTerms:
+def dynamics_terms(body: BodyModel, motion: Motion, smoothing_s: float) -> DynamicsTerms:
     """Per-frame per-body path-dynamics coefficients of ``motion`` (MPS06 §3.1).
 
-    ``smoothing_s``: half-width of the derivative fit (:func:`path_derivatives`).
+    ``smoothing_s``: half-width of the derivative fit (:func:`path_derivatives`; required, its
+    default is ``RetimeParams.smoothing_s``).
 
     Two joint-torque-regressor evaluations per frame, each contracted with the bodies' dynamic
     parameters at once: Y(q, 0, q') for a, Y(q, q', q'') for b (gravity off); c from the bodies'

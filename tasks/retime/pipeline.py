@@ -222,14 +222,15 @@ def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray
 def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = "y", gravity: np.ndarray | None = None,
             mass: dict[str, float] | None = None, humanoid: Any | None = None,
             contact_intervals: dict[str, list[tuple[float, float]]] | None = None,
-            weight: dict[str, float] | None = None) -> RetimePlan:
+            weight_factors: dict[str, float] | None = None) -> RetimePlan:
     """Dynamics, contacts, original forces, feasible polygons and the baked objective (MPS06 §3.1-3.6).
 
     ``mass`` multiplies bodies' masses (inertia and weight, MPS06 §3.2: τ is linear in each);
-    ``weight`` multiplies only their weight, the gravity load, inertia kept (MPS06 §4.2 Fig. 11:
-    "the left femur's weight multiplied by ten").
+    ``weight_factors`` multiplies only their weight, the gravity load, inertia kept (MPS06 §4.2 Fig. 11:
+    "the left femur's weight multiplied by ten"; the CLI's ``--weight``, one name from there to
+    ``DynamicsTerms.combine`` and ``RetimePlan.weight_factors``, per body there).
     Raises ``RetimeError`` when no foot touches the ground (unless ``allow_flight_only``), and
-    ``ValueError`` for an unknown unit or an unknown joint in ``mass`` or ``weight``.
+    ``ValueError`` for an unknown unit or an unknown joint in ``mass`` or ``weight_factors``.
     """
     opts = opts or RetimeParams()
     tm: dict[str, float] = {}
@@ -237,7 +238,7 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     body, glitches, terms, contacts = clip_physics(motion, opts, up=up, humanoid=humanoid,
                                                    contact_intervals=contact_intervals, timings=tm)
     factors = mass_factors(body, mass or {})
-    weights = mass_factors(body, weight or {})
+    weight_factors = mass_factors(body, weight_factors or {})  # {joint: factor} -> (B,) per body
     if not contacts.active.any() and not opts.allow_flight_only:
         feet = ", ".join(f.name for f in contacts.feet)
         low = contacts.corner_positions[..., up].min() - contacts.ground
@@ -259,7 +260,7 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
         limits, sources = table_limits(body, opts.torque_limits)
         original = replace(original, limits=limits)
     tm["original_forces"] = time.perf_counter() - t
-    A, B, C = terms.combine(g, factors, weights)
+    A, B, C = terms.combine(g, factors, weight_factors)
     contacts = contacts.carrying(original.tau[:, :N_ROOT])
     polys = feasible_polygons(A, B, C, contacts, original.limits, body_weight, popts)
     tm["polygons"] = polys.seconds
@@ -271,7 +272,7 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta, tau_scale)
     tm["bake"] = time.perf_counter() - t
     return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors,
-                      weight_factors=weights, A=A, B=B, C=C, original=original, polygons=polys, baked=baked,
+                      weight_factors=weight_factors, A=A, B=B, C=C, original=original, polygons=polys, baked=baked,
                       timings=tm, limit_sources=sources, glitches=glitches)
 
 

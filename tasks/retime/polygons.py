@@ -18,7 +18,11 @@ O(K · rows) per frame for the bands.
 
 from __future__ import annotations
 
+import ctypes
 import math
+import os
+import sys
+import threading
 import time
 from dataclasses import dataclass
 
@@ -38,18 +42,19 @@ _ROOT_TWICE = np.tile(np.arange(N_ROOT), 2)  # the root rows' two sides
 
 @dataclass(frozen=True)
 class PolygonOptions:
-    """Sweep settings: box of (p̈, ṗ²), initial directions, LP budget (from ``RetimeParams``,
-    see ``polygon_options``), refinement threshold."""
+    """Sweep settings (MPS06 §3.3-3.4): box of (p̈, ṗ²), initial directions, LP budget, root
+    tolerance and solver — required, their defaults live in ``RetimeParams`` only (see
+    ``polygon_options``) — and the sweep's own constants (refinement threshold, infeasibility)."""
 
     pdd_max: float
     speed_max: float
     directions: int
     max_lps: int
+    abs_tol: float  # root residual tolerance as a fraction of body weight (RetimeParams.root_tolerance)
+    solver: str  # "simplex" (tasks/retime/simplex.py, HiGHS as fallback) or "highs" (RetimeParams.lp_solver)
     edge_tol: float = 0.5
-    abs_tol: float = 1e-3  # root residual tolerance as a fraction of body weight
     infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
     carried_max: float = 2.0  # the clip's own unexplained root wrench may scale in [0, carried_max]
-    solver: str = "simplex"  # "simplex" (tasks/retime/simplex.py, HiGHS as fallback) or "highs"
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,10 +274,45 @@ class FrameLP:
             self._set_col_bounds(1, x[1], x[1])
 
 
+_BANNER_LOCK = threading.Lock()
+_banner_shown = False
+
+
+def _quiet_highs() -> highspy.Highs:
+    """A ``highspy.Highs`` whose construction prints nothing (MPS06 §3.3's LPs are ours to report).
+
+    HiGHS prints its banner ("Running HiGHS 1.x … Copyright") from the C++ constructor of the
+    first instance a process makes, before any option (``output_flag``, ``log_to_console``) can be
+    set; later instances print nothing. That first one is made with file descriptor 1 pointed at
+    /dev/null (C stdio flushed before it is restored), under a lock."""
+    global _banner_shown
+    if _banner_shown:
+        return highspy.Highs()
+    with _BANNER_LOCK:
+        if _banner_shown:
+            return highspy.Highs()
+        sys.stdout.flush()
+        try:
+            saved, null = os.dup(1), os.open(os.devnull, os.O_WRONLY)
+        except OSError:  # no stdout to guard
+            return highspy.Highs()
+        try:
+            os.dup2(null, 1)
+            h = highspy.Highs()
+            ctypes.CDLL(None).fflush(None)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+            os.close(null)
+        _banner_shown = True
+        return h
+
+
 def new_highs() -> highspy.Highs:
     """A HiGHS instance set up for the tiny, often re-solved LPs of MPS06 §3.3 (reused across frames)."""
-    h = highspy.Highs()
+    h = _quiet_highs()
     h.setOptionValue("output_flag", False)
+    h.setOptionValue("log_to_console", False)
     h.setOptionValue("presolve", "off")  # tiny LPs re-solved from the previous basis
     h.setOptionValue("threads", 1)  # HiGHS's worker pool only adds synchronization here (7x on 2 busy cores)
     # a new direction changes costs only: the basis stays primal feasible, so primal simplex

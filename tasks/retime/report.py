@@ -20,7 +20,7 @@ from motionweb.tasks.retime.contacts import (
 from motionweb.tasks.retime.dynamics import centre_of_mass
 from motionweb.tasks.retime.glitches import GLITCH_DEG_PER_S, step_degrees
 from motionweb.tasks.retime.objective import contact_lambda
-from motionweb.tasks.retime.pipeline import RetimePlan
+from motionweb.tasks.retime.pipeline import RetimeParams, RetimePlan
 from motionweb.tasks.retime.polygons import MET_OUTSIDE_FRACTION, N_ROOT, FeasiblePolygons, timing_distances
 from motionweb.tasks.retime.reachable import fastest_timing
 from motionweb.tasks.retime.spline import RetimeResult
@@ -173,7 +173,8 @@ def original_feasibility(plan: RetimePlan, unexplained_tol: float = 0.05) -> dic
     polys, orig, body = plan.polygons, plan.original, plan.body
     weight = body.total_mass * float(np.linalg.norm(body.default_gravity()))
     names = body.skeleton.names
-    half = max(1, round(0.08 * plan.motion.fps))  # the derivative fit's reach (smoothing_s default)
+    # the derivative fit's reach at the default smoothing (RetimeParams holds it; the plan does not carry it)
+    half = max(1, round(RetimeParams.model_fields["smoothing_s"].default * plan.motion.fps))
     outside = []
     for i in np.flatnonzero(~polys.original_inside).tolist():
         over = np.abs(orig.tau[i, N_ROOT:]) > orig.limits[N_ROOT:] * (1 + 1e-9)

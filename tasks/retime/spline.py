@@ -226,8 +226,8 @@ def check_keytimes(src_duration: float, duration: float, keytimes: list[tuple[fl
 
 
 def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, duration: float,
-                    keytimes: list[tuple[float, float]] | None = None, *, samples_per_frame: int = 4,
-                    knots_per_second: float = 12.0, speed_max: float = 6.0, max_iter: int = 2000,
+                    keytimes: list[tuple[float, float]] | None = None, *, samples_per_frame: int,
+                    knots_per_second: float, speed_max: float, max_iter: int = 2000,
                     free_length: bool = False) -> RetimeResult:
     """Minimize MPS06 Eqn. 14 over monotone p(t) with fixed endpoints and keytimes (MPS06 §3.5-3.6).
 

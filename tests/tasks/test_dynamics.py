@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 import pytest
 from fixtures import G, jumper_skeleton, synthetic_jump
 from motionweb.store.motion import Skeleton
 from motionweb.tasks.retime.contacts import (
-    ContactRule,
     contacts_for,
     detect_contacts,
     find_feet,
@@ -25,16 +26,20 @@ from motionweb.tasks.retime.dynamics import (
     path_derivatives,
     segments,
 )
+from motionweb.tasks.retime.pipeline import RetimeParams, contact_rule
 from naive import ref_dynamics_terms
+
+#: the contact rule of the stage's defaults (RetimeParams holds them; ContactRule has none of its own)
+RULE = contact_rule(RetimeParams())
 
 
 def test_coefficients_reproduce_rnea_with_contacts() -> None:
     motion, _ = synthetic_jump()
-    body = body_model_for(motion)
-    terms = dynamics_terms(body, motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
+    terms = dynamics_terms(body, motion, smoothing_s=0.0)
     g = body.default_gravity()
     A, B, C = terms.combine(g)
-    cont = contacts_for(body, terms.q, motion.fps)
+    cont = contacts_for(body, terms.q, motion.fps, mu=0.5, rule=RULE)
     m = body.model
     m.gravity = pin.Motion(np.concatenate([g, np.zeros(3)]))
     d = m.createData()
@@ -69,14 +74,14 @@ def test_per_body_terms_equal_the_five_regressor_reference() -> None:
 
 def test_gravity_and_mass_recombination_match_a_changed_model() -> None:
     motion, _ = synthetic_jump(fps=30)
-    body = body_model_for(motion)
-    terms = dynamics_terms(body, motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
+    terms = dynamics_terms(body, motion, smoothing_s=0.0)
     g = np.array([3.0, -4.9, 1.0])
     w = mass_factors(body, {"l_hip": 10.0, "chest": 0.5})
     A, B, C = terms.combine(g, w)
     inertias = [body.model.inertias[j + 1] for j in range(body.n_bodies)]
     inertias = [pin.Inertia(i.mass * k, i.lever.copy(), i.inertia * k) for i, k in zip(inertias, w, strict=True)]
-    heavy = build_body_model(body.skeleton, 1.0, inertias=inertias)
+    heavy = build_body_model(body.skeleton, 1.0, kind="cylinders", total_mass=None, inertias=inertias)
     m = heavy.model
     m.gravity = pin.Motion(np.concatenate([g, np.zeros(3)]))
     d = m.createData()
@@ -95,8 +100,8 @@ def test_a_weight_factor_changes_only_the_gravity_load() -> None:
     """combine's weight factors (MPS06 Fig. 11's "weight multiplied by ten"): C is that of a model
     whose bodies weigh mass x weight factor, A and B keep the mass factors' inertia."""
     motion, _ = synthetic_jump(fps=30)
-    body = body_model_for(motion)
-    terms = dynamics_terms(body, motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
+    terms = dynamics_terms(body, motion, smoothing_s=0.0)
     g = np.array([0.5, -9.81, 0.0])
     w = mass_factors(body, {"chest": 2.0})
     wf = mass_factors(body, {"l_hip": 10.0, "chest": 0.5})
@@ -105,7 +110,7 @@ def test_a_weight_factor_changes_only_the_gravity_load() -> None:
     np.testing.assert_array_equal(A, A0)
     np.testing.assert_array_equal(B, B0)
     inertias = [body.model.inertias[j + 1] for j in range(body.n_bodies)]
-    loaded = build_body_model(body.skeleton, 1.0, inertias=[pin.Inertia(i.mass * k, i.lever.copy(), i.inertia * k)
+    loaded = build_body_model(body.skeleton, 1.0, kind="cylinders", total_mass=None, inertias=[pin.Inertia(i.mass * k, i.lever.copy(), i.inertia * k)
                                                             for i, k in zip(inertias, w * wf, strict=True)])
     m = loaded.model
     m.gravity = pin.Motion(np.concatenate([g, np.zeros(3)]))
@@ -117,15 +122,15 @@ def test_a_weight_factor_changes_only_the_gravity_load() -> None:
 
 def test_flight_is_ballistic_and_stance_detected() -> None:
     motion, (t0, t1) = synthetic_jump()
-    body = body_model_for(motion)
-    terms = dynamics_terms(body, motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
+    terms = dynamics_terms(body, motion, smoothing_s=0.0)
     _, B, C = terms.combine(body.default_gravity())
     t = np.arange(motion.n_frames) / motion.fps
     flight = (t > t0 + 1.5 / motion.fps) & (t < t1 - 1.5 / motion.fps)
     root = (B + C)[flight, :6]  # at the original timing (p̈, ṗ²) = (0, 1)
     # a nearly frozen pose (slow chest sway) in exact free fall needs almost no root wrench
     assert np.abs(root).max() < 1e-3 * body.total_mass * G
-    cont = contacts_for(body, terms.q, motion.fps)
+    cont = contacts_for(body, terms.q, motion.fps, mu=0.5, rule=RULE)
     assert [f.name for f in cont.feet] == ["l_ankle", "r_ankle"]
     assert not cont.active[flight].any()
     assert cont.active[t < t0 - 0.1].all() and cont.active[t > t1 + 0.15].all()
@@ -166,11 +171,11 @@ def test_feet_with_toes_stand_on_a_forefoot_patch_when_the_heel_is_up() -> None:
     track[..., 1] -= c[:, 1].min()
     up = track.copy()
     up[:, :, list(HEEL), 1] = 0.1  # heel raised: on the ball and the toes
-    act, corner, _ = detect_contacts(up, fps, rule=ContactRule(floor=0.0))
+    act, corner, _ = detect_contacts(up, fps, rule=replace(RULE, floor=0.0))
     assert act.all() and corner[:, 0, list(TOE) + list(BALL)].all() and not corner[:, 0, list(HEEL)].any()
     heel = track.copy()
     heel[:, :, list(TOE) + list(BALL), 1] = 0.1  # toes raised (heel strike): the heel only
-    act, corner, _ = detect_contacts(heel, fps, rule=ContactRule(floor=0.0))
+    act, corner, _ = detect_contacts(heel, fps, rule=replace(RULE, floor=0.0))
     assert act.all() and corner[:, 0, list(HEEL)].all() and not corner[:, 0, list(TOE) + list(BALL)].any()
     # the support of the forefoot: a patch as long as the toes, where the tips alone gave a line
     pts = c[list(TOE) + list(BALL)][:, [0, 2]]
@@ -181,7 +186,7 @@ def test_unknown_unit_is_a_clear_error() -> None:
     motion, _ = synthetic_jump(fps=20)
     from dataclasses import replace
     with pytest.raises(ValueError, match="length unit"):
-        body_model_for(replace(motion, unit=None, scale_to_m=None))
+        body_model_for(replace(motion, unit=None, scale_to_m=None), kind="cylinders", total_mass=None)
 
 
 def test_path_derivatives_fit_a_quadratic_exactly_and_reduce_to_central_differences() -> None:
@@ -192,7 +197,7 @@ def test_path_derivatives_fit_a_quadratic_exactly_and_reduce_to_central_differen
     rot = np.repeat(motion.rotations[:1], motion.n_frames, axis=0)
     from dataclasses import replace
 
-    body = body_model_for(motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
     q = configurations(body, replace(motion, root_positions=root, rotations=rot))
     d1, d2 = path_derivatives(body, q, motion.fps, smoothing_s=0.04)  # ±5 frames
     np.testing.assert_allclose(d2[:, 1], -4.0, atol=1e-6)
@@ -221,7 +226,7 @@ def test_path_derivatives_keep_a_full_window_at_the_clip_ends() -> None:
     rng = np.random.default_rng(3)
     rot = np.repeat(motion.rotations[:1], f, axis=0)
     rot[:, 0] = [1.0, 0.0, 0.0, 0.0]  # root not turning: its tangent offsets are the world translations
-    body = body_model_for(motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
     err_end, err_mid = [], []
     for _ in range(4):
         root = np.stack([0.5 * t, 0.9 + 0.3 * t - 2.0 * t * t, 0.1 * t * t], axis=1) + rng.normal(0, 1e-3, (f, 3))
@@ -297,7 +302,7 @@ def test_a_flight_that_does_not_fall_is_a_missed_stance() -> None:
     fall at g) are carried by the lower foot if it hovers within height_off, slow (CMU 16_29's
     pivot at 4.5 cm); a foot at 9 cm is not put down, nor is a real (ballistic) flight."""
     motion, (t0, t1) = synthetic_jump(fps=30)
-    body = body_model_for(motion)
+    body = body_model_for(motion, kind="cylinders", total_mass=None)
     q = configurations(body, motion)
     fps, f = motion.fps, motion.n_frames
     still = slice(10, 22)  # standing: the centre of mass does not move
@@ -308,7 +313,7 @@ def test_a_flight_that_does_not_fall_is_a_missed_stance() -> None:
         pos = np.concatenate([_foot_track(heights[:, k], fps) for k in range(2)], axis=1)
         active = heights < 0.01
         corner = np.repeat(active[:, :, None], 4, axis=2)
-        act, cor, runs_put = missed_stances(body, q, pos, active, corner, 0.0, fps, ContactRule())
+        act, cor, runs_put = missed_stances(body, q, pos, active, corner, 0.0, fps, RULE)
         if mended:
             assert runs_put == [(frames.start, frames.stop, 0)]
             assert act[frames, 0].all() and cor[frames, 0].all() and not act[frames, 1].any()
@@ -336,7 +341,7 @@ def test_contacts_use_the_clips_floor_hysteresis_and_minimum_durations() -> None
     h[70:72] = 0.2  # a 2-frame lift: a gap shorter than min_gap_s, closed
     h[:140] += rng.normal(0, 0.004, 140).clip(-0.01, 0.01)
     h += 0.12  # the floor of this capture is 12 cm up
-    act, corner, floor = detect_contacts(_foot_track(h, fps), fps, rule=ContactRule())
+    act, corner, floor = detect_contacts(_foot_track(h, fps), fps, rule=RULE)
     assert floor == pytest.approx(0.12, abs=0.012)
     a = act[:, 0]
     # 99 and 140 are the last / first frames on the floor: still on one side (one-sided speeds)
@@ -345,15 +350,15 @@ def test_contacts_use_the_clips_floor_hysteresis_and_minimum_durations() -> None
     # a 3-frame touch is shorter than min_contact_s and is dropped; a fixed floor replaces the clip's
     h2 = np.full(120, 0.5)
     h2[60:63] = 0.0
-    act2, _, floor2 = detect_contacts(_foot_track(h2, fps), fps, rule=ContactRule(floor=0.0))
+    act2, _, floor2 = detect_contacts(_foot_track(h2, fps), fps, rule=replace(RULE, floor=0.0))
     assert floor2 == 0.0 and not act2.any()
     # a foot sliding fast a few cm up is not in contact; on the floor it is (skating, pivoting)
-    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.025), fps, speed=3.0), fps, rule=ContactRule(floor=0.0))
+    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.025), fps, speed=3.0), fps, rule=replace(RULE, floor=0.0))
     assert not act3.any()
-    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.005), fps, speed=3.0), fps, rule=ContactRule(floor=0.0))
+    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.005), fps, speed=3.0), fps, rule=replace(RULE, floor=0.0))
     assert act3.all()
     # heel up: only the toe corners push
     tilt = _foot_track(np.zeros(60), fps)
     tilt[:, :, 2:, 1] = 0.1
-    act4, corner4, _ = detect_contacts(tilt, fps, rule=ContactRule(floor=0.0))
+    act4, corner4, _ = detect_contacts(tilt, fps, rule=replace(RULE, floor=0.0))
     assert act4.all() and corner4[:, 0, :2].all() and not corner4[:, 0, 2:].any()

@@ -289,7 +289,7 @@ def test_fig11_a_heavier_left_femur_favours_standing_on_the_left(walk) -> None:
     (gravity load) x10, its inertia kept, same length: against the same retiming under normal
     physics the walk stands longer on the left foot alone and shorter on the right alone."""
     normal, left0, right0 = _left_stance(walk)
-    ph, left, right = _left_stance(walk, weight={"lfemur": 10.0})
+    ph, left, right = _left_stance(walk, weight_factors={"lfemur": 10.0})
     assert left > 1.05 and left / left0 > 1.08 and right / right0 < 0.96, (ph, normal)
 
 
