@@ -37,21 +37,43 @@ def _wait_gone(procs: set[tuple[int, str]], timeout: float) -> set[tuple[int, st
     return _alive(procs)
 
 
+#: a parent that starts the watchdog and one long-lived child, then sleeps
+PARENT = ("import subprocess, sys, time; from motionweb.flows.reaper import start_reaper; start_reaper(); "
+          "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); time.sleep(120)")
+
+
+def _watched_parent() -> tuple[subprocess.Popen, set[tuple[int, str]]]:
+    """:data:`PARENT` started, once its watchdog has seen its child: (the parent, its descendants)."""
+    parent = subprocess.Popen([sys.executable, "-c", PARENT], start_new_session=True)
+    deadline = time.monotonic() + 60
+    while len(descendants(parent.pid)) < 2 and time.monotonic() < deadline:  # reaper + sleeper
+        time.sleep(0.2)
+    time.sleep(1.0)  # one poll of the reaper
+    kids = descendants(parent.pid)
+    assert len(kids) >= 2
+    return parent, kids
+
+
 def test_children_die_with_a_killed_parent() -> None:
-    code = ("import subprocess, sys, time; from motionweb.flows.reaper import start_reaper; start_reaper(); "
-            "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); time.sleep(120)")
-    parent = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
-    try:
-        deadline = time.monotonic() + 60
-        while len(descendants(parent.pid)) < 2 and time.monotonic() < deadline:  # reaper + sleeper
-            time.sleep(0.2)
-        time.sleep(1.0)  # one poll of the reaper
-        kids = descendants(parent.pid)
-        assert len(kids) >= 2
-    finally:
-        os.kill(parent.pid, signal.SIGKILL)
-        parent.wait()
+    parent, kids = _watched_parent()
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait()
     assert not _wait_gone(kids, 20), "descendants outlived their killed parent"
+
+
+def test_a_zombie_is_dead_to_the_reaper() -> None:
+    """A died but unreaped CLI (state Z) ends its watchdog's watch: its children are ended."""
+    parent, kids = _watched_parent()
+    try:
+        os.kill(parent.pid, signal.SIGKILL)  # not waited for: a zombie while we look
+        left = _wait_gone(kids, 20)
+        with open(f"/proc/{parent.pid}/stat") as fh:
+            assert fh.read().rsplit(")", 1)[1].split()[0] == "Z"
+        assert not left, "the watchdog took the zombie for alive"
+    finally:
+        if parent.poll() is None:
+            os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
 
 
 def test_killing_the_cli_ends_its_prefect_server_and_workers(tmp_path: Path) -> None:
