@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from motionweb.store.deepmimic import DEEPMIMIC_JOINTS
 from motionweb.store.kinematics import quat_from_axis_angle, quat_from_euler
@@ -250,3 +252,19 @@ def lowest_root(examples, weights: np.ndarray) -> np.ndarray:
 
     pos, _ = blend_path(examples, weights)
     return pos[..., 1].min(axis=1)[:, None]
+
+
+def tiny_index_config(tmp_path: Path) -> Path:
+    """``tmp_path / "c.yaml"``: a config indexing three 10 s :func:`wiggle` walks with one Dask process
+    worker (a CLI run that starts Prefect's server and a worker process, for the exit tests)."""
+    import yaml
+    from motionweb.store.bvh import write_bvh
+
+    corpus = tmp_path / "corpus" / "walk"
+    corpus.mkdir(parents=True)
+    for k in range(3):
+        write_bvh(wiggle(300, 30.0, seed=k), corpus / f"w{k}.bvh")
+    cfg = {"corpus": {"path": str(tmp_path / "corpus"), "length_unit": "m"}, "store": {"path": str(tmp_path / "s")},
+           "dask": {"processes": True, "n_workers": 1}, "output": str(tmp_path / "out")}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    return tmp_path / "c.yaml"

@@ -24,9 +24,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from fixtures import wiggle
+from fixtures import tiny_index_config
 from motionweb.flows.reaper import descendants
-from motionweb.store.bvh import write_bvh
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -201,13 +200,7 @@ def test_a_killed_search_returns_at_once_and_leaves_nothing(app_store: Path, tmp
 
 def test_a_crashed_index_returns_at_once_and_leaves_no_worker(tmp_path: Path) -> None:
     """``motionweb index`` with Dask process workers, SIGSEGV once a worker and the server run."""
-    corpus = tmp_path / "corpus" / "walk"
-    corpus.mkdir(parents=True)
-    for k in range(3):
-        write_bvh(wiggle(300, 30.0, seed=k), corpus / f"w{k}.bvh")
-    cfg = {"corpus": {"path": str(tmp_path / "corpus"), "length_unit": "m"}, "store": {"path": str(tmp_path / "s")},
-           "dask": {"processes": True, "n_workers": 1}, "output": str(tmp_path / "out")}
-    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    tiny_index_config(tmp_path)
     res = run_killed([*cli_command(), "index", str(tmp_path / "c.yaml"), "--no-progress"],
                      clean_env(tmp_path, uuid.uuid4().hex), signal.SIGSEGV, need_dask=True)
     print(f"index SIGSEGV: rc {res['rc']} after {res['done'] - res['killed']:.2f} s, {len(res['left'])} left at "

@@ -10,10 +10,8 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
-from fixtures import wiggle
+from fixtures import tiny_index_config
 from motionweb.flows.reaper import descendants
-from motionweb.store.bvh import write_bvh
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the reaper reads /proc")
 
@@ -77,13 +75,7 @@ def test_a_zombie_is_dead_to_the_reaper() -> None:
 
 
 def test_killing_the_cli_ends_its_prefect_server_and_workers(tmp_path: Path) -> None:
-    corpus = tmp_path / "corpus" / "walk"
-    corpus.mkdir(parents=True)
-    for k in range(3):
-        write_bvh(wiggle(300, 30.0, seed=k), corpus / f"w{k}.bvh")
-    cfg = {"corpus": {"path": str(tmp_path / "corpus"), "length_unit": "m"}, "store": {"path": str(tmp_path / "s")},
-           "dask": {"processes": True, "n_workers": 1}, "output": str(tmp_path / "out")}
-    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    tiny_index_config(tmp_path)
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
     env["PREFECT_HOME"] = str(tmp_path / "prefect")
     cli = subprocess.Popen([sys.executable, "-m", "motionweb.flows.cli", "index", str(tmp_path / "c.yaml"),
