@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 from motionweb.store.datasets import ENV_VAR, mocap_root
+
+# property-based tests draw the same examples on every run (CI included): a failure they find is
+# reproducible, never a one-off of a random seed; HYPOTHESIS_PROFILE=explore draws new ones
+settings.register_profile("repeatable", derandomize=True, database=None)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 
 @pytest.fixture(scope="session")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from motionweb.store.web import MatchWeb
+from motionweb.store.web import MatchWeb, transpose
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb.params import MatchWebParams
 from motionweb.tasks.search import MatchSearch, SearchParams, nearest_matches, walk_graph, walk_web
@@ -161,14 +161,16 @@ def test_tiered_search_over_webs_of_very_different_lengths(data) -> None:
     frames = [data.draw(st.sampled_from([1, 2, 5, 13, 40])) for _ in range(n_clips)]
     names = [f"c{k}" for k in range(n_clips)]
     source: dict[str, list[tuple[str, MatchWeb]]] = {n: [] for n in names}
-    for i in range(n_clips):
-        for j in range(n_clips):
+    for i in range(n_clips):  # one web per pair, both ways round (as a store gives them)
+        for j in range(i, n_clips):
             w = data.draw(webs(rows=frames[i]))
+            if w.shape[1] > frames[j]:
+                continue
             w = MatchWeb(rate=w.rate, shape=(frames[i], frames[j]), **{
-                k: v for k, v in w.to_arrays().items() if k not in ("rate", "shape", "self_pair")
-            }) if w.shape[1] <= frames[j] else None
-            if w is not None and (len(w.paths_cells) == 0 or w.paths_cells[:, 1].max() < frames[j]):
-                source[names[i]].append((names[j], w))
+                k: v for k, v in w.to_arrays().items() if k not in ("rate", "shape", "self_pair")})
+            source[names[i]].append((names[j], w))
+            if j != i:
+                source[names[j]].append((names[i], transpose(w)))
     clip = data.draw(st.sampled_from(names))
     if not source[clip]:
         return
