@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from motionweb.flows.config import Config, DaskConfig, load_config
+from motionweb.flows.lazy_prefect import run_logger
 from motionweb.flows.workers import compute_features_batch, compute_web_batch, quiet_heartbeat
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
@@ -52,7 +53,6 @@ from motionweb.store.keys import (
     web_params,
 )
 from motionweb.store.zarr_store import MotionStore, StoreError, new_id, now_iso
-from motionweb.flows.lazy_prefect import run_logger
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
