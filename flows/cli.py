@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
 import typer
-from motionweb.flows.reported import ERRORS, reported_flow_errors
+from motionweb.flows.history import record_run, server_url
+from motionweb.flows.reported import ERRORS
 from motionweb.store.errors import MotionFormatError
 
 if TYPE_CHECKING:  # the config imports every stage: loaded on use, so a forwarded search starts fast
@@ -32,6 +35,22 @@ def fail(message: str, code: int = 2) -> NoReturn:
     """Print a clear error (never a traceback) and exit non-zero."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
     raise typer.Exit(code)
+
+
+T = TypeVar("T")
+
+
+def run_here(flow_name: str, parameters: dict[str, Any], work: Callable[[], T], strip: bool = False) -> T:
+    """Run an on-demand command's ``work`` in this process, without Prefect (its flow's ``.fn``,
+    flows/lazy_prefect.py); an error it reports (``ERRORS``) is recorded (flows/history.py) and
+    ends in ``fail`` (quotes stripped with ``strip``). The caller prints the answer, then records
+    the run with :func:`record_run`."""
+    try:
+        return work()
+    except ERRORS as exc:
+        message = str(exc).strip("'\"") if strip else str(exc)
+        record_run(flow_name, parameters, {"error": message})
+        fail(message)
 
 
 def config_or_fail(path: Path | None) -> Config:
@@ -172,19 +191,16 @@ def warp(
         except ValueError:
             fail(f"--keytime {text!r}: expected IN_S:OUT_S (seconds), e.g. 1.5:1.0")
     cfg = config_or_fail(config)
-    from motionweb.flows.warp import WarpRequest, format_summary, plan_warp
+    from motionweb.flows.warp import WarpRequest, format_summary
     from motionweb.flows.warp import warp as warp_flow
 
     request = WarpRequest(input=str(input_path), out=str(out), reference=str(reference) if reference else None,
                           duration=duration, frames=frames, unconstrained=unconstrained, keytimes=tuple(keys),
                           skip=skip, fast=fast, backward=backward, plot=str(plot) if plot else None)
-    try:
-        plan_warp(cfg, request)  # every check before a flow run starts
-        with reported_flow_errors():
-            summary = warp_flow(cfg, request)
-    except ERRORS as exc:
-        fail(str(exc))
+    params = {"config": str(config) if config else None, "request": asdict(request)}
+    summary = run_here("guided-warp", params, lambda: warp_flow.fn(cfg, request))  # its plan checks first
     typer.echo(format_summary(summary))
+    record_run("guided-warp", params, summary)
 
 
 def body_factors(option: str, texts: list[str] | None) -> dict[str, float]:
@@ -240,13 +256,12 @@ def retime(
     cfg = config_or_fail(config)
     from motionweb.flows.retime import retime_flow
 
-    try:
-        with reported_flow_errors():
-            rep = retime_flow(str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g,
-                              mass=factors, objective=objective, plot_dir=str(plot) if plot else None,
-                              weight_factors=weight_factors)
-    except ERRORS as exc:
-        fail(str(exc))
+    params = {"input_path": str(input_path), "config": str(config) if config else None, "out": str(out),
+              "duration": duration, "keytimes": keys, "gravity": g, "mass": factors, "objective": objective,
+              "plot_dir": str(plot) if plot else None, "weight_factors": weight_factors}
+    rep = run_here("retime", params, lambda: retime_flow.fn(
+        str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g, mass=factors,
+        objective=objective, plot_dir=str(plot) if plot else None, weight_factors=weight_factors))
     typer.echo(f"{rep['clip']}: {rep['duration_in']:.3f} s -> {rep['duration_out']:.3f} s, "
                f"{rep['frames_out']} frames written to {rep['output']}")
     for fl in rep["flights"]:
@@ -263,6 +278,7 @@ def retime(
     if rep["infeasible_output_frames"]:
         typer.echo(f"  output frames outside their feasible polygon: {len(rep['infeasible_output_frames'])}")
     typer.echo(f"  timing ({rep['timing']}) {rep['reachable']['message']}")
+    record_run("retime", params, rep)
 
 
 def _quiet_services() -> None:
@@ -297,7 +313,11 @@ def run_index(cfg: Config, progress: bool) -> dict:
 
     idx.PROGRESS = show if progress and sys.stderr.isatty() else None  # no \r lines in a log file
     try:
-        summary = idx.index_library(cfg)
+        # nothing to compute, commit or repair, and no Prefect server to record the run: said
+        # without starting Prefect's server and a Dask cluster (flows/index.py unchanged_summary)
+        summary = idx.unchanged_summary(cfg) if server_url() is None else None
+        if summary is None:
+            summary = idx.index_library(cfg)
     except (FileNotFoundError, MotionFormatError, ValueError) as exc:
         fail(str(exc))
     finally:
@@ -348,17 +368,15 @@ def matches_table(rows: list[dict]) -> str:
 def run_query(cfg: Config, request) -> dict:
     """Check the request, run the query flow and print its matches; errors become ``fail``."""
     from motionweb.flows.query import plan_query, query
-    from motionweb.flows.reaper import start_reaper
 
-    start_reaper()
-
-    try:
+    def work() -> dict:
         plan_query(cfg, request)
-        with reported_flow_errors():
-            res = query(cfg, request)
-    except ERRORS as exc:
-        fail(str(exc).strip("'\""))
+        return query.fn(cfg, request)
+
+    params = {"store": cfg.store.path, "request": asdict(request)}
+    res = run_here("query", params, work, strip=True)
     print_query(res)
+    record_run("query", params, res)
     return res
 
 

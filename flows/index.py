@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from motionweb.flows.config import Config, DaskConfig, load_config
+from motionweb.flows.lazy_prefect import run_logger
 from motionweb.flows.workers import compute_features_batch, compute_web_batch, quiet_heartbeat
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
@@ -51,7 +52,7 @@ from motionweb.store.keys import (
     web_key,
     web_params,
 )
-from motionweb.store.zarr_store import MotionStore, new_id, now_iso
+from motionweb.store.zarr_store import MotionStore, StoreError, new_id, now_iso
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
 
@@ -446,7 +447,7 @@ def _workers(address: str) -> int:
 def catalog_task(cfg: Config) -> Catalog:
     """Scan the corpus (hash, label, describe every clip; broken files listed, not fatal)."""
     cat = scan_corpus(cfg.corpus.path, cfg.corpus)
-    get_run_logger().info("catalog: %d clips, %d unreadable", len(cat.entries), len(cat.errors))
+    run_logger().info("catalog: %d clips, %d unreadable", len(cat.entries), len(cat.errors))
     return cat
 
 
@@ -463,7 +464,7 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list
     rates = [float(r) for r in cfg.features.rates]
     expected = prev.checksums if prev else {}
     stored = store.web_keys(web_digest(cfg))  # one listing of the web shards, not a lookup per pair
-    logger = get_run_logger()
+    logger = run_logger()
 
     def sound(key: str) -> bool:
         problem = store.verify(key, expected.get(key))
@@ -573,7 +574,21 @@ def index_library(config: str | Config) -> dict[str, Any]:
             for rec in (r for f in webs for r in f.result()):
                 results[rec["key"]] = rec
     timings["compute_s"] = time.perf_counter() - t
+    return finish(cfg, store, catalog, plans, results, failed, parent, prev, damage, timings, t0,
+                  lambda gen: commit_task(gen, cfg.store.path))
 
+
+class _Changed(Exception):
+    """Raised by :func:`unchanged_summary`'s commit: the run would commit a new generation."""
+
+
+def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkPlan], results: dict[str, dict[str, Any]],
+           failed: dict[str, str], parent: str | None, prev: Generation | None, damage: PointerError | None,
+           timings: dict[str, float], t0: float, commit_fn: Callable[[Generation], Any]) -> dict[str, Any]:
+    """The end of an index run: the generation of the plans and results, committed with
+    ``commit_fn`` unless it lists the current one's content, gc, and the run summary."""
+    logger = run_logger()
+    repaired = "" if damage is None else _repair_note(damage)
     cached_keys = {j.key for p in plans for j in p.cached}
     cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
     for key in cached_keys - set(cached_meta):
@@ -586,7 +601,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
         logger.info("nothing changed: generation %s stays current", prev.id)
         gen.id = prev.id  # no manifest repeating the current one
     else:
-        commit_task(gen, cfg.store.path)
+        commit_fn(gen)
     removed = gc(store, cfg.index.keep_generations)
     if removed:
         logger.info("gc: removed %d objects and files no kept generation needs", len(removed))
@@ -607,3 +622,46 @@ def index_library(config: str | Config) -> dict[str, Any]:
                 gen.id, summary.clips, summary.pairs, summary.pairs_computed, summary.pairs_cached,
                 len(summary.broken), wall)
     return summary.to_dict()
+
+
+def unchanged_summary(cfg: Config) -> dict[str, Any] | None:
+    """The summary of an index run that has nothing to do, found without Prefect or Dask (the CLI
+    asks first when no Prefect server is there: the flow run's server start costs 10 s and more):
+    the pointer and the manifest it names are intact (:func:`check_current`), every clip's
+    features and every pair's web are stored and sound (the plan task's checks, checksums
+    included) and the generation they make lists the current one's content. None otherwise:
+    anything to compute, to commit or to repair is the flow's to do (``index_library``). Like the
+    flow, it removes what no kept generation needs (:func:`gc`)."""
+    t0 = time.perf_counter()
+    store = MotionStore(cfg.store.path)
+    try:
+        parent = check_current(store)
+        prev = load_generation(store, parent) if parent else None
+    except StoreError:  # PointerError included: the flow repairs it
+        return None
+    if prev is None:
+        return None
+    timings: dict[str, float] = {}
+    plain = logging.getLogger("motionweb.flows")
+    level, plain.level = plain.level, logging.ERROR  # what the plan finds damaged, the flow's run reports
+    try:
+        catalog = catalog_task.fn(cfg)
+        if not catalog.entries:
+            return None
+        timings["catalog_s"] = time.perf_counter() - t0
+        t = time.perf_counter()
+        plans = plan_task.fn(plan_chunks(catalog.entries, cfg.index.chunk_by), cfg, prev)
+        timings["plan_s"] = time.perf_counter() - t
+    finally:
+        plain.setLevel(level)
+    if any(p.todo or p.features_todo for p in plans):
+        return None
+    timings["compute_s"] = 0.0
+
+    def changed(gen: Generation) -> None:
+        raise _Changed
+
+    try:
+        return finish(cfg, store, catalog, plans, {}, {}, parent, prev, None, timings, t0, changed)
+    except _Changed:
+        return None

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from motionweb.flows.config import Config, load_config
+from motionweb.flows.lazy_prefect import call, flow, run_logger, task
 from motionweb.store.bvh import write_bvh
 from motionweb.store.formats import read_motion
 from motionweb.store.generations import Generation, current_id, load_generation, package_versions
@@ -31,8 +32,6 @@ from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.ranking import NO_MATCH, default_epsilon, nearest_costs
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
-from prefect import flow, get_run_logger, task
-from prefect.cache_policies import NO_CACHE
 
 
 @dataclass
@@ -257,7 +256,7 @@ def write_warps(reg: Registration, rows: list[dict[str, Any]], out: Path) -> lis
 
 
 # ----------------------------------------------------------------------------------- the flow
-@task(name="search", cache_policy=NO_CACHE)
+@task(name="search", no_cache=True)
 def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[MatchGraph, float | None]:
     """Choose ε and run the tiered search on the committed generation; (graph, ε). With the
     default rule and no nearest match ε is None and the graph holds the query alone
@@ -291,7 +290,7 @@ def register_graph(store: MotionStore, gen: Generation, gen_cfg: Config, graph: 
     return register(graph, feats, weights[graph.nodes[0].segment.clip], gen_cfg.matchweb)
 
 
-@task(name="register", cache_policy=NO_CACHE)
+@task(name="register", no_cache=True)
 def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: MatchGraph,
                   clips: dict[str, dict[str, Any]]) -> Registration:
     """:func:`register_graph` as a task of the query flow."""
@@ -305,14 +304,15 @@ def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
     as a dict. Cost: one tier reads the webs of the query's chunk once and walks them in
     O(cells of the paths and bridges touching rows a..b); tiers repeat that per new node."""
     cfg = config if isinstance(config, Config) else load_config(config)
-    logger = get_run_logger()
+    logger = run_logger()
     t0 = time.perf_counter()
     q = prepare_query(cfg, request)
-    graph, eps = search_task(q, cfg, request)
+    graph, eps = call(search_task, q, cfg, request)
     logger.info("query %s [%d, %d]: ε = %s, %d matches", q.segment.clip, q.segment.start, q.segment.end,
                 "none" if eps is None else f"{eps:.4g}", len(graph.nodes) - 1)
     return write_outputs(cfg, request, q, graph, eps, Path(request.out or cfg.output),
-                         Path(request.export) if request.export else None, t0, register_task)
+                         Path(request.export) if request.export else None, t0,
+                         lambda *a: call(register_task, *a))
 
 
 def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: MatchGraph, eps: float | None, out: Path,

@@ -1,4 +1,5 @@
-"""Physics-based retiming flow (design §8): a thin Prefect wrapper over ``tasks.retime``."""
+"""Physics-based retiming flow (design §8): a thin Prefect wrapper over ``tasks.retime``;
+``retime_flow.fn(...)`` runs the same work without Prefect (flows/lazy_prefect.py)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 from motionweb.flows.config import Config
+from motionweb.flows.lazy_prefect import call, flow, task
 from motionweb.store.bvh import write_bvh
 from motionweb.store.formats import read_motion
 from motionweb.store.motion import Motion
@@ -19,7 +21,6 @@ from motionweb.tasks.retime import (
     report,
     retime_plan,
 )
-from prefect import flow, task
 
 
 def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
@@ -33,7 +34,7 @@ def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
     return motion, humanoid
 
 
-@task
+@task()
 def prepare_task(motion: Motion, opts: RetimeParams, up_axis: str, gravity: np.ndarray | None,
                  mass: dict[str, float], humanoid: object | None, intervals: dict | None,
                  weight_factors: dict[str, float]) -> RetimePlan:
@@ -41,7 +42,7 @@ def prepare_task(motion: Motion, opts: RetimeParams, up_axis: str, gravity: np.n
                    weight_factors=weight_factors)
 
 
-@task
+@task()
 def retime_task(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]], opts: RetimeParams
                 ) -> tuple[Motion, RetimeResult]:
     return retime_plan(plan, duration, keytimes, opts)
@@ -103,11 +104,11 @@ def retime_flow(input_path: str, cfg: Config, out: str, duration: float | None =
     motion, humanoid = load_clip(input_path, cfg)
     opts = cfg.retime if objective is None else cfg.retime.model_copy(update={"objective": objective})
     intervals = cfg.retime.contact_intervals.get(motion.name) or None
-    plan = prepare_task(motion, opts, cfg.corpus.up_axis, None if gravity is None else np.asarray(gravity, float), mass or {},
+    plan = call(prepare_task, motion, opts, cfg.corpus.up_axis, None if gravity is None else np.asarray(gravity, float), mass or {},
                         humanoid, intervals, weight_factors or {})
     keytimes = list(keytimes or [])
     total = duration if duration is not None else motion.duration
-    retimed, res = retime_task(plan, total, keytimes, opts)
+    retimed, res = call(retime_task, plan, total, keytimes, opts)
     out_path = Path(out)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     write_bvh(retimed, out_path)

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 from motionweb.flows.config import Config, load_config
+from motionweb.flows.lazy_prefect import call, flow, run_logger, task
 from motionweb.flows.query import (
     PreparedQuery,
     QueryRequest,
@@ -57,8 +58,6 @@ from motionweb.tasks.parameterize import (
     parse_param,
 )
 from motionweb.tasks.register import Registration
-from prefect import flow, get_run_logger, task
-from prefect.cache_policies import NO_CACHE
 
 
 @dataclass
@@ -140,12 +139,12 @@ def flight_examples(q: PreparedQuery, graph: MatchGraph) -> FlightExamples:
                                graph.rate)
 
 
-@task(name="register-examples", cache_policy=NO_CACHE)
+@task(name="register-examples", no_cache=True)
 def examples_task(q: PreparedQuery, graph: MatchGraph, mode: str) -> Registration:
     """The matches registered to the query: along the match graph (KG04 §4.1) or by flights."""
     if mode == "flight":
         fx = flight_examples(q, graph)
-        get_run_logger().info("flight-keyed examples: %d of %d matches kept; dropped: %s", len(fx.kept),
+        run_logger().info("flight-keyed examples: %d of %d matches kept; dropped: %s", len(fx.kept),
                               len(graph.nodes), fx.dropped)
         return fx.registration
     clips = {c["path"]: c for c in q.gen.clips}
@@ -164,7 +163,7 @@ def space_digest(gen_id: str, reg: Registration, shas: list[str], spec: str, pcf
     return h.hexdigest()
 
 
-@task(name="sample-space", cache_policy=NO_CACHE)
+@task(name="sample-space", no_cache=True)
 def sample_task(ex, spec: str, pcfg: ParameterizeParams) -> MotionSpace:
     """KG04 §4.2 sampling of the registered examples."""
     from motionweb.tasks.parameterize import build_space
@@ -180,17 +179,17 @@ def parameterize(config: str | Config, request: SpaceRequest) -> dict[str, Any]:
     examples, samples, timings, files). Cost: the query's search and registration, then the
     sampling (O(n·(d + 1)·C_f), see ``tasks/parameterize.py``)."""
     cfg = config if isinstance(config, Config) else load_config(config)
-    logger = get_run_logger()
+    logger = run_logger()
     t0 = time.perf_counter()
     q = prepare_query(cfg, request.query())
-    graph, eps = search_task(q, cfg, request.query())
+    graph, eps = call(search_task, q, cfg, request.query())
     clips = {c["path"]: c for c in q.gen.clips}
     fn = parse_param(request.param)
     query = load_indexed_clip(q.gen_cfg, q.record)
     mode = registration_mode(cfg.parameterize.registration, query, q.segment, graph.rate)
     timings = {"search_s": time.perf_counter() - t0}
     t = time.perf_counter()
-    reg = examples_task(q, graph, mode)
+    reg = call(examples_task, q, graph, mode)
     timings["register_s"] = time.perf_counter() - t
     motions = [load_indexed_clip(q.gen_cfg, clips[s.clip]) for s in reg.segments]
     names = example_names(reg.segments)
@@ -200,7 +199,7 @@ def parameterize(config: str | Config, request: SpaceRequest) -> dict[str, Any]:
     t = time.perf_counter()
     check_param(fn, ex)
     check_count(ex.n, fn.dim, mode)  # plan_space checked it; the index cannot change under a generation
-    space = sample_task(ex, request.param, pcfg)
+    space = call(sample_task, ex, request.param, pcfg)
     timings["sample_s"] = time.perf_counter() - t
     shas = [clips[s.clip]["sha256"] for s in reg.segments]
     digest = space_digest(q.gen.id, reg, shas, fn.spec, pcfg, cfg.blend)

@@ -5,12 +5,14 @@ starts and a bad one ends in one line (exit 2)."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, NoReturn
 
 import typer
 from motionweb.flows.app.client import ServiceError, forward_space
-from motionweb.flows.reported import ERRORS, reported_flow_errors
+from motionweb.flows.history import record_run
+from motionweb.flows.reported import ERRORS
 
 
 def parse_target(text: str) -> list[float]:
@@ -69,6 +71,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         out: Annotated[Path | None, typer.Option(help="Folder for the plot (default: the config's output).")] = None,
     ) -> None:
         """Build a parameterized motion space from the matches of a query (KG04 §4) and store it."""
+        from motionweb.flows.cli import run_here
         from motionweb.flows.space import SpaceRequest, plan_space
         from motionweb.flows.space import parameterize as run
 
@@ -77,13 +80,18 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             request = SpaceRequest(clip=clip, start=start, end=end, param=param, threshold=threshold,
                                    quantile=quantile, samples=samples, out=str(out) if out else None)
             request.query()  # threshold / quantile / range
-            plan_space(cfg, request)
-            with reported_flow_errors():
-                res = run(cfg, request)
         except ERRORS as exc:
             fail(str(exc).strip("'\""))
+        params = {"store": cfg.store.path, "request": asdict(request)}
+
+        def work() -> dict:
+            plan_space(cfg, request)
+            return run.fn(cfg, request)  # in this process, without Prefect (flows/lazy_prefect.py)
+
+        res = run_here("parameterize", params, work, strip=True)
         typer.echo(f"space {res['id']}: {len(res['examples'])} examples, {res['samples']} samples of {res['param']} "
                    f"(ε = {res['epsilon']:.4g}) in {res['timings']['total_s']:.1f} s; plot {res['files'][0]}")
+        record_run("parameterize", params, res)
 
     @app.command()
     def synthesize(

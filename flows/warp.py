@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 from motionweb.flows.config import Config
+from motionweb.flows.lazy_prefect import call, flow, task
 from motionweb.store.motion import Motion
 from motionweb.tasks.guided_warp import (
     WarpParams,
@@ -25,8 +26,6 @@ from motionweb.tasks.guided_warp import (
     reduce_to_compression,
 )
 from motionweb.tasks.retime import RetimeError, RetimeParams, clip_contacts, inner_flights
-from prefect import flow, task
-from prefect.cache_policies import NO_CACHE
 
 
 @dataclass(frozen=True)
@@ -185,18 +184,18 @@ def run_warp(config: Config, request: WarpRequest) -> dict[str, Any]:
     return summary
 
 
-plan_task = task(name="plan-warp", cache_policy=NO_CACHE)(plan_warp)
-solve_task = task(name="guided-warp", cache_policy=NO_CACHE)(solve)
-write_task = task(name="write-warp", cache_policy=NO_CACHE)(write_outputs)
+plan_task = task(name="plan-warp", no_cache=True)(plan_warp)
+solve_task = task(name="guided-warp", no_cache=True)(solve)
+write_task = task(name="write-warp", no_cache=True)(write_outputs)
 
 
 @flow(name="guided-warp", validate_parameters=False)
 def warp(config: Config, request: WarpRequest) -> dict[str, Any]:
     """Guided time warp of one clip (HDP07 §3): plan, solve, write BVH and plot; returns a summary."""
     t0 = time.perf_counter()
-    plan = plan_task(config, request)
-    result = solve_task(plan, request.fast, request.backward)
-    summary = write_task(plan, result, request)
+    plan = call(plan_task, config, request)
+    result = call(solve_task, plan, request.fast, request.backward)
+    summary = call(write_task, plan, result, request)
     summary["wall_s"] = time.perf_counter() - t0
     return summary
 

@@ -1,10 +1,9 @@
-"""Commands always exit (issue 22, parts 4 and 6): a script that runs ``motionweb search`` or
-``motionweb index`` with ``capture_output=True`` gets the return code of a CLI killed by SIGSEGV or
-SIGKILL within 10 s, no process the command started is left, and a crash prints one line naming
+"""Commands always exit (issue 22, parts 4 and 6): a script that runs ``motionweb index`` with
+``capture_output=True`` gets the return code of a CLI killed by SIGSEGV or SIGKILL within 10 s, no process the command started is left, and a crash prints one line naming
 the fault and its report (flows/guard.py, flows/reaper.py).
 
-The CLI is killed from outside, once its Prefect server answers (and, for ``index``, once a Dask
-worker process runs): a SIGSEGV sent with kill() meets the same faulthandler as a real one.
+The CLI is killed from outside, once its Prefect server answers (and, with process workers, once
+a Dask worker process runs): a SIGSEGV sent with kill() meets the same faulthandler as a real one.
 Processes the command started are found by a marker variable in their environment
 (/proc/<pid>/environ), which every descendant inherits, orphaned or not.
 """
@@ -170,14 +169,16 @@ def report_of(stderr: str) -> Path:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGSEGV, signal.SIGKILL], ids=["SIGSEGV", "SIGKILL"])
-def test_a_killed_search_returns_at_once_and_leaves_nothing(app_store: Path, tmp_path: Path, sig: int) -> None:
-    """``motionweb search`` under ``capture_output=True``, killed once its Prefect server is up."""
+def test_a_killed_index_returns_at_once_and_leaves_nothing(app_store: Path, tmp_path: Path, sig: int) -> None:
+    """``motionweb index`` (thread workers) under ``capture_output=True``, killed once its Prefect
+    server is up. (``search`` was the command here: it starts no Prefect server any more when
+    none is configured, issue 23.)"""
     cfg = yaml.safe_load(app_store.read_text())
-    tmp_cfg = tmp_path / "config.yaml"  # the demo store, this test's own output folder
-    cfg.update(store={"path": str(app_store.parent / "store")}, output=str(tmp_path / "out"))
+    tmp_cfg = tmp_path / "config.yaml"  # the demo corpus, a store and output folder of this test's own
+    cfg.update(store={"path": str(tmp_path / "store")}, output=str(tmp_path / "out"))
     cfg["corpus"]["path"] = str(app_store.parent / "corpus")
     tmp_cfg.write_text(yaml.safe_dump(cfg))
-    res = run_killed([*cli_command(), "search", str(tmp_cfg), "--clip", "walk_00", "--start", "1", "--end", "2.5"],
+    res = run_killed([*cli_command(), "index", str(tmp_cfg), "--no-progress"],
                      clean_env(tmp_path, uuid.uuid4().hex), sig)
     print(f"{signal.Signals(sig).name}: rc {res['rc']} after {res['done'] - res['killed']:.2f} s, "
           f"{len(res['left'])} left at return {short(res['left'])}, all gone after {res['all_gone_s']:.2f} s; "
@@ -191,7 +192,7 @@ def test_a_killed_search_returns_at_once_and_leaves_nothing(app_store: Path, tmp
     if sig == signal.SIGSEGV:
         report = report_of(res["stderr"])
         assert report.parent == logs and report.read_text().startswith("Fatal Python error: Segmentation fault")
-        assert "error: motionweb search crashed (Segmentation fault) in " in res["stderr"]
+        assert "error: motionweb index crashed (Segmentation fault) in " in res["stderr"]
         assert [p.name for p in logs.iterdir() if not p.name.startswith("stdio-")] == [report.name]
     else:
         assert "error:" not in res["stderr"] and "Traceback" not in res["stderr"], res["stderr"]
