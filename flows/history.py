@@ -31,9 +31,9 @@ DEFAULT_API_URL = "http://127.0.0.1:4200/api"
 
 
 def answers(api_url: str, timeout: float = 2.0) -> bool:
-    """Whether a Prefect API answers at ``api_url`` (``.../api``). The same probe as
-    :func:`motionweb.flows.app.recorder.healthy`, which cannot be imported without importing
-    Prefect (seconds), the cost this module saves when no server is there."""
+    """Whether a Prefect API answers at ``api_url`` (``.../api``): the one probe, used by the CLI
+    here and by the service's recorder (``flows/app/recorder.py``); this module imports no Prefect
+    (seconds), the cost it saves when no server is there."""
     try:
         with urllib.request.urlopen(api_url.rstrip("/") + "/health", timeout=timeout) as r:
             return r.status == 200

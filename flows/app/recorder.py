@@ -18,10 +18,10 @@ import subprocess
 import sys
 import threading
 import time
-import urllib.request
 from pathlib import Path
 from typing import Any
 
+from motionweb.flows.history import answers as healthy
 from prefect import flow, get_run_logger
 
 log = logging.getLogger("motionweb.app")
@@ -33,15 +33,6 @@ def app_query(kind: str, parameters: dict[str, Any], outcome: dict[str, Any]) ->
     parameters and outcome (generation, ε, matches, timings) in the run's log and result."""
     get_run_logger().info("%s %s -> %s", kind, parameters, outcome)
     return outcome
-
-
-def healthy(api_url: str, timeout: float = 2.0) -> bool:
-    """Whether a Prefect API answers at ``api_url`` (``.../api``)."""
-    try:
-        with urllib.request.urlopen(api_url.rstrip("/") + "/health", timeout=timeout) as r:
-            return r.status == 200
-    except OSError:
-        return False
 
 
 def free_port(host: str = "127.0.0.1") -> int:

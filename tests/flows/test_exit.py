@@ -17,13 +17,13 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.request
 import uuid
 from pathlib import Path
 
 import pytest
 import yaml
 from fixtures import tiny_index_config
+from motionweb.flows.history import answers
 from motionweb.flows.reaper import descendants
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -86,14 +86,9 @@ def clean_env(tmp_path: Path, marker: str) -> dict[str, str]:
 def healthy(cmdline: str) -> bool:
     """Whether the uvicorn of ``cmdline`` (Prefect's temporary server) answers /api/health."""
     args = cmdline.split()
-    if "uvicorn" not in args or "--port" not in args:
+    if "uvicorn" not in args or "--port" not in args[:-1]:
         return False
-    try:
-        port = args[args.index("--port") + 1]
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=1) as r:
-            return r.status == 200
-    except (OSError, IndexError):
-        return False
+    return answers(f"http://127.0.0.1:{args[args.index('--port') + 1]}/api", timeout=1)
 
 
 def run_killed(cmd: list[str], env: dict[str, str], sig: int, need_dask: bool = False) -> dict:
