@@ -164,25 +164,3 @@ def test_an_error_inside_the_flow_is_one_line_too(space, monkeypatch) -> None:
     assert "needs at least 3" in r.output and "Traceback" not in r.output
     assert seen, "the flow ran and logged"
     assert not [x for x in seen if x.exc_info or x.levelno >= logging.ERROR], [x.getMessage() for x in seen]
-
-
-def test_the_cli_drops_prefect_records_of_errors_it_reports() -> None:
-    import logging
-    import sys
-
-    from motionweb.flows.reported import DropReported
-
-    def record(msg: str, exc: BaseException | None, level: int = logging.ERROR) -> logging.LogRecord:
-        info = None
-        if exc is not None:
-            try:
-                raise exc
-            except BaseException:
-                info = sys.exc_info()
-        return logging.LogRecord("prefect.flow_runs", level, __file__, 1, msg, None, info)
-
-    drop = DropReported()
-    assert not drop.filter(record("Encountered exception during execution", ValueError("bad")))
-    assert not drop.filter(record("Finished in state Failed('bad')", None))
-    assert drop.filter(record("Encountered exception during execution", ZeroDivisionError()))  # a bug: shown
-    assert drop.filter(record("space ab12: 6 examples", None, logging.INFO))
