@@ -18,7 +18,9 @@ does not answer, or a record that fails, costs one warning line on stderr, never
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import sys
 import tomllib
@@ -75,6 +77,31 @@ def _jsonable(value: Any) -> Any:
     return json.loads(json.dumps(value, default=str))
 
 
+@contextlib.contextmanager
+def prefect_console_muted():
+    """Mute Prefect's console log handlers for the block: a record's own log lines go to the
+    server, not to the user's terminal, which has the command's answer already.
+
+    Prefect also builds its console handler once, on the stream that was ``sys.stderr`` when
+    Prefect was first imported; when that stream was replaced and closed since (a test runner's
+    captured stream), an unmuted line would print "--- Logging error --- Traceback"."""
+    loggers = [logging.root, *[lg for n, lg in logging.root.manager.loggerDict.items()
+                               if n == "prefect" or n.startswith("prefect.")]]
+    handlers = []
+    for lg in loggers:  # Prefect's console handler sits on the root logger, its own on prefect.*
+        for h in getattr(lg, "handlers", []):
+            if isinstance(h, logging.StreamHandler) and type(h).__module__.startswith("prefect") and h not in handlers:
+                handlers.append(h)
+    saved = [(h, h.level) for h in handlers]
+    try:
+        for h, _ in saved:
+            h.setLevel(logging.CRITICAL + 1)
+        yield
+    finally:
+        for h, level in saved:
+            h.setLevel(level)
+
+
 def record_run(flow_name: str, parameters: dict[str, Any], outcome: dict[str, Any]) -> bool:
     """Record one command run as a Prefect flow run named ``flow_name`` when a server is there
     (see the module notes); whether it was recorded."""
@@ -91,7 +118,8 @@ def record_run(flow_name: str, parameters: dict[str, Any], outcome: dict[str, An
         from motionweb.flows.app.recorder import app_query
         from prefect.settings import PREFECT_API_URL, PREFECT_FLOWS_HEARTBEAT_FREQUENCY, temporary_settings
 
-        with temporary_settings({PREFECT_API_URL: url, PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
+        with temporary_settings({PREFECT_API_URL: url, PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}), \
+                prefect_console_muted():
             app_query.with_options(name=flow_name)(flow_name, _jsonable(parameters), _jsonable(outcome))
     except Exception as exc:  # noqa: BLE001 - a record lost must not fail a command that succeeded
         first = (str(exc).strip().splitlines() or [""])[0]
