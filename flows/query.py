@@ -29,9 +29,9 @@ from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
-from motionweb.tasks.ranking import NO_MATCH, default_epsilon, nearest_costs
+from motionweb.tasks.ranking import NO_MATCH, search_query
 from motionweb.tasks.register import Registration, register
-from motionweb.tasks.search import MatchSearch, epsilon_from_quantile, search
+from motionweb.tasks.search import MatchSearch
 
 
 @dataclass
@@ -262,16 +262,8 @@ def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[M
     default rule and no nearest match ε is None and the graph holds the query alone
     (``tasks.ranking.NO_MATCH`` says why)."""
     scfg = cfg.search if request.tiers is None else cfg.search.model_copy(update={"max_tiers": request.tiers})
-    if request.threshold is not None:
-        eps = request.threshold
-    elif request.quantile is not None:
-        eps = epsilon_from_quantile(q.webs.all_webs(), request.quantile)
-    else:
-        near = nearest_costs(MatchSearch(q.webs, scfg, q.gen_cfg.matchweb), q.segment)
-        eps = default_epsilon(near, scfg.eps_nearest_ratio)
-        if eps is None:
-            return MatchSearch(q.webs, scfg, q.gen_cfg.matchweb).query_only(q.segment), None
-    return search(q.segment, eps, q.webs, scfg, q.gen_cfg.matchweb), eps
+    ms = MatchSearch(q.webs, scfg, q.gen_cfg.matchweb)
+    return search_query(ms, q.segment, request.threshold, request.quantile)
 
 
 def register_graph(store: MotionStore, gen: Generation, gen_cfg: Config, graph: MatchGraph,

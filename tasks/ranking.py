@@ -7,12 +7,13 @@ need not choose, and :func:`rank_trials` ranks clips by a small match graph per 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.matchweb.params import min_chain_extent
-from motionweb.tasks.search import INF, MatchSearch, nearest_by_clip, nearest_matches
+from motionweb.tasks.search import INF, MatchSearch, epsilon_from_quantile, nearest_by_clip, nearest_matches
 
 
 def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
@@ -48,6 +49,31 @@ def default_epsilon(nearest: dict[str, float], ratio: float) -> float | None:
     if not nearest:
         return None
     return float(ratio) * min(nearest.values())
+
+
+def choose_epsilon(ms: MatchSearch, query: Segment, threshold: float | None, quantile: float | None,
+                   quantile_value: Callable[[float], float] | None = None) -> float | None:
+    """ε of one search (KG04 §3.3; design §5), the one rule every front door uses: ``threshold``
+    when given; else the ``quantile`` of the searched webs' path values (``quantile_value(q)``
+    when the caller keeps them computed, else :func:`epsilon_from_quantile` over ``ms.webs``);
+    else :func:`default_epsilon` with ``ms.cfg.eps_nearest_ratio``. None: no nearest match, the
+    query matches nothing at any threshold (:data:`NO_MATCH`)."""
+    if threshold is not None:
+        return float(threshold)
+    if quantile is not None:
+        return float(quantile_value(quantile) if quantile_value is not None
+                     else epsilon_from_quantile(ms.webs.all_webs(), quantile))
+    return default_epsilon(nearest_costs(ms, query), ms.cfg.eps_nearest_ratio)
+
+
+def search_query(ms: MatchSearch, query: Segment, threshold: float | None, quantile: float | None,
+                 quantile_value: Callable[[float], float] | None = None) -> tuple[MatchGraph, float | None]:
+    """The tiered search of ``query`` at :func:`choose_epsilon`'s ε: (match graph, ε). With no
+    ε (no nearest match) the graph holds the query alone and ε is None (:data:`NO_MATCH`)."""
+    eps = choose_epsilon(ms, query, threshold, quantile, quantile_value)
+    if eps is None:
+        return ms.query_only(query), None
+    return ms.search(query, eps), eps
 
 
 def query_windows(query: Segment, frames: int) -> list[Segment]:

@@ -185,6 +185,11 @@ class CorpusWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
             self._pairs[(a, b)] = build_web(self.feats[a], self.feats[b], self.weights, self.cfg, self_pair=a == b)
         return self._pairs[(a, b)]
 
+    def all_webs(self) -> list[MatchWeb]:
+        """Every web once, each unordered pair (itself included), as ``StoreWebs.all_webs``."""
+        names = list(self.clips)
+        return [self.web(a, b) for i, a in enumerate(names) for b in names[i:]]
+
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
         if clip not in self.clips:
             raise KeyError(clip)

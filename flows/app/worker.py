@@ -141,7 +141,7 @@ class _State:
         return len(clips)
 
     def search(self, job: SearchJob) -> tuple[Any, float | None]:
-        from motionweb.tasks.ranking import default_epsilon, nearest_costs
+        from motionweb.tasks.ranking import search_query
         from motionweb.tasks.search import SearchParams, epsilon_from_quantile
 
         sc = self.scope(job.generation, job.category)
@@ -149,17 +149,13 @@ class _State:
         sc.search.cfg = params
         sc.search.check(job.segment)
         _test_crash(job.segment.clip)
-        if job.threshold is not None:
-            eps = job.threshold
-        elif job.quantile is not None:
-            if job.quantile not in sc.quantiles:
-                sc.quantiles[job.quantile] = epsilon_from_quantile(sc.webs.all_webs(), job.quantile)
-            eps = sc.quantiles[job.quantile]
-        else:
-            eps = default_epsilon(nearest_costs(sc.search, job.segment), params.eps_nearest_ratio)
-            if eps is None:  # nothing matches at any threshold: the query alone (tasks.ranking.NO_MATCH)
-                return sc.search.query_only(job.segment), None
-        return sc.search.search(job.segment, eps), float(eps)
+
+        def quantile_value(q: float) -> float:  # a scope's quantiles, computed once
+            if q not in sc.quantiles:
+                sc.quantiles[q] = epsilon_from_quantile(sc.webs.all_webs(), q)
+            return sc.quantiles[q]
+
+        return search_query(sc.search, job.segment, job.threshold, job.quantile, quantile_value)
 
 
     def register(self, gen_id: str, graph: Any) -> Any:

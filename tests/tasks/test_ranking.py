@@ -86,3 +86,26 @@ def test_window_scores_weigh_windows_by_how_few_clips_match_them() -> None:
     assert with_flat == pytest.approx(window_scores(direct, tiered, 2.0))
     both_flat = np.vstack([flat, 2 * flat])
     assert window_scores(both_flat, both_flat, 2.0) == pytest.approx(np.log(flat[0] / 3))
+
+
+def test_one_epsilon_rule_for_every_front_door(near_copy) -> None:
+    """``choose_epsilon`` (used by the query flow and the service's worker): a threshold passes
+    through; a quantile is that quantile of the searched webs (or the caller's cached value); else
+    ``eps_nearest_ratio`` × the nearest match; ``search_query`` searches at that ε."""
+    import numpy as np
+    from motionweb.tasks.ranking import choose_epsilon, search_query
+    from motionweb.tasks.search import epsilon_from_quantile
+
+    pc, webs = near_copy
+    ms = MatchSearch(webs, SearchParams())
+    assert choose_epsilon(ms, pc.query, 0.25, None) == 0.25
+    q = epsilon_from_quantile(webs.all_webs(), 0.3)
+    assert choose_epsilon(ms, pc.query, None, 0.3) == q
+    assert choose_epsilon(ms, pc.query, None, 0.3, quantile_value=lambda v: 7.0 * v) == 2.1
+    near = nearest_costs(ms, pc.query)
+    eps = choose_epsilon(ms, pc.query, None, None)
+    assert eps == ms.cfg.eps_nearest_ratio * min(near.values())
+    graph, got = search_query(ms, pc.query, None, None)
+    ref = ms.search(pc.query, eps)
+    assert got == eps and len(graph.nodes) == len(ref.nodes) > 1
+    assert np.array_equal([n.distance for n in graph.nodes], [n.distance for n in ref.nodes])
