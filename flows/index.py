@@ -28,8 +28,8 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from motionweb.flows.config import Config, DaskConfig, load_config
-from motionweb.flows.lazy_prefect import run_logger
+from motionweb.flows.config import Config, DaskConfig
+from motionweb.flows.lazy_prefect import run_logger, task
 from motionweb.flows.workers import compute_features_batch, compute_web_batch, quiet_heartbeat
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
@@ -40,7 +40,6 @@ from motionweb.store.generations import (
     gc,
     load_generation,
     package_versions,
-    repair_current,
     same_content,
 )
 from motionweb.store.keys import (
@@ -53,8 +52,6 @@ from motionweb.store.keys import (
     web_params,
 )
 from motionweb.store.zarr_store import MotionStore, StoreError, new_id, now_iso
-from prefect import flow, get_run_logger, task
-from prefect.cache_policies import NO_CACHE
 
 log = logging.getLogger(__name__)
 
@@ -443,7 +440,7 @@ def _workers(address: str) -> int:
 
 
 # ---------------------------------------------------------------------------- Prefect tasks
-@task(name="catalog", cache_policy=NO_CACHE)
+@task(name="catalog", no_cache=True)
 def catalog_task(cfg: Config) -> Catalog:
     """Scan the corpus (hash, label, describe every clip; broken files listed, not fatal)."""
     cat = scan_corpus(cfg.corpus.path, cfg.corpus)
@@ -451,7 +448,7 @@ def catalog_task(cfg: Config) -> Catalog:
     return cat
 
 
-@task(name="plan", cache_policy=NO_CACHE)
+@task(name="plan", no_cache=True)
 def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list[ChunkPlan]:
     """Pair plan of every chunk, split into cached and to-compute by the store.
 
@@ -486,17 +483,17 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list
     return plans
 
 
-@task(name="features", cache_policy=NO_CACHE, retries=1)
+@task(name="features", no_cache=True, retries=1)
 def features_task(plan: ChunkPlan, cfg: Config, address: str) -> list[dict[str, Any]]:
     """Features for the chunk's clips that lack them, on Dask."""
     if not plan.features_todo:
         return []
     batches = balance_clips(plan.features_todo, 4 * _workers(address))
     return _run_on_dask(address, compute_features_batch, batches, cfg, cfg.store.path,
-                        f"features[{plan.chunk.name}]", get_run_logger())
+                        f"features[{plan.chunk.name}]", run_logger())
 
 
-@task(name="webs", cache_policy=NO_CACHE, retries=1)
+@task(name="webs", no_cache=True, retries=1)
 def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> list[dict[str, Any]]:
     """Webs of the chunk's uncached pairs, batches balanced by cell count, on Dask."""
     jobs = [j for j in plan.todo if j.a.sha256 not in bad_sha and j.b.sha256 not in bad_sha]
@@ -505,17 +502,17 @@ def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> 
     batches = [[(j.key, j.a.sha256, j.b.sha256, j.self_pair) for j in b]
                for b in balance_batches(jobs, batch_count(jobs, _workers(address)))]
     return _run_on_dask(address, compute_web_batch, batches, cfg, cfg.store.path,
-                        f"webs[{plan.chunk.name}]", get_run_logger())
+                        f"webs[{plan.chunk.name}]", run_logger())
 
 
-@task(name="commit", cache_policy=NO_CACHE)
+@task(name="commit", no_cache=True)
 def commit_task(gen: Generation, store_url: str) -> str:
     """Write the manifest and switch the ``current`` pointer (design §9)."""
     return commit(MotionStore(store_url), gen)
 
 
 # ------------------------------------------------------------------------------------ flow
-def _repair_note(damage: PointerError) -> str:
+def repair_note(damage: PointerError) -> str:
     """One line saying what was damaged and what the run does about it (see
     :func:`motionweb.store.generations.repair_current`)."""
     what = f"{damage.key} {damage.reason}"
@@ -528,54 +525,14 @@ def _repair_note(damage: PointerError) -> str:
     return f"{what}, and no generation manifest is intact: this run commits a fresh generation"
 
 
-@flow(name="index-library")
-def index_library(config: str | Config) -> dict[str, Any]:
-    """Index a motion library into match webs (design §1, §10); returns the run summary.
+def __getattr__(name: str) -> Any:
+    """``index_library``, the Prefect flow, from :mod:`motionweb.flows.index_flow` on first use:
+    this module imports no Prefect, so an index run with nothing to do answers without it."""
+    if name == "index_library":
+        from motionweb.flows.index_flow import index_library
 
-    ``config`` is a config file path or a :class:`Config`. Nothing is visible to readers until
-    the final commit switches the store's ``current`` generation.
-    """
-    cfg = config if isinstance(config, Config) else load_config(config)
-    logger = get_run_logger()
-    t0 = time.perf_counter()
-    timings: dict[str, float] = {}
-    store = MotionStore(cfg.store.path)
-    damage = repair_current(store)  # a damaged pointer names the newest intact generation again
-    parent = check_current(store) if damage is None else damage.fallback
-    prev = load_generation(store, parent) if parent else None
-    repaired = "" if damage is None else _repair_note(damage)
-    if repaired:
-        logger.warning("%s: %s", store.url, repaired)
-
-    catalog = catalog_task(cfg)
-    if not catalog.entries:
-        raise ValueError(f"corpus {catalog.root} holds no readable clip ({len(catalog.errors)} unreadable "
-                         "files): nothing to index")
-    timings["catalog_s"] = time.perf_counter() - t0
-    chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
-    t = time.perf_counter()
-    plans = plan_task(chunks, cfg, prev)
-    timings["plan_s"] = time.perf_counter() - t
-
-    todo_cells = sum(j.cells for p in plans for j in p.todo)
-    results: dict[str, dict[str, Any]] = {}
-    failed: dict[str, str] = {}
-    t = time.perf_counter()
-    if any(p.todo or p.features_todo for p in plans):
-        with dask_scheduler(cfg.dask, small=todo_cells < SMALL_RUN_CELLS) as address:
-            logger.info("dask scheduler %s; %d pairs (%.3g cells) to compute",
-                        address, sum(len(p.todo) for p in plans), todo_cells)
-            feats = [features_task.submit(p, cfg, address) for p in plans]
-            for rec in (r for f in feats for r in f.result()):
-                if "error" in rec:
-                    failed[rec["sha256"]] = rec["error"]
-            timings["features_s"] = time.perf_counter() - t
-            webs = [webs_task.submit(p, cfg, address, set(failed)) for p in plans]
-            for rec in (r for f in webs for r in f.result()):
-                results[rec["key"]] = rec
-    timings["compute_s"] = time.perf_counter() - t
-    return finish(cfg, store, catalog, plans, results, failed, parent, prev, damage, timings, t0,
-                  lambda gen: commit_task(gen, cfg.store.path))
+        return index_library
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class _Changed(Exception):
@@ -588,7 +545,7 @@ def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkP
     """The end of an index run: the generation of the plans and results, committed with
     ``commit_fn`` unless it lists the current one's content, gc, and the run summary."""
     logger = run_logger()
-    repaired = "" if damage is None else _repair_note(damage)
+    repaired = "" if damage is None else repair_note(damage)
     cached_keys = {j.key for p in plans for j in p.cached}
     cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
     for key in cached_keys - set(cached_meta):

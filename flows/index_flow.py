@@ -1,0 +1,79 @@
+"""The ``index-library`` Prefect flow (design §1, §10): the run over :mod:`motionweb.flows.index`'s
+plan, tasks and :func:`~motionweb.flows.index.finish`. It keeps Prefect's own decorator, so that
+``motionweb serve`` can serve it from this module (``Flow.serve`` loads its entrypoint and expects a
+``prefect.Flow``); the rest of the index lives in :mod:`motionweb.flows.index`, which imports no
+Prefect (``index`` with nothing to do answers without it). Cost: one catalog scan and one pair plan
+(both O(clips + pairs)), the Dask compute of what is missing, one commit.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from motionweb.flows.config import Config, load_config
+from motionweb.flows.index import (
+    SMALL_RUN_CELLS,
+    catalog_task,
+    commit_task,
+    dask_scheduler,
+    features_task,
+    finish,
+    plan_chunks,
+    plan_task,
+    repair_note,
+    webs_task,
+)
+from motionweb.store.generations import check_current, load_generation, repair_current
+from motionweb.store.zarr_store import MotionStore
+from prefect import flow, get_run_logger
+
+
+@flow(name="index-library")
+def index_library(config: str | Config) -> dict[str, Any]:
+    """Index a motion library into match webs (design §1, §10); returns the run summary.
+
+    ``config`` is a config file path or a :class:`Config`. Nothing is visible to readers until
+    the final commit switches the store's ``current`` generation.
+    """
+    cfg = config if isinstance(config, Config) else load_config(config)
+    logger = get_run_logger()
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    store = MotionStore(cfg.store.path)
+    damage = repair_current(store)  # a damaged pointer names the newest intact generation again
+    parent = check_current(store) if damage is None else damage.fallback
+    prev = load_generation(store, parent) if parent else None
+    repaired = "" if damage is None else repair_note(damage)
+    if repaired:
+        logger.warning("%s: %s", store.url, repaired)
+
+    catalog = catalog_task(cfg)
+    if not catalog.entries:
+        raise ValueError(f"corpus {catalog.root} holds no readable clip ({len(catalog.errors)} unreadable "
+                         "files): nothing to index")
+    timings["catalog_s"] = time.perf_counter() - t0
+    chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
+    t = time.perf_counter()
+    plans = plan_task(chunks, cfg, prev)
+    timings["plan_s"] = time.perf_counter() - t
+
+    todo_cells = sum(j.cells for p in plans for j in p.todo)
+    results: dict[str, dict[str, Any]] = {}
+    failed: dict[str, str] = {}
+    t = time.perf_counter()
+    if any(p.todo or p.features_todo for p in plans):
+        with dask_scheduler(cfg.dask, small=todo_cells < SMALL_RUN_CELLS) as address:
+            logger.info("dask scheduler %s; %d pairs (%.3g cells) to compute",
+                        address, sum(len(p.todo) for p in plans), todo_cells)
+            feats = [features_task.submit(p, cfg, address) for p in plans]
+            for rec in (r for f in feats for r in f.result()):
+                if "error" in rec:
+                    failed[rec["sha256"]] = rec["error"]
+            timings["features_s"] = time.perf_counter() - t
+            webs = [webs_task.submit(p, cfg, address, set(failed)) for p in plans]
+            for rec in (r for f in webs for r in f.result()):
+                results[rec["key"]] = rec
+    timings["compute_s"] = time.perf_counter() - t
+    return finish(cfg, store, catalog, plans, results, failed, parent, prev, damage, timings, t0,
+                  lambda gen: commit_task(gen, cfg.store.path))
