@@ -115,12 +115,14 @@ def work_functions(cfg_path: Path, work: Path) -> dict[str, Callable[[], object]
         return rep
 
     def warp() -> object:
-        from motionweb.flows.warp import WarpRequest, run_warp
+        from motionweb.flows.requests import WarpRequest
+        from motionweb.flows.warp import run_warp
 
         return run_warp(cfg, WarpRequest(input=clip, out=str(inproc / "warped.bvh"), duration=2.5))
 
     def search() -> object:
-        from motionweb.flows.query import QueryRequest, prepare_query, search_task, write_outputs
+        from motionweb.flows.query import prepare_query, search_task, write_outputs
+        from motionweb.flows.requests import QueryRequest
 
         request = QueryRequest(clip="walk_00", start=1.0, end=2.5, out=str(inproc / "search"))
         t0 = time.perf_counter()

@@ -113,7 +113,7 @@ def main() -> None:
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from motionweb.flows.cli import app
     from motionweb.flows.config import load_config
-    from motionweb.flows.space import SpaceRequest
+    from motionweb.flows.requests import SpaceRequest
 
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:

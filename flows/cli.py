@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
@@ -15,6 +14,7 @@ from motionweb.store.errors import MotionFormatError
 
 if TYPE_CHECKING:  # the config imports every stage: loaded on use, so a forwarded search starts fast
     from motionweb.flows.config import Config
+    from motionweb.flows.requests import QueryRequest
 
 app = typer.Typer(
     name="motionweb",
@@ -38,19 +38,43 @@ def fail(message: str, code: int = 2) -> NoReturn:
 
 
 T = TypeVar("T")
+R = TypeVar("R")
 
 
-def run_here(flow_name: str, parameters: dict[str, Any], work: Callable[[], T], strip: bool = False) -> T:
-    """Run an on-demand command's ``work`` in this process, without Prefect (its flow's ``.fn``,
-    flows/lazy_prefect.py); an error it reports (``ERRORS``) is recorded (flows/history.py) and
-    ends in ``fail`` (quotes stripped with ``strip``). The caller prints the answer, then records
-    the run with :func:`record_run`."""
+def run_command(flow_name: str, parameters: dict[str, Any], work: Callable[[], T], show: Callable[[T], None],
+                strip: bool = False, services: bool = False, record: bool = True) -> T:
+    """Every command's run, the same way (issue 23): with ``services`` (a command that may start a
+    Prefect server or a Dask cluster) the reaper first, so they die with this process; then
+    ``work`` in this process (an on-demand command calls its flow's ``.fn``: no Prefect,
+    flows/lazy_prefect.py); an error it reports (``ERRORS``) is one line and exit 2 (quotes
+    stripped with ``strip``); else ``show`` prints the answer. Either outcome is then recorded as
+    a Prefect flow run named ``flow_name`` when a server is there (flows/history.py)."""
+    if services:
+        from motionweb.flows.reaper import start_reaper
+
+        start_reaper()
     try:
-        return work()
+        result = work()
     except ERRORS as exc:
         message = str(exc).strip("'\"") if strip else str(exc)
-        record_run(flow_name, parameters, {"error": message})
+        if record:
+            record_run(flow_name, parameters, {"error": message})
         fail(message)
+    show(result)
+    if record:
+        record_run(flow_name, parameters, result)
+    return result
+
+
+def request_or_fail(model: type[R], **fields: Any) -> R:
+    """A command's request model (flows/requests.py) from its options; a bad one ends in ``fail``
+    with the field named."""
+    from motionweb.flows.requests import parse
+
+    try:
+        return parse(model, **fields)
+    except ValueError as exc:
+        fail(str(exc))
 
 
 def config_or_fail(path: Path | None) -> Config:
@@ -153,7 +177,7 @@ def demo(
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
     typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")
     run_index(cfg, progress=True)
-    from motionweb.flows.query import QueryRequest
+    from motionweb.flows.requests import QueryRequest
 
     d = cfg.demo
     typer.echo(f"\nsearching (KG04 §3.3) for {d.query_clip} {d.query_start:g}-{d.query_end:g} s, registering the matches ...")
@@ -179,28 +203,29 @@ def warp(
     config: Annotated[Path | None, typer.Option(help="Config file (warp section).")] = None,
 ) -> None:
     """Guided time warp (HDP07): retime a clip to a duration and keytimes, mimicking a reference's timing."""
-    if sum([duration is not None, frames is not None, unconstrained]) != 1:
-        fail("give exactly one of --duration SECONDS, --frames M or --unconstrained")
-    keys = []
-    for text in keytime or []:
-        parts = text.split(":")
-        try:
-            if len(parts) != 2:
-                raise ValueError
-            keys.append((float(parts[0]), float(parts[1])))
-        except ValueError:
-            fail(f"--keytime {text!r}: expected IN_S:OUT_S (seconds), e.g. 1.5:1.0")
+    keys = [parse_pair("--keytime", text, "IN_S:OUT_S (seconds), e.g. 1.5:1.0") for text in keytime or []]
+    from motionweb.flows.requests import WarpRequest
+
+    request = request_or_fail(WarpRequest, input=str(input_path), out=str(out),
+                              reference=str(reference) if reference else None, duration=duration, frames=frames,
+                              unconstrained=unconstrained, keytimes=tuple(keys), skip=skip, fast=fast,
+                              backward=backward, plot=str(plot) if plot else None)
     cfg = config_or_fail(config)
-    from motionweb.flows.warp import WarpRequest, format_summary
+    from motionweb.flows.warp import format_summary
     from motionweb.flows.warp import warp as warp_flow
 
-    request = WarpRequest(input=str(input_path), out=str(out), reference=str(reference) if reference else None,
-                          duration=duration, frames=frames, unconstrained=unconstrained, keytimes=tuple(keys),
-                          skip=skip, fast=fast, backward=backward, plot=str(plot) if plot else None)
-    params = {"config": str(config) if config else None, "request": asdict(request)}
-    summary = run_here("guided-warp", params, lambda: warp_flow.fn(cfg, request))  # its plan checks first
-    typer.echo(format_summary(summary))
-    record_run("guided-warp", params, summary)
+    params = {"config": str(config) if config else None, "request": request.wire()}
+    run_command("guided-warp", params, lambda: warp_flow.fn(cfg, request),  # its plan checks first
+                lambda summary: typer.echo(format_summary(summary)))
+
+
+def parse_pair(option: str, text: str, expected: str) -> tuple[float, float]:
+    """``A:B`` as two floats (one-line failure naming the option)."""
+    try:
+        a, b = text.split(":")
+        return float(a), float(b)
+    except ValueError:
+        fail(f"{option} {text!r}: expected {expected}")
 
 
 def body_factors(option: str, texts: list[str] | None) -> dict[str, float]:
@@ -232,17 +257,7 @@ def retime(
     config: Annotated[Path | None, typer.Option(help="Config file (retime section).")] = None,
 ) -> None:
     """Physics-based retiming (MPS06): change duration, keytimes, gravity, limb masses or weights."""
-    if duration is None and not keytime:
-        fail("give --duration SECONDS and/or --keytime SRC_S:OUT_S")
-    if objective is not None and objective not in ("match", "minimize"):
-        fail(f"--objective {objective!r}: expected match or minimize")
-    keys = []
-    for text in keytime or []:
-        try:
-            a, b = text.split(":")
-            keys.append((float(a), float(b)))
-        except ValueError:
-            fail(f"--keytime {text!r}: expected SRC_S:OUT_S (seconds), e.g. 1.5:1.0")
+    keys = [parse_pair("--keytime", text, "SRC_S:OUT_S (seconds), e.g. 1.5:1.0") for text in keytime or []]
     g = None
     if gravity is not None:
         try:
@@ -251,17 +266,23 @@ def retime(
                 raise ValueError
         except ValueError:
             fail(f"--gravity {gravity!r}: expected X,Y,Z, e.g. 0,-4.9,0")
-    factors = body_factors("--mass", mass)
-    weight_factors = body_factors("--weight", weight_factors)  # the same name down to RetimePlan.weight_factors
+    from motionweb.flows.requests import RetimeRequest
+
+    request = request_or_fail(RetimeRequest, input_path=str(input_path), out=str(out), duration=duration,
+                              keytimes=keys, gravity=g, mass=body_factors("--mass", mass),
+                              weight_factors=body_factors("--weight", weight_factors),  # the same name down to
+                              objective=objective, plot_dir=str(plot) if plot else None)  # RetimePlan
     cfg = config_or_fail(config)
     from motionweb.flows.retime import retime_flow
 
-    params = {"input_path": str(input_path), "config": str(config) if config else None, "out": str(out),
-              "duration": duration, "keytimes": keys, "gravity": g, "mass": factors, "objective": objective,
-              "plot_dir": str(plot) if plot else None, "weight_factors": weight_factors}
-    rep = run_here("retime", params, lambda: retime_flow.fn(
-        str(input_path), cfg, str(out), duration=duration, keytimes=keys, gravity=g, mass=factors,
-        objective=objective, plot_dir=str(plot) if plot else None, weight_factors=weight_factors))
+    params = {"config": str(config) if config else None, "request": request.wire()}
+    run_command("retime", params, lambda: retime_flow.fn(request.input_path, cfg, request.out,
+                                                         **request.model_dump(exclude={"input_path", "out"})),
+                print_retime)
+
+
+def print_retime(rep: dict) -> None:
+    """What ``motionweb retime`` prints: durations, flights, notes, the reachable duration."""
     typer.echo(f"{rep['clip']}: {rep['duration_in']:.3f} s -> {rep['duration_out']:.3f} s, "
                f"{rep['frames_out']} frames written to {rep['output']}")
     for fl in rep["flights"]:
@@ -278,7 +299,6 @@ def retime(
     if rep["infeasible_output_frames"]:
         typer.echo(f"  output frames outside their feasible polygon: {len(rep['infeasible_output_frames'])}")
     typer.echo(f"  timing ({rep['timing']}) {rep['reachable']['message']}")
-    record_run("retime", params, rep)
 
 
 def _quiet_services() -> None:
@@ -294,11 +314,10 @@ def _quiet_services() -> None:
 
 
 def run_index(cfg: Config, progress: bool) -> dict:
-    """Run the index flow with an optional progress counter on stderr; errors become ``fail``."""
+    """Run the index with an optional progress counter on stderr (:func:`run_command`, which
+    starts the reaper: the Prefect server and Dask workers die with this process)."""
     import motionweb.flows.index as idx
-    from motionweb.flows.reaper import start_reaper
 
-    start_reaper()  # the Prefect server and Dask workers die with this process
     seen: dict[str, tuple[int, int]] = {}
 
     def show(stage: str, done: int, total: int) -> None:
@@ -311,21 +330,21 @@ def run_index(cfg: Config, progress: bool) -> dict:
             acc[1] += t
         typer.echo("\r  " + "  ".join(f"{k} {d}/{t}" for k, (d, t) in sums.items()), err=True, nl=False)
 
-    idx.PROGRESS = show if progress and sys.stderr.isatty() else None  # no \r lines in a log file
-    try:
-        # nothing to compute, commit or repair, and no Prefect server to record the run: said
-        # without starting Prefect's server and a Dask cluster (flows/index.py unchanged_summary)
-        summary = idx.unchanged_summary(cfg) if server_url() is None else None
-        if summary is None:
-            summary = idx.index_library(cfg)
-    except (FileNotFoundError, MotionFormatError, ValueError) as exc:
-        fail(str(exc))
-    finally:
-        idx.PROGRESS = None
-        if seen:
-            typer.echo("", err=True)
-    typer.echo(idx.format_summary(summary))
-    return summary
+    def work() -> dict:
+        idx.PROGRESS = show if progress and sys.stderr.isatty() else None  # no \r lines in a log file
+        try:
+            # nothing to compute, commit or repair, and no Prefect server to record the run: said
+            # without Prefect, its server or a Dask cluster (flows/index.py unchanged_summary)
+            summary = idx.unchanged_summary(cfg) if server_url() is None else None
+            return summary if summary is not None else idx.index_library(cfg)
+        finally:
+            idx.PROGRESS = None
+            if seen:
+                typer.echo("", err=True)
+
+    # the flow run is its own record: nothing recorded twice (record=False)
+    return run_command("index-library", {}, work, lambda summary: typer.echo(idx.format_summary(summary)),
+                       services=True, record=False)
 
 
 @app.command()
@@ -365,19 +384,15 @@ def matches_table(rows: list[dict]) -> str:
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(x, widths, strict=True)).rstrip() for x in [head, *body])
 
 
-def run_query(cfg: Config, request) -> dict:
-    """Check the request, run the query flow and print its matches; errors become ``fail``."""
+def run_query(cfg: Config, request: QueryRequest) -> dict:
+    """Check the request, run the query flow's body here and print its matches (:func:`run_command`)."""
     from motionweb.flows.query import plan_query, query
 
     def work() -> dict:
         plan_query(cfg, request)
         return query.fn(cfg, request)
 
-    params = {"store": cfg.store.path, "request": asdict(request)}
-    res = run_here("query", params, work, strip=True)
-    print_query(res)
-    record_run("query", params, res)
-    return res
+    return run_command("query", {"store": cfg.store.path, "request": request.wire()}, work, print_query, strip=True)
 
 
 def print_query(res: dict) -> None:
@@ -414,27 +429,19 @@ def search(
 
     With a `motionweb app` running for the config's store, the service answers (same outputs)."""
     from motionweb.flows.app.client import ServiceError, forward_search
+    from motionweb.flows.requests import QueryRequest
 
+    request = request_or_fail(QueryRequest, clip=clip, start=start, end=end, threshold=threshold, quantile=quantile,
+                              tiers=tiers, all_categories=all_categories or None, register=register,
+                              export=str(export) if export else None, out=str(out) if out else None)
     try:
-        res = forward_search(config, {
-            "clip": clip, "start": start, "end": end, "threshold": threshold, "quantile": quantile, "tiers": tiers,
-            "all_categories": all_categories or None, "register": register,
-            "export": str(export) if export else None, "out": str(out) if out else None})
+        res = forward_search(config, request)
     except ServiceError as exc:
         fail(str(exc))
     if res is not None:
         print_query(res)
         return
-    from motionweb.flows.query import QueryRequest
-
-    cfg = config_or_fail(config)
-    try:
-        request = QueryRequest(clip=clip, start=start, end=end, threshold=threshold, quantile=quantile, tiers=tiers,
-                               all_categories=all_categories or None, register=register,
-                               export=str(export) if export else None, out=str(out) if out else None)
-    except ValueError as exc:
-        fail(str(exc))
-    run_query(cfg, request)
+    run_query(config_or_fail(config), request)
 
 
 @app.command("app")

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from motionweb.flows.config import Config, load_config
 from motionweb.flows.lazy_prefect import call, flow, run_logger, task
+from motionweb.flows.requests import QueryRequest
 from motionweb.store.bvh import write_bvh
 from motionweb.store.formats import read_motion
 from motionweb.store.generations import Generation, current_id, load_generation, package_versions
@@ -32,35 +33,6 @@ from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.ranking import NO_MATCH, search_query
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch
-
-
-@dataclass
-class QueryRequest:
-    """A query M1[a, b] (KG04 §3.3): ``clip`` is a corpus path or a unique file stem; ``start``
-    and ``end`` in seconds; at most one of ``threshold`` (absolute ε) and ``quantile`` (ε as that
-    quantile of the searched webs' values); with neither, the default rule
-    (``tasks.ranking.default_epsilon``: a multiple of the query's nearest match)."""
-
-    clip: str
-    start: float
-    end: float
-    threshold: float | None = None
-    quantile: float | None = None
-    tiers: int | None = None
-    all_categories: bool | None = None
-    register: bool = False
-    export: str | None = None
-    out: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.threshold is not None and self.quantile is not None:
-            raise ValueError("give at most one of threshold (absolute ε) and quantile (ε as a quantile)")
-        if self.quantile is not None and not 0.0 < self.quantile < 1.0:
-            raise ValueError(f"quantile must lie in (0, 1), got {self.quantile}")
-        if self.tiers is not None and self.tiers < 1:
-            raise ValueError(f"tiers must be ≥ 1, got {self.tiers}")
-        if not self.end > self.start:
-            raise ValueError(f"the query must end after it starts, got {self.start} s .. {self.end} s")
 
 
 @dataclass
@@ -320,7 +292,7 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
     rows = match_rows(graph, clips)
     out.mkdir(parents=True, exist_ok=True)
     message = NO_MATCH if eps is None else ""
-    meta = {"generation": gen.id, "store": cfg.store.path, "epsilon": eps, "message": message, "request": asdict(request),
+    meta = {"generation": gen.id, "store": cfg.store.path, "epsilon": eps, "message": message, "request": request.wire(),
             "config_digest": cfg.digest(), "versions": package_versions()}
     files = [out / "matches.json", out / "graph.json", out / "graph.png"]
     files[0].write_text(json.dumps({**meta, "matches": rows}, indent=1))
@@ -341,7 +313,7 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
             p = export / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.bvh"
             write_bvh(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p)
             files.append(p)
-    if request.register and len(graph.nodes) > 1:
+    if request.register_ and len(graph.nodes) > 1:
         t = time.perf_counter()
         reg = register_fn(store, gen, gen_cfg, graph, clips)
         timings["register_s"] = time.perf_counter() - t

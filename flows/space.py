@@ -25,7 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,6 @@ from motionweb.flows.config import Config, load_config
 from motionweb.flows.lazy_prefect import call, flow, run_logger, task
 from motionweb.flows.query import (
     PreparedQuery,
-    QueryRequest,
     committed_generation,
     indexed_config,
     load_indexed_clip,
@@ -43,6 +42,7 @@ from motionweb.flows.query import (
     register_graph,
     search_task,
 )
+from motionweb.flows.requests import SpaceRequest
 from motionweb.store.generations import load_generation, package_versions
 from motionweb.store.motion import Motion
 from motionweb.store.zarr_store import MotionStore, now_iso
@@ -60,25 +60,6 @@ from motionweb.tasks.parameterize import (
 from motionweb.tasks.register import Registration
 
 
-@dataclass
-class SpaceRequest:
-    """A motion space to build: the query (clip, seconds, exactly one of threshold / quantile),
-    the parameter spec ``KIND[:JOINT[@SECONDS]]`` and optionally the number of samples."""
-
-    clip: str
-    start: float
-    end: float
-    param: str
-    threshold: float | None = None
-    quantile: float | None = None
-    samples: int | None = None
-    out: str | None = None
-
-    def query(self) -> QueryRequest:
-        return QueryRequest(clip=self.clip, start=self.start, end=self.end, threshold=self.threshold,
-                            quantile=self.quantile)
-
-
 def plan_space(cfg: Config, request: SpaceRequest) -> int:
     """Every check before a flow starts, each failing with one clear line (ValueError): the query
     (store, clip, range), the parameter spec, the sample count, then the parameter function
@@ -88,8 +69,6 @@ def plan_space(cfg: Config, request: SpaceRequest) -> int:
     the number of examples. Costs one search, which the flow repeats (seconds at most; the flow
     records it as its own task)."""
     fn = parse_param(request.param)
-    if request.samples is not None and request.samples < 1:
-        raise ValueError(f"--samples must be ≥ 1, got {request.samples}")
     plan_query(cfg, request.query())
     q = prepare_query(cfg, request.query())
     query = load_indexed_clip(q.gen_cfg, q.record)
@@ -208,7 +187,7 @@ def parameterize(config: str | Config, request: SpaceRequest) -> dict[str, Any]:
         "clips": [s.clip for s in reg.segments], "names": names, "sha256": shas, "segments": [[s.start, s.end] for s in reg.segments],
         "nodes": reg.nodes, "parents": reg.parents, "generation": q.gen.id, "store": cfg.store.path,
         "config_digest": cfg.digest(), "parameterize": pcfg.model_dump(mode="json"), "registration": mode,
-        "blend": cfg.blend.model_dump(mode="json"), "epsilon": eps, "request": asdict(request),
+        "blend": cfg.blend.model_dump(mode="json"), "epsilon": eps, "request": request.wire(),
         "versions": package_versions(), "created": now_iso(),
     }
     arrays = {"frames": reg.frames, "params": space.params, "indices": space.indices.astype(np.int64),

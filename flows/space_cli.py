@@ -5,14 +5,11 @@ starts and a bad one ends in one line (exit 2)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 from motionweb.flows.app.client import ServiceError, forward_space
-from motionweb.flows.history import record_run
-from motionweb.flows.reported import ERRORS
 
 
 def parse_target(text: str) -> list[float]:
@@ -44,12 +41,15 @@ def parse_weights(items: list[str]) -> dict[str, float]:
 
 
 def ask_service(fail: Callable[[str], NoReturn], config: Path | None, space: str, op: str,
-                payload: Callable[[], dict], out: Path) -> tuple[dict, dict | None]:
-    """The parsed request and, when a `motionweb app` serves the config's store, its answer (None
-    otherwise); a bad option or the service's refusal ends in ``fail``."""
+                payload: Callable[[], dict], out: Path) -> tuple[Any, dict | None]:
+    """The parsed request (``op``'s model: :class:`SynthesizeRequest` or :class:`BlendRequest`,
+    the bodies the service's routes take) and, when a `motionweb app` serves the config's store,
+    its answer (None otherwise); a bad option or the service's refusal ends in ``fail``."""
+    from motionweb.flows.requests import BlendRequest, SynthesizeRequest, parse
+
     try:
-        body = payload()
-        return body, forward_space(config, space, op, body, out)
+        body = parse(SynthesizeRequest if op == "synthesize" else BlendRequest, **payload())
+        return body, forward_space(config, space, op, body.wire(), out)
     except (ValueError, ServiceError) as exc:
         fail(str(exc).strip("'\""))
 
@@ -71,27 +71,22 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         out: Annotated[Path | None, typer.Option(help="Folder for the plot (default: the config's output).")] = None,
     ) -> None:
         """Build a parameterized motion space from the matches of a query (KG04 §4) and store it."""
-        from motionweb.flows.cli import run_here
-        from motionweb.flows.space import SpaceRequest, plan_space
+        from motionweb.flows.cli import request_or_fail, run_command
+        from motionweb.flows.requests import SpaceRequest
         from motionweb.flows.space import parameterize as run
+        from motionweb.flows.space import plan_space
 
+        request = request_or_fail(SpaceRequest, clip=clip, start=start, end=end, param=param, threshold=threshold,
+                                  quantile=quantile, samples=samples, out=str(out) if out else None)
         cfg = config_or_fail(config)
-        try:
-            request = SpaceRequest(clip=clip, start=start, end=end, param=param, threshold=threshold,
-                                   quantile=quantile, samples=samples, out=str(out) if out else None)
-            request.query()  # threshold / quantile / range
-        except ERRORS as exc:
-            fail(str(exc).strip("'\""))
-        params = {"store": cfg.store.path, "request": asdict(request)}
 
         def work() -> dict:
             plan_space(cfg, request)
             return run.fn(cfg, request)  # in this process, without Prefect (flows/lazy_prefect.py)
 
-        res = run_here("parameterize", params, work, strip=True)
-        typer.echo(f"space {res['id']}: {len(res['examples'])} examples, {res['samples']} samples of {res['param']} "
-                   f"(ε = {res['epsilon']:.4g}) in {res['timings']['total_s']:.1f} s; plot {res['files'][0]}")
-        record_run("parameterize", params, res)
+        run_command("parameterize", {"store": cfg.store.path, "request": request.wire()}, work, lambda res: typer.echo(
+            f"space {res['id']}: {len(res['examples'])} examples, {res['samples']} samples of {res['param']} "
+            f"(ε = {res['epsilon']:.4g}) in {res['timings']['total_s']:.1f} s; plot {res['files'][0]}"), strip=True)
 
     @app.command()
     def synthesize(
@@ -104,24 +99,29 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
 
         With a `motionweb app` running for the config's store, the service answers (same BVH)."""
         t, res = ask_service(fail, config, space, "synthesize", lambda: {"target": parse_target(target)}, out)
-        t = t["target"]
+        t = t.target
         if res is not None:
             typer.echo(synthesis_line(out, res["frames"], res["achieved"], res["error"], res["outside"], res["service"]))
             return
         import numpy as np
+        from motionweb.flows.cli import run_command
         from motionweb.flows.space import load_space, space_info
         from motionweb.store.bvh import write_bvh
 
         cfg = config_or_fail(config)
-        try:
-            _, info, _ = space_info(cfg, space)
+
+        def work() -> dict:
+            digest, info, _ = space_info(cfg, space)
             if len(t) != info["dim"]:
                 raise ValueError(f"--target has {len(t)} values; space parameter {info['param']} has {info['dim']}")
             motion, syn = load_space(cfg, space).synthesize(np.array(t))
             write_bvh(motion, out)
-        except ERRORS as exc:
-            fail(str(exc).strip("'\""))
-        typer.echo(synthesis_line(out, motion.n_frames, syn.achieved, syn.error, syn.outside))
+            return {"space": digest, "out": str(out), "frames": motion.n_frames,
+                    "achieved": [float(v) for v in syn.achieved], "error": float(syn.error), "outside": bool(syn.outside)}
+
+        run_command("synthesize", {"store": cfg.store.path, "space": space, "request": {"target": t}}, work,
+                    lambda r: typer.echo(synthesis_line(out, r["frames"], r["achieved"], r["error"], r["outside"])),
+                    strip=True)
 
     @app.command("blend")
     def blend_cmd(
@@ -134,19 +134,22 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
 
         With a `motionweb app` running for the config's store, the service answers (same BVH)."""
         w, res = ask_service(fail, config, space, "blend", lambda: {"weights": parse_weights(weights)}, out)
-        w = w["weights"]
+        w = w.weights
         if res is not None:
             typer.echo(f"wrote {out}: {res['frames']} frames at {res['fps']:g} fps (by the service at {res['service']})")
             return
+        from motionweb.flows.cli import run_command
         from motionweb.flows.space import load_space, space_info, weight_vector
         from motionweb.store.bvh import write_bvh
 
         cfg = config_or_fail(config)
-        try:
+
+        def work() -> dict:
             _, info, _ = space_info(cfg, space)
             weight_vector(info["names"], w)  # names and sum, before loading clips
             motion = load_space(cfg, space).blend(w)
             write_bvh(motion, out)
-        except ERRORS as exc:
-            fail(str(exc).strip("'\""))
-        typer.echo(f"wrote {out}: {motion.n_frames} frames at {motion.fps:g} fps")
+            return {"out": str(out), "frames": motion.n_frames, "fps": float(motion.fps)}
+
+        run_command("blend", {"store": cfg.store.path, "space": space, "request": {"weights": w}}, work,
+                    lambda r: typer.echo(f"wrote {out}: {r['frames']} frames at {r['fps']:g} fps"), strip=True)

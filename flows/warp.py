@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from motionweb.flows.config import Config
 from motionweb.flows.lazy_prefect import call, flow, task
+from motionweb.flows.requests import WarpRequest
 from motionweb.store.motion import Motion
 from motionweb.tasks.guided_warp import (
     WarpParams,
@@ -26,24 +27,6 @@ from motionweb.tasks.guided_warp import (
     reduce_to_compression,
 )
 from motionweb.tasks.retime import RetimeError, RetimeParams, clip_contacts, inner_flights
-
-
-@dataclass(frozen=True)
-class WarpRequest:
-    """One warp: files, the output length (exactly one of duration, frames, unconstrained) and
-    keytimes as (input seconds, output seconds) pairs; ``skip`` overrides the config."""
-
-    input: str
-    out: str
-    reference: str | None = None
-    duration: float | None = None
-    frames: int | None = None
-    unconstrained: bool = False
-    keytimes: tuple[tuple[float, float], ...] = ()
-    skip: int | None = None
-    fast: bool = False
-    backward: bool = False
-    plot: str | None = None
 
 
 @dataclass(frozen=True)
@@ -73,9 +56,6 @@ def load_motion(path: str | Path, config: Config) -> Motion:
 
 def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
     """Load and check a request; raises ValueError (or MotionFormatError) naming the problem."""
-    chosen = [request.duration is not None, request.frames is not None, request.unconstrained]
-    if sum(chosen) != 1:
-        raise ValueError("give exactly one of --duration SECONDS, --frames M or --unconstrained")
     cfg = config.warp
     if request.skip is not None:
         cfg = cfg.model_copy(update={"skip": request.skip})
@@ -84,9 +64,7 @@ def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
     if reference is not None:
         check_compatible(motion, reference)
     fps = motion.fps
-    if request.duration is not None:
-        if not request.duration > 0:
-            raise ValueError(f"--duration must be positive, got {request.duration:g}")
+    if request.duration is not None:  # exactly one of the three, > 0: checked by WarpRequest
         n_out = round(request.duration * fps) + 1
     elif request.frames is not None:
         n_out = int(request.frames)

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import hmac
 import logging
-import math
 from importlib import resources
 from typing import Any
 
@@ -43,7 +42,8 @@ from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed, QueryCrashed
 from motionweb.flows.app.spaces import Spaces
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from motionweb.flows.requests import BlendRequest, QueryRequest, SearchQuery, SynthesizeRequest, message
+from pydantic import Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 MAX_BODY = 64 * 1024
@@ -58,51 +58,33 @@ def static_dir() -> str:
         return str(path)
 
 
-class SearchBody(BaseModel):
-    """A search: the CLI's options (``motionweb search``), the clip by id or corpus name."""
+class SearchBody(SearchQuery):
+    """A search: ``motionweb search``'s request model (``flows/requests.py``), the clip by id or
+    corpus name, and ``search``: overrides of the config's search section (the CLI sends its
+    config's)."""
 
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-    clip: str = Field(min_length=1, max_length=300)
-    start: float
-    end: float
-    threshold: float | None = None
-    quantile: float | None = None
-    tiers: int | None = None
-    all_categories: bool | None = None
-    register_: bool = Field(default=False, alias="register")
-    #: overrides of the config's search section (the CLI sends its config's)
     search: dict[str, Any] | None = Field(default=None, max_length=16)
 
-    def fields(self) -> dict[str, Any]:
-        for name in ("start", "end", "threshold", "quantile"):
-            v = getattr(self, name)
-            if v is not None and not math.isfinite(v):
-                raise ValueError(f"{name} must be a finite number, got {v}")
-        return self.model_dump(exclude={"search"}, by_alias=True)
+
+class QueryBody(QueryRequest):
+    """``motionweb search`` forwarded (the same model): ``out`` and ``export`` are the client's
+    folders, only recorded in matches.json (the service writes nothing where a request says)."""
+
+    search: dict[str, Any] | None = Field(default=None, max_length=16)
 
 
-class QueryBody(SearchBody):
-    """``motionweb search`` forwarded: ``out`` and ``export`` are the client's folders, only
-    recorded in matches.json (the service writes nothing where a request says)."""
+class SynthesizeBody(SynthesizeRequest):
+    """``motionweb synthesize``'s request (a target parameter, metres, as many values as the
+    space's parameter has) and what to answer with."""
 
-    out: str | None = Field(default=None, max_length=1000)
-    export: str | None = Field(default=None, max_length=1000)
-
-
-class SynthesizeBody(BaseModel):
-    """A target parameter (metres, as many values as the space's parameter has)."""
-
-    model_config = ConfigDict(extra="forbid")
-    target: list[float] = Field(min_length=1, max_length=3)
     pose: bool = True
     bvh: bool = False
 
 
-class BlendBody(BaseModel):
-    """Weights by example (corpus path or stem), summing to 1."""
+class BlendBody(BlendRequest):
+    """``motionweb blend``'s request (weights by example, corpus path or stem, summing to 1) and
+    what to answer with."""
 
-    model_config = ConfigDict(extra="forbid")
-    weights: dict[str, float] = Field(min_length=1, max_length=256)
     pose: bool = True
     bvh: bool = False
 
@@ -199,12 +181,7 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
 
     @app.exception_handler(RequestValidationError)
     async def invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
-        parts = []
-        for e in exc.errors():
-            where = list(e["loc"])
-            loc = ".".join(str(p) for p in (where[1:] if where and where[0] in ("body", "query", "path") else where))
-            parts.append(f"{loc}: {e['msg']}" if loc else e["msg"])
-        return error(400, "; ".join(parts))
+        return error(400, message(exc.errors()))
 
     @app.exception_handler(Exception)
     async def internal(_: Request, exc: Exception) -> JSONResponse:
@@ -242,7 +219,7 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     async def search(body: SearchBody, request: Request) -> dict:
         if await request.is_disconnected():
             return error(499, "client went away")
-        res = await run(engine.search, body.fields(), body.search)
+        res = await run(engine.search, SearchQuery(**body.model_dump(exclude={"search"}, by_alias=True)), body.search)
         return res.summary()
 
     @app.get("/api/results/{rid}")
@@ -265,8 +242,7 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     async def query(body: QueryBody, request: Request) -> Response:
         if await request.is_disconnected():
             return error(499, "client went away")
-        fields = body.fields()
-        data = await run(engine.query_bundle, fields, body.search, body.export is not None)
+        data = await run(engine.query_bundle, QueryRequest(**body.model_dump(exclude={"search"}, by_alias=True)), body.search)
         return Response(data, media_type="application/zip")
 
     spaces = Spaces(engine.cfg, on_query=engine.on_query)

@@ -21,9 +21,12 @@ import urllib.request
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motionweb.flows.paths import resolve_path
+
+if TYPE_CHECKING:
+    from motionweb.flows.requests import QueryRequest
 
 ENV_DIR = "MOTIONWEB_APP_DIR"
 
@@ -147,22 +150,23 @@ def ask(config: Path | None, data: dict[str, Any], path: str, body: dict[str, An
     return svc, payload
 
 
-def forward_search(config: Path, fields: dict[str, Any]) -> dict[str, Any] | None:
-    """Send ``motionweb search`` to the running service of the config's store and write its
-    outputs where the local run would (``fields["out"]`` or the config's output; exported BVH
-    into ``fields["export"]``). The query flow's result with local paths, or None when there is
-    no running service: then the caller runs locally."""
+def forward_search(config: Path, request: QueryRequest) -> dict[str, Any] | None:
+    """Send ``motionweb search``'s request (the model the service's ``/api/query`` takes) to the
+    running service of the config's store and write its outputs where the local run would
+    (``request.out`` or the config's output; exported BVH into ``request.export``). The query
+    flow's result with local paths, or None when there is no running service: then the caller
+    runs locally."""
     data = raw_config(config)
     if data is None:
         return None
-    body = {k: v for k, v in fields.items() if v is not None}
+    body = {k: v for k, v in request.wire().items() if v is not None}
     body["search"] = data.get("search") if isinstance(data.get("search"), dict) else None
     got = ask(config, data, "/api/query", body)
     if got is None:
         return None
     svc, payload = got
-    out = Path(fields.get("out") or data["output"])
-    export = Path(fields["export"]) if fields.get("export") else None
+    out = Path(request.out or data["output"])
+    export = Path(request.export) if request.export else None
     with zipfile.ZipFile(io.BytesIO(payload)) as z:
         res = json.loads(z.read("result.json"))
         files = []

@@ -31,7 +31,7 @@ import weakref
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,6 @@ from motionweb.flows.app.worker import SearchJob, SearchWorkers, WorkerCrashed
 from motionweb.flows.config import Config
 from motionweb.flows.query import (
     PreparedQuery,
-    QueryRequest,
     graph_dict,
     indexed_config,
     load_indexed_clip,
@@ -51,6 +50,7 @@ from motionweb.flows.query import (
     segment_motion,
     write_outputs,
 )
+from motionweb.flows.requests import QueryRequest, SearchQuery, parse
 from motionweb.store.bvh import format_bvh
 from motionweb.store.generations import Generation, current_id, load_generation
 from motionweb.store.motion import Motion
@@ -177,7 +177,7 @@ class Result:
 
     id: str
     snap: Snapshot
-    request: QueryRequest
+    request: SearchQuery
     params: SearchParams
     graph: MatchGraph
     epsilon: float | None  # None: the query matches nothing at any threshold (tasks.ranking.NO_MATCH)
@@ -193,12 +193,12 @@ class Result:
         rows = [{**r, "id": clip_id(r["clip"])} for r in self.rows]
         return {"result": self.id, "generation": self.snap.gen.id, "epsilon": self.epsilon,
                 "message": NO_MATCH if self.epsilon is None else "", "query": rows[0],
-                "matches": rows[1:], "graph": g, "timings": self.timings, "request": asdict(self.request)}
+                "matches": rows[1:], "graph": g, "timings": self.timings, "request": self.request.wire()}
 
 
-def query_fields(request: QueryRequest) -> dict[str, Any]:
-    """A request's fields but its local folders (what an error names)."""
-    return {k: v for k, v in asdict(request).items() if k not in ("out", "export")}
+def query_fields(request: SearchQuery) -> dict[str, Any]:
+    """A request's fields but a CLI's local folders (what an error names)."""
+    return request.search_query().wire() if isinstance(request, QueryRequest) else request.wire()
 
 
 def draw_frames(frames: np.ndarray) -> np.ndarray:
@@ -346,7 +346,7 @@ class Engine:
 
     # ------------------------------------------------------------------ search
     @staticmethod
-    def check_bounds(req: QueryRequest) -> None:
+    def check_bounds(req: SearchQuery) -> None:
         """The service's bounds on a request the CLI would accept (after the CLI's own checks)."""
         if req.end - req.start > MAX_QUERY_S:
             raise ValueError(f"the query spans {req.end - req.start:g} s; the service searches at most "
@@ -362,12 +362,15 @@ class Engine:
             raise ValueError("; ".join(f"search.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}"
                                        for e in exc.errors())) from None
 
-    def search(self, fields: dict[str, Any], search: dict[str, Any] | None = None) -> Result:
-        """Search the current snapshot (KG04 §3.3) for the request ``fields`` (those of
-        :class:`QueryRequest` but out/export), with ``search`` overriding the config's search
-        section (the CLI sends its own). ValueError with the CLI's messages for bad requests."""
+    def search(self, request: SearchQuery | dict[str, Any], search: dict[str, Any] | None = None) -> Result:
+        """Search the current snapshot (KG04 §3.3) for ``request`` (the model, or its fields),
+        with ``search`` overriding the config's search section (the CLI sends its own).
+        ValueError with the CLI's messages for bad requests."""
         t0 = time.perf_counter()
-        request = QueryRequest(**fields)  # ValueError with the CLI's messages
+        if isinstance(request, QueryRequest):
+            request = request.search_query()
+        elif not isinstance(request, SearchQuery):
+            request = parse(SearchQuery, **request)  # ValueError with the CLI's messages
         snap = self.current()
         rec = snap.clip(request.clip)
         seg = query_segment(rec, request.start, request.end, snap.rate)
@@ -388,11 +391,11 @@ class Engine:
                      match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})
         self.results.put(res.id, res)
         if self.on_query:
-            self.on_query("search", asdict(request), {"result": res.id, "generation": snap.gen.id, "epsilon": eps,
+            self.on_query("search", request.wire(), {"result": res.id, "generation": snap.gen.id, "epsilon": eps,
                                                       "matches": len(res.rows) - 1, **res.timings})
         return res
 
-    def registration(self, gen_id: str, graph: MatchGraph, request: QueryRequest) -> Registration:
+    def registration(self, gen_id: str, graph: MatchGraph, request: SearchQuery) -> Registration:
         """``graph``'s registration (KG04 §4.1), computed by the search worker."""
         try:
             return self.workers.register(gen_id, graph)
@@ -465,14 +468,14 @@ class Engine:
         return f"{rank:03d}_{Path(seg.clip).stem}_{tag}.bvh", format_bvh(m)
 
     # ------------------------------------------------------------------ the CLI's query
-    def query_bundle(self, fields: dict[str, Any], search: dict[str, Any] | None, export: bool) -> bytes:
+    def query_bundle(self, request: QueryRequest, search: dict[str, Any] | None) -> bytes:
         """What ``motionweb search`` writes, made here: a zip of ``result.json`` (the query
         flow's result, file names relative to the zip: ``out/...``, ``export/...``) and those
         files. They are written into a folder of the service's own, never one a request names."""
         t0 = time.perf_counter()
-        res = self.search({k: v for k, v in fields.items() if k not in ("out", "export")}, search)
+        res = self.search(request, search)
         snap = res.snap
-        request = QueryRequest(**{**asdict(res.request), "out": fields.get("out"), "export": fields.get("export")})
+        export = request.export is not None
         # the config as the CLI's run records it: its search section, not the request's tiers
         cfg = self.cfg.model_copy(update={"search": self.search_params(search)})
         rec = snap.clip(request.clip)

@@ -339,7 +339,8 @@ def test_a_query_that_matches_nothing_is_an_empty_result_with_a_message(client, 
     """Issue 22: a window whose rows no path crosses (found here in-process: a window ending on a
     clip's last frame) is answered with the query alone and a message, by the service and the
     query flow alike, not with an error."""
-    from motionweb.flows.query import QueryRequest, query
+    from motionweb.flows.query import query
+    from motionweb.flows.requests import QueryRequest
     from motionweb.tasks.ranking import NO_MATCH
 
     store = MotionStore(cfg.store.path, read_only=True)

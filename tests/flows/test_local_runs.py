@@ -57,9 +57,10 @@ def test_warp_and_search_run_without_prefect(local_cfg: Path, tmp_path: Path) ->
 
 def test_the_flow_run_and_the_plain_run_write_the_same_bytes(prefect_harness, local_cfg: Path,
                                                            tmp_path: Path) -> None:
-    from motionweb.flows.query import QueryRequest, query
+    from motionweb.flows.query import query
+    from motionweb.flows.requests import QueryRequest, WarpRequest
     from motionweb.flows.retime import retime_flow
-    from motionweb.flows.warp import WarpRequest, warp
+    from motionweb.flows.warp import warp
 
     cfg = load_config(local_cfg)
     clip = str(Path(cfg.corpus.path) / "walk" / "walk_00.bvh")

@@ -14,7 +14,8 @@ from motionweb.flows import index as index_flow
 from motionweb.flows.cli import app
 from motionweb.flows.config import load_config
 from motionweb.flows.index import index_library
-from motionweb.flows.query import QueryRequest, query
+from motionweb.flows.query import query
+from motionweb.flows.requests import QueryRequest
 from motionweb.store.bvh import read_bvh
 from motionweb.store.generations import commit, current_id, load_generation
 from motionweb.store.zarr_store import MotionStore

@@ -152,15 +152,18 @@ def test_an_error_inside_the_flow_is_one_line_too(space, monkeypatch) -> None:
 
     keep = Keep(logging.DEBUG)
     loggers = [logging.getLogger(n) for n in ("prefect.flow_runs", "prefect.task_runs")]
-    for lg in loggers:
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:  # the CLI sets PREFECT_LOGGING_LEVEL=WARNING: see the run's INFO lines too
         lg.addHandler(keep)
+        lg.setLevel(logging.DEBUG)
     try:
         r = runner.invoke(app, ["parameterize", str(cfg_path), "--clip", "walk_00", "--start", "0.5", "--end",
                                 "2.5", "--threshold", "1e-9", "--param", "final_root"])
     finally:
-        for lg in loggers:
+        for lg, level in zip(loggers, levels, strict=True):
             lg.removeHandler(keep)
+            lg.setLevel(level)
     assert r.exit_code == 2, r.output
     assert "needs at least 3" in r.output and "Traceback" not in r.output
-    assert seen, "the flow ran and logged"
+    assert seen, f"the flow ran and logged: {r.output}"
     assert not [x for x in seen if x.exc_info or x.levelno >= logging.ERROR], [x.getMessage() for x in seen]
