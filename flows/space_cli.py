@@ -97,7 +97,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
     def synthesize(
         space: Annotated[str, typer.Argument(help="Space id (or a unique prefix) from `motionweb parameterize`.")],
         target: Annotated[str, typer.Option(help="Target parameter, comma separated (metres), e.g. 0.3,1.2,0.5.")],
-        out: Annotated[Path, typer.Option(help="Output BVH.")],
+        out: Annotated[Path, typer.Option(help="Output motion: .bvh or .glb (glTF binary).")],
         config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
     ) -> None:
         """Make a motion that hits a target parameter (KG04 §4.3); a target outside is projected.
@@ -110,7 +110,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             return
         import numpy as np
         from motionweb.flows.space import load_space, space_info
-        from motionweb.store.bvh import write_bvh
+        from motionweb.store.formats import write_motion
 
         cfg = config_or_fail(config)
         try:
@@ -118,7 +118,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             if len(t) != info["dim"]:
                 raise ValueError(f"--target has {len(t)} values; space parameter {info['param']} has {info['dim']}")
             motion, syn = load_space(cfg, space).synthesize(np.array(t))
-            write_bvh(motion, out)
+            write_motion(motion, out, up=cfg.corpus.up_axis)
         except ERRORS as exc:
             fail(str(exc).strip("'\""))
         typer.echo(synthesis_line(out, motion.n_frames, syn.achieved, syn.error, syn.outside))
@@ -127,7 +127,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
     def blend_cmd(
         space: Annotated[str, typer.Argument(help="Space id (or a unique prefix).")],
         weights: Annotated[list[str], typer.Option(help="CLIP=WEIGHT, repeated; weights sum to 1.")],
-        out: Annotated[Path, typer.Option(help="Output BVH.")],
+        out: Annotated[Path, typer.Option(help="Output motion: .bvh or .glb (glTF binary).")],
         config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
     ) -> None:
         """Blend a space's examples with explicit weights (KG04 §4, foot plants held).
@@ -139,14 +139,14 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             typer.echo(f"wrote {out}: {res['frames']} frames at {res['fps']:g} fps (by the service at {res['service']})")
             return
         from motionweb.flows.space import load_space, space_info, weight_vector
-        from motionweb.store.bvh import write_bvh
+        from motionweb.store.formats import write_motion
 
         cfg = config_or_fail(config)
         try:
             _, info, _ = space_info(cfg, space)
             weight_vector(info["names"], w)  # names and sum, before loading clips
             motion = load_space(cfg, space).blend(w)
-            write_bvh(motion, out)
+            write_motion(motion, out, up=cfg.corpus.up_axis)
         except ERRORS as exc:
             fail(str(exc).strip("'\""))
         typer.echo(f"wrote {out}: {motion.n_frames} frames at {motion.fps:g} fps")
