@@ -20,6 +20,7 @@ if TYPE_CHECKING:
 class Format(str, Enum):
     bvh = "bvh"
     glb = "glb"
+    fbx = "fbx"
 
 
 class RootMode(str, Enum):
@@ -28,7 +29,7 @@ class RootMode(str, Enum):
 
 
 Input = Annotated[Path, typer.Argument(metavar="INPUT", help="A clip (.bvh, .amc, DeepMimic .txt).")]
-Out = Annotated[Path, typer.Option(help="Output motion: .bvh or .glb (glTF binary), or as --format says.")]
+Out = Annotated[Path, typer.Option(help="Output motion: .bvh, .glb (glTF binary) or .fbx (through Blender), or as --format says.")]
 Fmt = Annotated[Format | None, typer.Option("--format", help="Output format (default: the --out suffix).")]
 Root = Annotated[RootMode | None, typer.Option(
     "--root-motion", help="in-place: the hips' ground travel and heading on a root joint of their own "

@@ -1,8 +1,9 @@
 """One entry point for every motion file format the project reads, and one for those it writes.
 
 Read: ``.bvh`` (store.bvh), ``.amc`` with its ``.asf`` skeleton (store.asfamc) and DeepMimic
-``.txt`` clips with their URDF humanoid (store.deepmimic). Write (:func:`write_motion`): ``.bvh``
-and ``.glb`` (glTF 2.0 binary, store.gltf), chosen by the output's suffix or by name.
+``.txt`` clips with their URDF humanoid (store.deepmimic). Write (:func:`write_motion`): ``.bvh``,
+``.glb`` (glTF 2.0 binary, store.gltf) and ``.fbx`` (through Blender, store.fbx), chosen by the
+output's suffix or by name.
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ def _read_motion(path: Path, unit: str | None, scale_to_m: float | None) -> Moti
 
 
 #: formats a motion can be written in, by name; the suffix of an output names its format
-WRITE_FORMATS = ("bvh", "glb")
+WRITE_FORMATS = ("bvh", "glb", "fbx")
 
 
 def motion_format(path: str | Path, fmt: str | None = None) -> str:
@@ -122,8 +123,9 @@ def motion_format(path: str | Path, fmt: str | None = None) -> str:
 
 def write_motion(motion: Motion, path: str | Path, fmt: str | None = None, *, up: str = "y") -> Path:
     """Write a motion in the format ``fmt`` or, without it, the one its suffix names: BVH
-    (store.bvh, the file's unit and channel orders) or GLB (store.gltf: metres, Y up, ``up``
-    being the motion's vertical axis). Every command that writes a motion goes through here.
+    (store.bvh, the file's unit and channel orders), GLB (store.gltf: metres, Y up, ``up``
+    being the motion's vertical axis) or FBX (store.fbx: the GLB converted by Blender, which must
+    be installed apart). Every command that writes a motion goes through here.
     Returns the path written."""
     path = Path(path)
     kind = motion_format(path, fmt)
@@ -131,6 +133,10 @@ def write_motion(motion: Motion, path: str | Path, fmt: str | None = None, *, up
         from motionweb.store.gltf import write_glb
 
         write_glb(motion, path, up=up)
+    elif kind == "fbx":
+        from motionweb.store.fbx import write_fbx
+
+        write_fbx(motion, path, up=up)
     else:
         from motionweb.store.bvh import write_bvh
 

@@ -60,7 +60,7 @@ def test_clear_errors(clip: tuple[Path, Path], tmp_path: Path) -> None:
     bare = tmp_path / "bare.yaml"
     bare.write_text(f"output: {tmp_path / 'out'}\n")
     cases = [
-        (["export", bvh, "--out", tmp_path / "x.fbx", "--config", cfg], "x.fbx: cannot tell the motion format"),
+        (["export", bvh, "--out", tmp_path / "x.obj", "--config", cfg], "x.obj: cannot tell the motion format"),
         (["export", bvh, "--out", tmp_path / "x.glb", "--config", bare], "length unit is not declared"),
         (["export", tmp_path / "nope.bvh", "--out", tmp_path / "x.glb", "--config", cfg], "nope.bvh: no such file"),
         (["cleanup", bvh, "--out", tmp_path / "x.glb", "--config", cfg, "--format", "obj"], "Invalid value"),
