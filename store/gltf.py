@@ -247,12 +247,17 @@ def figure_mesh(parents: np.ndarray, bind: np.ndarray, rest: np.ndarray, ends: d
     return np.concatenate(verts), np.concatenate(normals), np.concatenate(joints), np.concatenate(tris)
 
 
+def glb_bytes(motion: Motion, up: str = "y") -> bytes:
+    """The GLB file of a motion (header, JSON chunk, BIN chunk) as bytes."""
+    return b"".join(glb_document(motion, up).save_to_bytes())
+
+
 def write_glb(motion: Motion, path: str | Path, up: str = "y") -> None:
     """Write a motion as a GLB file (see the module's docstring). ValueError naming the file
     when the motion's length unit is unknown (glTF is in metres)."""
     path = Path(path)
     try:
-        doc = glb_document(motion, up)
+        data = glb_bytes(motion, up)
     except ValueError as exc:
         raise ValueError(f"cannot write {path}: {exc}") from None
-    path.write_bytes(b"".join(doc.save_to_bytes()))
+    path.write_bytes(data)

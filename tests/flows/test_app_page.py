@@ -97,7 +97,8 @@ def test_page_opens_a_clip_searches_and_animates(browser, service) -> None:
     rows = drv.find_elements(By.CSS_SELECTOR, "#results tbody tr")
     assert "walk/walk_00.bvh" in rows[0].text and all("walk/" in r.text for r in rows)
     links = rows[1].find_elements(By.TAG_NAME, "a")
-    assert [a.text for a in links] == ["seg", "reg"] and "/bvh" in links[0].get_attribute("href")
+    assert [a.text for a in links] == ["seg", "reg", "seg.glb", "reg.glb"] and "/bvh" in links[0].get_attribute("href")
+    assert "/glb?registered=true" in links[3].get_attribute("href")
     # registered matches play side by side
     wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#compare canvas")) == len(rows))
     time.sleep(0.3)

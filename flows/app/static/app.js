@@ -166,6 +166,7 @@ async function openClip(id) {
   syncSegmentInputs();
   $("play").disabled = false; $("search").disabled = false;
   $("clip-bvh").href = `/api/clips/${id}/bvh`; $("clip-bvh").classList.remove("hidden");
+  $("clip-glb").href = `/api/clips/${id}/glb`; $("clip-glb").classList.remove("hidden");
   state.playing = true; $("play").textContent = "pause";
   drawTimeline();
   say("");
@@ -275,9 +276,10 @@ function showRows(res) {
       r.tier, r.distance.toPrecision(3)];
     for (const v of cells) tr.insertCell().textContent = v;
     const dl = tr.insertCell();
-    for (const [label, reg] of [["seg", false], ["reg", true]]) {
+    for (const [label, reg, fmt] of [["seg", false, "bvh"], ["reg", true, "bvh"], ["seg.glb", false, "glb"],
+      ["reg.glb", true, "glb"]]) {
       const a = document.createElement("a");
-      a.href = `/api/results/${res.result}/nodes/${r.rank}/bvh?registered=${reg}`;
+      a.href = `/api/results/${res.result}/nodes/${r.rank}/${fmt}?registered=${reg}`;
       a.textContent = label; a.download = ""; a.title = reg ? "registered to the query's timing" : "the matched segment";
       a.addEventListener("click", (e) => e.stopPropagation());
       dl.append(a, " ");
@@ -520,7 +522,7 @@ function showSynthesized(r) {
   } else { view.pose = pose; view.nJ = pose.parents.length; }
   if (state.time > clipDuration()) state.time = 0;
   $("play").disabled = false;
-  $("search").disabled = true; $("clip-bvh").classList.add("hidden");
+  $("search").disabled = true; $("clip-bvh").classList.add("hidden"); $("clip-glb").classList.add("hidden");
   $("clip-title").textContent = `synthesized from space ${r.space.slice(0, 12)} · ${(r.frames / r.fps).toFixed(2)} s`;
 }
 
