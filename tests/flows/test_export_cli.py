@@ -69,3 +69,15 @@ def test_clear_errors(clip: tuple[Path, Path], tmp_path: Path) -> None:
         r = runner.invoke(app, [str(a) for a in args])
         assert r.exit_code == 2, (args, r.output)
         assert text in r.output and "Traceback" not in r.output, r.output
+
+
+def test_warp_writes_glb_by_suffix(clip: tuple[Path, Path], tmp_path: Path) -> None:
+    """A command that writes a motion (here `warp`) writes GLB when --out ends in .glb."""
+    bvh, cfg = clip
+    r = runner.invoke(app, ["warp", str(bvh), "--duration", "3.0", "--out", str(tmp_path / "w.glb"), "--config", str(cfg)])
+    assert r.exit_code == 0, r.output
+    pos, names, times, _ = glb_world_positions(tmp_path / "w.glb")
+    assert names == list(read_motion(bvh, unit="m").skeleton.names)
+    assert times[-1] == pytest.approx(3.0, abs=1 / 30) and np.isfinite(pos).all()
+    for rep in validate([tmp_path / "w.glb"]):
+        assert rep["errors"] == 0, rep
