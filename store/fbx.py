@@ -9,8 +9,8 @@ The scene's frame rate is set to the clip's before the import (``fps`` = round(c
 ``fps_base``, so 120 and 29.97 fps keep their keys on whole frames), the animation is baked at
 every frame without simplification, and leaf bones are not added, so the FBX has one bone per
 joint with the joint's name. Cost of the extra: the bpy wheel is ~375 MB (bpy 5.0.1,
-manylinux x86-64) and exists for one Python version per Blender release (CPython 3.11 for
-Blender 4.2-5.0) and pins numpy < 2 (bpy 5.0.1: ``numpy<2.0,>=1.26``), while motionweb needs
+manylinux x86-64, ~1 GB installed) and is built for one CPython version (bpy 5.0.1: 3.11 only)
+and pins numpy < 2 (bpy 5.0.1: ``numpy<2.0,>=1.26``), while motionweb needs
 numpy >= 2: the two cannot share an environment, so there is no ``motionweb[blender]`` extra.
 Blender runs from an interpreter of its own, named by ``$MOTIONWEB_BLENDER_PYTHON`` (or this
 interpreter, where bpy imports here); :func:`write_fbx` says how to set one up where none is found.
