@@ -6,7 +6,7 @@ own glTF importer and FBX exporter convert it, in a subprocess running Blender a
 import, and a crash in it must not take the caller down.
 
 The scene's frame rate is set to the clip's before the import (``fps`` = round(clip fps) over
-``fps_base``, so 120 and 29.97 fps keep their keys on whole frames), the animation is baked at
+``fps_base``; the tests check 30 and 120 fps, a fractional rate is untested), the animation is baked at
 every frame without simplification, and leaf bones are not added, so the FBX has one bone per
 joint with the joint's name. Cost of the extra: the bpy wheel is ~375 MB (bpy 5.0.1,
 manylinux x86-64, ~1 GB installed) and is built for one CPython version (bpy 5.0.1: 3.11 only)
