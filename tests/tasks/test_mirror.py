@@ -85,12 +85,13 @@ def test_real_skeletons_mirror(cmu_dir: Path, deepmimic_dir: Path) -> None:
     amc = read_motion(cmu_dir / "asf_amc" / "16" / "16_15.amc")
     check_mirror(amc, 12)
     assert mirror(amc).asymmetry < 0.02  # CMU's left and right bones differ by ~1.5 cm at most
-    for p in ("01/01_01.bvh", "131/131_02.bvh"):
-        check_mirror(read_motion(cmu_dir / "bvh" / p, scale_to_m=CGSPEED_SCALE), 12)
+    bvh = [read_motion(cmu_dir / "bvh" / p, scale_to_m=CGSPEED_SCALE) for p in ("01/01_01.bvh", "131/131_02.bvh")]
+    for m in bvh:
+        check_mirror(m, 12)
     dm = read_motion(deepmimic_dir / "motions" / "humanoid3d_walk.txt")
     check_mirror(dm, 5)
     assert mirror(dm).axis == 2  # DeepMimic's humanoid faces +x: z is lateral
-    for walk in (amc, dm):
+    for walk in (amc, bvh[1], dm):  # 131_02: cgspeed's "start, walk, stop"
         before, after = plants(walk), plants(mirror(walk).motion)
         assert before[:, 0].any() and before[:, 1].any(), walk.name
         assert np.array_equal(after, before[:, ::-1]), walk.name
