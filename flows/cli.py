@@ -493,6 +493,11 @@ from motionweb.flows.space_cli import add_commands  # noqa: E402  (parameterize,
 
 add_commands(app, fail, config_or_fail)
 
+from motionweb.flows.export_cli import register as add_exports  # noqa: E402  (export, mirror, cleanup)
+
+add_exports(app)
+
+
 def main() -> None:
     """The console script: run the CLI, and turn anything a command did not foresee (a Prefect
     server that fails to start, a full disk) into one line on stderr, exit 1, instead of a

@@ -24,8 +24,10 @@ from motionweb.tasks.blend import BlendParams
 from motionweb.tasks.features import FeatureParams
 from motionweb.tasks.guided_warp import WarpParams
 from motionweb.tasks.matchweb.params import MatchWebParams
+from motionweb.tasks.mirror import MirrorParams
 from motionweb.tasks.parameterize import ParameterizeParams
 from motionweb.tasks.retime import RetimeParams
+from motionweb.tasks.rootmotion import RootMotionParams
 from motionweb.tasks.search import SearchParams
 from pydantic import Field, ValidationError
 
@@ -84,6 +86,8 @@ class Config(Params):
     retime: RetimeParams = Field(default_factory=RetimeParams)
     blend: BlendParams = Field(default_factory=BlendParams)
     parameterize: ParameterizeParams = Field(default_factory=ParameterizeParams)
+    mirror: MirrorParams = Field(default_factory=MirrorParams)
+    root_motion: RootMotionParams = Field(default_factory=RootMotionParams)
     output: str = "motionweb-out"
 
     def digest(self, section: str | None = None) -> str:

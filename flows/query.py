@@ -22,8 +22,7 @@ import numpy as np
 from motionweb.flows.config import Config, load_config
 from motionweb.flows.lazy_prefect import call, flow, run_logger, task
 from motionweb.flows.requests import QueryRequest
-from motionweb.store.bvh import write_bvh
-from motionweb.store.formats import read_motion
+from motionweb.store.formats import read_motion, write_motion
 from motionweb.store.generations import Generation, current_id, load_generation, package_versions
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion
@@ -311,7 +310,7 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
         for row, node in zip(rows, graph.nodes, strict=True):
             s = node.segment
             p = export / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.bvh"
-            write_bvh(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p)
+            write_motion(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p)
             files.append(p)
     if request.register_ and len(graph.nodes) > 1:
         t = time.perf_counter()
@@ -323,7 +322,7 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
         regdir.mkdir(exist_ok=True)
         for c, s in enumerate(reg.segments):
             p = regdir / f"{rows[reg.nodes[c]]['rank']:03d}_{Path(s.clip).stem}.bvh"
-            write_bvh(segment_motion(motion_of(s.clip), common[:, c], graph.rate), p)
+            write_motion(segment_motion(motion_of(s.clip), common[:, c], graph.rate), p)
             files.append(p)
     timings["total_s"] = time.perf_counter() - t0
     return asdict(QueryResult(out=str(out), generation=gen.id, query=rows[0], epsilon=eps, matches=rows[1:],

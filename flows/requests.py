@@ -198,6 +198,16 @@ class RetimeRequest(Request):
         return self
 
 
+class ExportRequest(Request):
+    """``motionweb export`` / ``mirror`` / ``cleanup``: the clip, the output, its format (None: by
+    the output's suffix) and the root-motion mode (None: the config's ``root_motion.mode``)."""
+
+    input: str
+    out: str
+    format: Literal["bvh", "glb", "fbx"] | None = None
+    root_motion: Literal["keep", "in-place"] | None = None
+
+
 M = TypeVar("M", bound=Request)
 
 

@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 from motionweb.flows.config import Config
 from motionweb.flows.lazy_prefect import call, flow, task
-from motionweb.store.bvh import write_bvh
-from motionweb.store.formats import read_motion
+from motionweb.store.formats import read_motion, write_motion
 from motionweb.store.motion import Motion
 from motionweb.tasks.retime import (
     RetimeParams,
@@ -111,7 +110,7 @@ def retime_flow(input_path: str, cfg: Config, out: str, duration: float | None =
     retimed, res = call(retime_task, plan, total, keytimes, opts)
     out_path = Path(out)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    write_bvh(retimed, out_path)
+    write_motion(retimed, out_path, up=cfg.corpus.up_axis)
     rep = report(plan, res)
     rep["output"] = str(out_path)
     if plot_dir:

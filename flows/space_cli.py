@@ -92,7 +92,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
     def synthesize(
         space: Annotated[str, typer.Argument(help="Space id (or a unique prefix) from `motionweb parameterize`.")],
         target: Annotated[str, typer.Option(help="Target parameter, comma separated (metres), e.g. 0.3,1.2,0.5.")],
-        out: Annotated[Path, typer.Option(help="Output BVH.")],
+        out: Annotated[Path, typer.Option(help="Output motion: .bvh or .glb (glTF binary).")],
         config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
     ) -> None:
         """Make a motion that hits a target parameter (KG04 §4.3); a target outside is projected.
@@ -106,7 +106,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         import numpy as np
         from motionweb.flows.cli import run_command
         from motionweb.flows.space import load_space, space_info
-        from motionweb.store.bvh import write_bvh
+        from motionweb.store.formats import write_motion
 
         cfg = config_or_fail(config)
 
@@ -115,7 +115,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             if len(t) != info["dim"]:
                 raise ValueError(f"--target has {len(t)} values; space parameter {info['param']} has {info['dim']}")
             motion, syn = load_space(cfg, space).synthesize(np.array(t))
-            write_bvh(motion, out)
+            write_motion(motion, out, up=cfg.corpus.up_axis)
             return {"space": digest, "out": str(out), "frames": motion.n_frames,
                     "achieved": [float(v) for v in syn.achieved], "error": float(syn.error), "outside": bool(syn.outside)}
 
@@ -127,7 +127,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
     def blend_cmd(
         space: Annotated[str, typer.Argument(help="Space id (or a unique prefix).")],
         weights: Annotated[list[str], typer.Option(help="CLIP=WEIGHT, repeated; weights sum to 1.")],
-        out: Annotated[Path, typer.Option(help="Output BVH.")],
+        out: Annotated[Path, typer.Option(help="Output motion: .bvh or .glb (glTF binary).")],
         config: Annotated[Path | None, typer.Option(help="Config naming the store.")] = None,
     ) -> None:
         """Blend a space's examples with explicit weights (KG04 §4, foot plants held).
@@ -140,7 +140,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             return
         from motionweb.flows.cli import run_command
         from motionweb.flows.space import load_space, space_info, weight_vector
-        from motionweb.store.bvh import write_bvh
+        from motionweb.store.formats import write_motion
 
         cfg = config_or_fail(config)
 
@@ -148,7 +148,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             _, info, _ = space_info(cfg, space)
             weight_vector(info["names"], w)  # names and sum, before loading clips
             motion = load_space(cfg, space).blend(w)
-            write_bvh(motion, out)
+            write_motion(motion, out, up=cfg.corpus.up_axis)
             return {"out": str(out), "frames": motion.n_frames, "fps": float(motion.fps)}
 
         run_command("blend", {"store": cfg.store.path, "space": space, "request": {"weights": w}}, work,

@@ -127,12 +127,12 @@ def flight_phases(motion: Motion, result: WarpResult, opts: RetimeParams, up_axi
 
 def write_outputs(plan: WarpPlan, result: WarpResult, request: WarpRequest) -> dict[str, Any]:
     """Write the warped BVH (input skeleton, channel orders, unit) and the optional plot."""
-    from motionweb.store.bvh import write_bvh
+    from motionweb.store.formats import write_motion
 
     out = Path(request.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     assert result.motion is not None
-    write_bvh(result.motion, out)
+    write_motion(result.motion, out, up=plan.up_axis)
     if request.plot:
         lin = None
         if result.keytimes and not request.unconstrained and not request.backward:

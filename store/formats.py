@@ -1,7 +1,9 @@
-"""One entry point for every motion file format the project reads.
+"""One entry point for every motion file format the project reads, and one for those it writes.
 
-``.bvh`` (store.bvh), ``.amc`` with its ``.asf`` skeleton (store.asfamc) and DeepMimic ``.txt``
-clips with their URDF humanoid (store.deepmimic).
+Read: ``.bvh`` (store.bvh), ``.amc`` with its ``.asf`` skeleton (store.asfamc) and DeepMimic
+``.txt`` clips with their URDF humanoid (store.deepmimic). Write (:func:`write_motion`): ``.bvh``,
+``.glb`` (glTF 2.0 binary, store.gltf) and ``.fbx`` (through Blender, store.fbx), chosen by the
+output's suffix or by name.
 """
 
 from __future__ import annotations
@@ -101,3 +103,42 @@ def _read_motion(path: Path, unit: str | None, scale_to_m: float | None) -> Moti
 
         return read_deepmimic(path)
     raise MissingSectionError(str(path), None, f"unknown motion file type {suffix!r} (expected .bvh, .amc, .txt)")
+
+
+#: formats a motion can be written in, by name; the suffix of an output names its format
+WRITE_FORMATS = ("bvh", "glb", "fbx")
+
+
+def motion_format(path: str | Path, fmt: str | None = None) -> str:
+    """The format a motion is written in: ``fmt`` when given, else the output's suffix
+    (``.bvh``, ``.glb``). ValueError naming the file or the format otherwise."""
+    name = (fmt or Path(path).suffix.lstrip(".")).lower()
+    if name in WRITE_FORMATS:
+        return name
+    if fmt:
+        raise ValueError(f"unknown motion format {fmt!r}; expected one of {', '.join(WRITE_FORMATS)}")
+    raise ValueError(f"{path}: cannot tell the motion format from the suffix; name the output "
+                     f"with one of {', '.join('.' + f for f in WRITE_FORMATS)} (formats: {', '.join(WRITE_FORMATS)})")
+
+
+def write_motion(motion: Motion, path: str | Path, fmt: str | None = None, *, up: str = "y") -> Path:
+    """Write a motion in the format ``fmt`` or, without it, the one its suffix names: BVH
+    (store.bvh, the file's unit and channel orders), GLB (store.gltf: metres, Y up, ``up``
+    being the motion's vertical axis) or FBX (store.fbx: the GLB converted by Blender, which must
+    be installed apart). Every command that writes a motion goes through here.
+    Returns the path written."""
+    path = Path(path)
+    kind = motion_format(path, fmt)
+    if kind == "glb":
+        from motionweb.store.gltf import write_glb
+
+        write_glb(motion, path, up=up)
+    elif kind == "fbx":
+        from motionweb.store.fbx import write_fbx
+
+        write_fbx(motion, path, up=up)
+    else:
+        from motionweb.store.bvh import write_bvh
+
+        write_bvh(motion, path)
+    return path

@@ -521,21 +521,26 @@ def _leg_ik_kernel(gpos, grot, parent, hip, knee, ankle, target, fallback, out, 
         miss[f] = abs(d_t - dc)
 
 
-def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int) -> tuple[np.ndarray, np.ndarray]:
+def ease_offsets(n: int, plants: np.ndarray, ankles: np.ndarray, ramp: int, holds: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Ankle corrections (F, 3) holding every planted run of ``plants`` (F,) at its mean ankle
     position (``ankles`` (F, 3)), eased to zero over ``ramp`` frames on either side (smoothstep;
-    overlapping ramps average), and the frames (F,) that need IK. Compiled, O(F·ramp)."""
-    if len(plants) != n or np.shape(ankles) != (n, 3):
-        raise ValueError(f"ease_offsets needs {n} plant flags and ({n}, 3) ankles, got {len(plants)} and "
+    overlapping ramps average), and the frames (F,) that need IK. ``holds`` (F, 3), when given,
+    is where each run is held instead of its mean (read at the run's first frame; the foot-slide
+    cleanup of tasks/cleanup.py passes points the leg reaches). Compiled, O(F·ramp)."""
+    if len(plants) != n or np.shape(ankles) != (n, 3) or (holds is not None and np.shape(holds) != (n, 3)):
+        raise ValueError(f"ease_offsets needs {n} plant flags and ({n}, 3) ankles (and holds), got {len(plants)} and "
                          f"{np.shape(ankles)}")
     off = np.zeros((n, 3))
     wsum = np.zeros(n)
-    _ease_kernel(np.ascontiguousarray(plants, np.bool_), np.ascontiguousarray(ankles, np.float64), int(ramp), off, wsum)
+    ank = np.ascontiguousarray(ankles, np.float64)
+    _ease_kernel(np.ascontiguousarray(plants, np.bool_), ank, int(ramp), off, wsum,
+                 ank if holds is None else np.ascontiguousarray(holds, np.float64), holds is not None)
     return off, wsum > 0
 
 
 @njit(cache=True)
-def _ease_kernel(plants, ankles, ramp, off, wsum):  # pragma: no cover - compiled
+def _ease_kernel(plants, ankles, ramp, off, wsum, holds, given):  # pragma: no cover - compiled
     """Bounds: writes frames max(0, a − ramp) .. min(F, b + 1 + ramp) − 1 of ``off``/``wsum`` (F,) for
     each planted run a..b: frames 0..F − 1 only, whatever ``ramp``."""
     n = len(plants)
@@ -549,9 +554,12 @@ def _ease_kernel(plants, ankles, ramp, off, wsum):  # pragma: no cover - compile
             i += 1
         b = i - 1
         hold = np.zeros(3)
-        for f in range(a, b + 1):
-            hold += ankles[f]
-        hold /= b - a + 1
+        if given:
+            hold += holds[a]
+        else:
+            for f in range(a, b + 1):
+                hold += ankles[f]
+            hold /= b - a + 1
         for f in range(a, b + 1):
             off[f] += hold - ankles[f]
             wsum[f] += 1.0
@@ -570,13 +578,15 @@ def _ease_kernel(plants, ankles, ramp, off, wsum):  # pragma: no cover - compile
 
 def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: np.ndarray,
                 cfg: BlendParams, fk: tuple[np.ndarray, np.ndarray] | None = None,
-                ik: Callable = leg_ik, ease: Callable = ease_offsets) -> tuple[Motion, float]:
+                ik: Callable = leg_ik, ease: Callable = ease_offsets,
+                holds: dict[str, np.ndarray] | None = None) -> tuple[Motion, float]:
     """Hold each planted foot still (its run's mean ankle position) by leg IK, corrections eased
     over ``cfg.ease_s`` (KG03 constraint matching); ``fk`` = the motion's global (positions,
     rotations) of at least the root-to-ankle paths when already computed. Returns the motion and
     the worst miss (m). O(F) for the two legs (only their FK paths are computed). ``ik`` and
     ``ease`` are the two steps (the compiled ones; tests run the numpy references through the
-    same loop)."""
+    same loop). ``holds`` ({side: (F, 3)}, file units) replaces the runs' mean ankle positions
+    as the points held (see :func:`ease_offsets`)."""
     feet = [legs[side][2] for side in SIDES]
     gpos, grot = fk if fk is not None else forward_kinematics_of(motion, feet)
     rot = motion.rotations.copy()
@@ -585,7 +595,10 @@ def hold_plants(motion: Motion, legs: dict[str, tuple[int, int, int]], plants: n
     worst = 0.0
     for k, side in enumerate(SIDES):
         hip, knee, ankle = legs[side]
-        off, mask = ease(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
+        if holds is None:
+            off, mask = ease(motion.n_frames, plants[:, k], gpos[:, ankle], ramp)
+        else:
+            off, mask = ease(motion.n_frames, plants[:, k], gpos[:, ankle], ramp, holds=holds[side])
         if not mask.any():
             continue
         lh, lk, la, miss = ik(gpos[mask], grot[mask], motion.skeleton.parents, legs[side],

@@ -9,12 +9,12 @@ request's clip, start, end and options; the service goes on with a standby worke
     GET  /api/status                             generation, clip and web counts, categories
     GET  /api/catalog?category=&name=&min_s=&max_s=&offset=&limit=
     GET  /api/clips/{id}/pose?rate=              joint positions (metres) for drawing
-    GET  /api/clips/{id}/bvh                     the clip as a BVH download
+    GET  /api/clips/{id}/bvh                     the clip as a BVH download (/glb: as GLB)
     POST /api/search                             a search (KG04 §3.3): rows by graph distance, graph
     GET  /api/results/{rid}                      a search's rows and graph again
     GET  /api/results/{rid}/registration         the time-warp curves s_i(u) (KG04 §4.1)
     GET  /api/results/{rid}/nodes/{rank}/pose?registered=   a match's positions, optionally registered
-    GET  /api/results/{rid}/nodes/{rank}/bvh?registered=    a match as a BVH download
+    GET  /api/results/{rid}/nodes/{rank}/bvh?registered=    a match as a BVH download (/glb: as GLB)
     POST /api/query                              what `motionweb search` writes, as a zip
                                                  (result.json, out/..., export/...)
     GET  /api/spaces                             the stored motion spaces (KG04 §4)
@@ -206,14 +206,18 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     async def clip_pose(cid: str, rate: float = Query(30.0, gt=0, le=120)) -> dict:
         return await run(engine.clip_pose, cid, rate)
 
-    def download(name_text: tuple[str, str]) -> Response:
+    def download(name_text: tuple[str, str | bytes]) -> Response:
         name, text = name_text
-        return Response(text, media_type="application/octet-stream",
-                        headers={"Content-Disposition": f'attachment; filename="{name}"'})
+        kind = "model/gltf-binary" if name.endswith(".glb") else "application/octet-stream"
+        return Response(text, media_type=kind, headers={"Content-Disposition": f'attachment; filename="{name}"'})
 
     @app.get("/api/clips/{cid}/bvh")
     async def clip_bvh(cid: str) -> Response:
         return download(await run(engine.clip_bvh, cid))
+
+    @app.get("/api/clips/{cid}/glb")
+    async def clip_glb(cid: str) -> Response:
+        return download(await run(engine.clip_glb, cid))
 
     @app.post("/api/search")
     async def search(body: SearchBody, request: Request) -> dict:
@@ -237,6 +241,10 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     @app.get("/api/results/{rid}/nodes/{rank}/bvh")
     async def node_bvh(rid: str, rank: int, registered: bool = False) -> Response:
         return download(await run(engine.node_bvh, rid, rank, registered))
+
+    @app.get("/api/results/{rid}/nodes/{rank}/glb")
+    async def node_glb(rid: str, rank: int, registered: bool = False) -> Response:
+        return download(await run(engine.node_glb, rid, rank, registered))
 
     @app.post("/api/query")
     async def query(body: QueryBody, request: Request) -> Response:

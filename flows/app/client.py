@@ -188,9 +188,9 @@ def forward_space(config: Path | None, space: str, kind: str, body: dict[str, An
     ``blend`` ({"weights": {...}}) to the running service of the config's store and write the
     BVH it makes to ``out``, as the local run would. Its answer (frames, fps, achieved, ...)
     without the BVH text, or None when no service runs (or ``space`` is no hex id: the local
-    run names the problem)."""
+    run names the problem, and the local run writes any output that is not BVH: GLB, FBX)."""
     data = raw_config(config)
-    if data is None or not re.fullmatch(r"[0-9a-f]{1,64}", space):
+    if data is None or not re.fullmatch(r"[0-9a-f]{1,64}", space) or out.suffix.lower() != ".bvh":
         return None
     got = ask(config, data, f"/api/spaces/{space}/{kind}", {**body, "pose": False, "bvh": True})
     if got is None:

@@ -53,6 +53,7 @@ from motionweb.flows.query import (
 from motionweb.flows.requests import QueryRequest, SearchQuery, parse
 from motionweb.store.bvh import format_bvh
 from motionweb.store.generations import Generation, current_id, load_generation
+from motionweb.store.gltf import glb_bytes
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
@@ -344,6 +345,12 @@ class Engine:
         return Path(rec["path"]).name if rec["path"].endswith(".bvh") else Path(rec["path"]).stem + ".bvh", \
             format_bvh(snap.motion(rec))
 
+    def clip_glb(self, key: str) -> tuple[str, bytes]:
+        """(file name, GLB bytes) of a clip as indexed (store.gltf: metres, Y up)."""
+        snap = self.current()
+        rec = snap.clip(key)
+        return Path(rec["path"]).stem + ".glb", glb_bytes(snap.motion(rec), snap.gen_cfg.corpus.up_axis)
+
     # ------------------------------------------------------------------ search
     @staticmethod
     def check_bounds(req: SearchQuery) -> None:
@@ -466,6 +473,14 @@ class Engine:
         m = segment_motion(res.snap.motion(res.snap.by_path[seg.clip]), frames, res.graph.rate)
         tag = "registered" if registered else f"{seg.start}-{seg.end}"
         return f"{rank:03d}_{Path(seg.clip).stem}_{tag}.bvh", format_bvh(m)
+
+    def node_glb(self, rid: str, rank: int, registered: bool) -> tuple[str, bytes]:
+        """(file name, GLB bytes) of a node's segment: :meth:`node_bvh` as glTF binary."""
+        res, seg = self.node(rid, rank)
+        frames = self.node_frames(rid, rank, registered)
+        m = segment_motion(res.snap.motion(res.snap.by_path[seg.clip]), frames, res.graph.rate)
+        tag = "registered" if registered else f"{seg.start}-{seg.end}"
+        return f"{rank:03d}_{Path(seg.clip).stem}_{tag}.glb", glb_bytes(m, res.snap.gen_cfg.corpus.up_axis)
 
     # ------------------------------------------------------------------ the CLI's query
     def query_bundle(self, request: QueryRequest, search: dict[str, Any] | None) -> bytes:

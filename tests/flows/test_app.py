@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from gltf_check import glb_world_positions
 from motionweb.flows.app.api import MAX_BODY, create_app
 from motionweb.flows.app.client import discovery_file, find_service
 from motionweb.flows.app.engine import Engine, clip_id
@@ -25,6 +26,7 @@ from motionweb.flows.query import match_rows, register_graph, segment_motion
 from motionweb.store.bvh import parse_bvh
 from motionweb.store.formats import read_motion
 from motionweb.store.generations import load_generation
+from motionweb.store.kinematics import forward_kinematics
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
@@ -77,7 +79,7 @@ def test_status_and_catalog_filters(client, cfg) -> None:
     assert page["total"] == 6 and [r["path"] for r in page["clips"]] == [r["path"] for r in all_rows["clips"][2:5]]
 
 
-def test_clip_pose_is_forward_kinematics_in_metres(client, cfg) -> None:
+def test_clip_pose_is_forward_kinematics_in_metres(client, cfg, tmp_path: Path) -> None:
     rec = client.get("/api/catalog", params={"name": "walk_01"}).json()["clips"][0]
     pose = client.get(f"/api/clips/{rec['id']}/pose", params={"rate": 15}).json()
     m = read_motion(Path(cfg.corpus.path) / rec["path"], unit="m")
@@ -89,6 +91,11 @@ def test_clip_pose_is_forward_kinematics_in_metres(client, cfg) -> None:
     bvh = client.get(f"/api/clips/{rec['id']}/bvh")
     assert "attachment" in bvh.headers["content-disposition"]
     assert parse_bvh(bvh.text).n_frames == m.n_frames
+    glb = client.get(f"/api/clips/{rec['id']}/glb")
+    assert glb.headers["content-type"] == "model/gltf-binary" and ".glb" in glb.headers["content-disposition"]
+    (tmp_path / "clip.glb").write_bytes(glb.content)
+    got = glb_world_positions(tmp_path / "clip.glb")[0]
+    np.testing.assert_allclose(got, forward_kinematics(m)[0] * m.metres(), atol=1e-4)
 
 
 def test_search_equals_the_query_flows_search(client, cfg) -> None:
@@ -135,6 +142,8 @@ def test_registration_and_registered_downloads(client, cfg) -> None:
         assert parse_bvh(seg).n_frames == row["end_frame"] - row["start_frame"] + 1
         regd = client.get(f"/api/results/{rid}/nodes/{rank}/bvh", params={"registered": True})
         assert parse_bvh(regd.text).n_frames == q_len and "_registered.bvh" in regd.headers["content-disposition"]
+        glb = client.get(f"/api/results/{rid}/nodes/{rank}/glb", params={"registered": True})
+        assert glb.content[:4] == b"glTF" and "_registered.glb" in glb.headers["content-disposition"]
         pose = client.get(f"/api/results/{rid}/nodes/{rank}/pose", params={"registered": True}).json()
         assert pose["frames"] == q_len and pose["rank"] == rank
 

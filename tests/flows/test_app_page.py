@@ -7,7 +7,9 @@ from __future__ import annotations
 import shutil
 import threading
 import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 from motionweb.flows.app.server import Service
 from motionweb.flows.config import load_config
@@ -97,7 +99,8 @@ def test_page_opens_a_clip_searches_and_animates(browser, service) -> None:
     rows = drv.find_elements(By.CSS_SELECTOR, "#results tbody tr")
     assert "walk/walk_00.bvh" in rows[0].text and all("walk/" in r.text for r in rows)
     links = rows[1].find_elements(By.TAG_NAME, "a")
-    assert [a.text for a in links] == ["seg", "reg"] and "/bvh" in links[0].get_attribute("href")
+    assert [a.text for a in links] == ["seg", "reg", "seg.glb", "reg.glb"] and "/bvh" in links[0].get_attribute("href")
+    assert "/glb?registered=true" in links[3].get_attribute("href")
     # registered matches play side by side
     wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#compare canvas")) == len(rows))
     time.sleep(0.3)
@@ -155,3 +158,32 @@ def test_space_panel_plays_the_motion_for_a_dragged_target(browser, service, app
     errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
     assert not errors, errors
     assert drv.find_element(By.ID, "message").text == ""
+
+
+def test_page_plays_a_glb_in_its_own_loader(browser, service, app_store) -> None:
+    """The page's GLB loader (no 3-D library) reads a clip's GLB download: the joint positions it
+    composes from the file's nodes and samplers equal FK, and the player draws them over time."""
+    from motionweb.flows.app.engine import clip_id
+    from motionweb.store.formats import read_motion
+    from motionweb.store.kinematics import forward_kinematics
+
+    drv = browser
+    wait = WebDriverWait(drv, 60)
+    drv.get(service.url + "/")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 6)
+    cfg = load_config(app_store)
+    path = "walk/walk_01.bvh"
+    drv.set_script_timeout(60)
+    pose = drv.execute_async_script(
+        "const done = arguments[arguments.length - 1];"
+        f"openGlbUrl('/api/clips/{clip_id(path)}/glb').then((p) => done(p), (e) => done({{error: String(e)}}));")
+    assert "error" not in pose, pose
+    m = read_motion(Path(cfg.corpus.path) / path, unit="m")
+    got = np.array(pose["positions"]).reshape(pose["frames"], len(pose["parents"]), 3)
+    np.testing.assert_allclose(got, forward_kinematics(m)[0] * m.metres(), atol=1e-4)
+    assert pose["joints"] == list(m.skeleton.names) and pose["parents"] == m.skeleton.parents.tolist()
+    assert pose["rate"] == pytest.approx(m.fps, rel=1e-5)
+    assert "walk_01.glb" in drv.find_element(By.ID, "clip-title").text
+    first = canvas_data(drv, "view")
+    time.sleep(0.5)
+    assert canvas_data(drv, "view") != first

@@ -123,6 +123,11 @@ def test_synthesize_and_blend_are_forwarded_and_write_a_local_runs_bytes(running
         assert ("by the service at" in s.output + b.output) == (where == "service")
         runs[where] = [re.sub(r" \(by the service at [^)]*\)", "", r.output.replace(f"-{where}.bvh", ".bvh"))
                        for r in (s, b)]
+        if where == "service":  # a GLB is written by the local run, the service only makes BVH
+            g = CliRunner().invoke(cli, ["blend", app_space[:12], *w, "--out", str(tmp_path / "b.glb"),
+                                         "--config", str(app_store)])
+            assert g.exit_code == 0 and "by the service" not in g.output, g.output
+            assert (tmp_path / "b.glb").read_bytes()[:4] == b"glTF"
         bad = CliRunner().invoke(cli, ["synthesize", app_space[:12], "--target", "1,2", "--out", str(tmp_path / "x.bvh"),
                                        "--config", str(app_store)])
         assert bad.exit_code == 2 and "--target has 2 values" in bad.output and "Traceback" not in bad.output

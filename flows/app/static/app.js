@@ -166,6 +166,7 @@ async function openClip(id) {
   syncSegmentInputs();
   $("play").disabled = false; $("search").disabled = false;
   $("clip-bvh").href = `/api/clips/${id}/bvh`; $("clip-bvh").classList.remove("hidden");
+  $("clip-glb").href = `/api/clips/${id}/glb`; $("clip-glb").classList.remove("hidden");
   state.playing = true; $("play").textContent = "pause";
   drawTimeline();
   say("");
@@ -275,9 +276,10 @@ function showRows(res) {
       r.tier, r.distance.toPrecision(3)];
     for (const v of cells) tr.insertCell().textContent = v;
     const dl = tr.insertCell();
-    for (const [label, reg] of [["seg", false], ["reg", true]]) {
+    for (const [label, reg, fmt] of [["seg", false, "bvh"], ["reg", true, "bvh"], ["seg.glb", false, "glb"],
+      ["reg.glb", true, "glb"]]) {
       const a = document.createElement("a");
-      a.href = `/api/results/${res.result}/nodes/${r.rank}/bvh?registered=${reg}`;
+      a.href = `/api/results/${res.result}/nodes/${r.rank}/${fmt}?registered=${reg}`;
       a.textContent = label; a.download = ""; a.title = reg ? "registered to the query's timing" : "the matched segment";
       a.addEventListener("click", (e) => e.stopPropagation());
       dl.append(a, " ");
@@ -370,6 +372,111 @@ function tick(now) {
   requestAnimationFrame(tick);
 }
 
+// ------------------------------------------------------------------ GLB (glTF 2.0 binary) loader
+// Plays a GLB in the player without any 3-D library: the GLB's JSON and BIN chunks, the skin's
+// joints (their parents from the nodes' children), every node's translation and rotation as its
+// LINEAR samplers give them at the first sampler's key times (nlerp between keys), composed along
+// the node hierarchy into world positions (metres, y up): the pose the player draws. Scale and
+// morph targets are ignored; what store/gltf.py writes (and any GLB with a skin and an animation)
+// plays.
+const GLB_ARRAYS = { 5121: Uint8Array, 5123: Uint16Array, 5125: Uint32Array, 5126: Float32Array };
+const GLB_WIDTH = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4, MAT4: 16 };
+
+function qmul(a, b) {  // x, y, z, w (glTF's order)
+  return [a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1], a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
+    a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3], a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]];
+}
+function qrot(q, v) {
+  const u = [q[0], q[1], q[2]], t = cross(u, v).map((x) => 2 * x), c = cross(u, t);
+  return [v[0] + q[3] * t[0] + c[0], v[1] + q[3] * t[1] + c[1], v[2] + q[3] * t[2] + c[2]];
+}
+
+function glbPose(buf, name) {
+  const dv = new DataView(buf);
+  if (buf.byteLength < 20 || dv.getUint32(0, true) !== 0x46546c67) throw new Error(`${name}: not a GLB file`);
+  let off = 12, json = null, bin = -1;
+  while (off + 8 <= buf.byteLength) {
+    const len = dv.getUint32(off, true), type = dv.getUint32(off + 4, true);
+    if (type === 0x4e4f534a) json = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, off + 8, len)));
+    else if (type === 0x004e4942) bin = off + 8;
+    off += 8 + len;
+  }
+  if (!json || bin < 0 || !json.skins || !json.animations) throw new Error(`${name}: a GLB with a skin and an animation is needed`);
+  const read = (k) => {
+    const a = json.accessors[k], v = json.bufferViews[a.bufferView], Arr = GLB_ARRAYS[a.componentType];
+    const start = bin + (v.byteOffset || 0) + (a.byteOffset || 0), n = a.count * GLB_WIDTH[a.type];
+    return { width: GLB_WIDTH[a.type], data: new Arr(buf.slice(start, start + n * Arr.BYTES_PER_ELEMENT)) };
+  };
+  const nodes = json.nodes, anim = json.animations[0];
+  const parent = nodes.map(() => -1);
+  nodes.forEach((nd, i) => (nd.children || []).forEach((c) => { parent[c] = i; }));
+  const order = [], seen = new Set();
+  const visit = (i) => { if (seen.has(i)) return; if (parent[i] >= 0) visit(parent[i]); seen.add(i); order.push(i); };
+  nodes.forEach((_, i) => visit(i));
+  const times = read(anim.samplers[0].input).data, nF = times.length;
+  const channels = anim.channels.filter((c) => c.target.path === "translation" || c.target.path === "rotation").map((c) => {
+    const s = anim.samplers[c.sampler];
+    return { node: c.target.node, path: c.target.path, input: read(s.input).data, output: read(s.output) };
+  });
+  const sample = (ch, t) => {  // LINEAR: lerp, nlerp for rotations along the shorter arc
+    const x = ch.input, w = ch.output.width, o = ch.output.data;
+    let i = 0;
+    while (i < x.length - 2 && x[i + 1] <= t) i++;
+    const s = x.length > 1 ? Math.max(0, Math.min(1, (t - x[i]) / ((x[i + 1] - x[i]) || 1))) : 0;
+    const a = Array.from(o.subarray(i * w, i * w + w));
+    if (x.length < 2) return a;
+    const b = Array.from(o.subarray((i + 1) * w, (i + 1) * w + w));
+    const sign = w === 4 && dot4(a, b) < 0 ? -1 : 1;
+    const v = a.map((ai, k) => (1 - s) * ai + s * sign * b[k]);
+    if (w !== 4) return v;
+    const n = Math.hypot(...v) || 1;
+    return v.map((c) => c / n);
+  };
+  const joints = json.skins[0].joints, nJ = joints.length, jointOf = new Map(joints.map((n, j) => [n, j]));
+  const positions = new Float64Array(nF * nJ * 3);
+  for (let f = 0; f < nF; f++) {
+    const T = nodes.map((nd) => (nd.translation || [0, 0, 0]).slice()), R = nodes.map((nd) => (nd.rotation || [0, 0, 0, 1]).slice());
+    for (const ch of channels) (ch.path === "translation" ? T : R)[ch.node] = sample(ch, times[f]);
+    const wp = [], wq = [];
+    for (const i of order) {
+      const p = parent[i];
+      wq[i] = p < 0 ? R[i] : qmul(wq[p], R[i]);
+      const t = p < 0 ? T[i] : qrot(wq[p], T[i]);
+      wp[i] = p < 0 ? t : [wp[p][0] + t[0], wp[p][1] + t[1], wp[p][2] + t[2]];
+    }
+    joints.forEach((n, j) => positions.set(wp[n], (f * nJ + j) * 3));
+  }
+  const parents = joints.map((n) => {
+    let p = parent[n];
+    while (p >= 0 && !jointOf.has(p)) p = parent[p];
+    return p >= 0 ? jointOf.get(p) : -1;
+  });
+  const duration = nF > 1 ? times[nF - 1] - times[0] : 0;
+  return { path: name, category: "GLB", duration, frames: nF, rate: nF > 1 ? (nF - 1) / duration : 30,
+    parents, joints: joints.map((n) => nodes[n].name || `node ${n}`), positions: Array.from(positions) };
+}
+function dot4(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]; }
+
+function playGlb(buf, name) {
+  const pose = glbPose(buf, name);
+  state.clip = pose; state.pose = pose; state.time = 0; state.glb = pose;
+  $("clip-title").textContent = `${name} · ${pose.duration.toFixed(2)} s · GLB`;
+  view.setPose(pose);
+  $("play").disabled = false; $("search").disabled = true;
+  state.playing = true; $("play").textContent = "pause";
+  drawTimeline();
+  say("");
+  return pose;
+}
+
+// a GLB from this service (or any URL) in the player
+async function openGlbUrl(url) {
+  const resp = await fetch(url, { credentials: "same-origin" });
+  if (!resp.ok) throw new Error(`${url}: HTTP ${resp.status}`);
+  const named = /filename="([^"]+)"/.exec(resp.headers.get("content-disposition") || "");
+  return playGlb(await resp.arrayBuffer(), named ? named[1] : url);
+}
+
 // ------------------------------------------------------------------ wiring
 function setup() {
   setupTimeline();
@@ -381,6 +488,10 @@ function setup() {
   $("eps").addEventListener("input", epsLabel);
   $("eps-mode").addEventListener("change", setEpsMode);
   $("search").addEventListener("click", () => runSearch().catch((e) => say(e.message)));
+  $("open-glb").addEventListener("change", (e) => {
+    const file = e.target.files[0];
+    if (file) file.arrayBuffer().then((b) => playGlb(b, file.name)).catch((err) => say(err.message));
+  });
   for (const id of ["f-category", "f-name", "f-min", "f-max"]) $(id).addEventListener("input", catalogSoon);
   setupSpaces();
   epsLabel();
@@ -520,7 +631,7 @@ function showSynthesized(r) {
   } else { view.pose = pose; view.nJ = pose.parents.length; }
   if (state.time > clipDuration()) state.time = 0;
   $("play").disabled = false;
-  $("search").disabled = true; $("clip-bvh").classList.add("hidden");
+  $("search").disabled = true; $("clip-bvh").classList.add("hidden"); $("clip-glb").classList.add("hidden");
   $("clip-title").textContent = `synthesized from space ${r.space.slice(0, 12)} · ${(r.frames / r.fps).toFixed(2)} s`;
 }
 
