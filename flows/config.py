@@ -20,15 +20,15 @@ import yaml
 from motionweb.flows.paths import resolve_path
 from motionweb.store.catalog import CorpusParams
 from motionweb.store.params import Params
-from motionweb.tasks.blend import BlendParams
-from motionweb.tasks.features import FeatureParams
-from motionweb.tasks.guided_warp import WarpParams
-from motionweb.tasks.matchweb.params import MatchWebParams
-from motionweb.tasks.mirror import MirrorParams
-from motionweb.tasks.parameterize import ParameterizeParams
-from motionweb.tasks.retime import RetimeParams
-from motionweb.tasks.rootmotion import RootMotionParams
-from motionweb.tasks.search import SearchParams
+from motionweb.tasks.params.blend import BlendParams
+from motionweb.tasks.params.features import FeatureParams
+from motionweb.tasks.params.matchweb import MatchWebParams
+from motionweb.tasks.params.mirror import MirrorParams
+from motionweb.tasks.params.parameterize import ParameterizeParams
+from motionweb.tasks.params.retime import RetimeParams
+from motionweb.tasks.params.rootmotion import RootMotionParams
+from motionweb.tasks.params.search import SearchParams
+from motionweb.tasks.params.warp import WarpParams
 from pydantic import Field, ValidationError
 
 

@@ -55,31 +55,13 @@ from motionweb.store.kinematics import (
     sample_motion,
 )
 from motionweb.store.motion import Motion, Skeleton
-from motionweb.store.params import Params
 from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.params.blend import BlendParams
 from motionweb.tasks.register import Registration
 from numba import njit
-from pydantic import Field
 
 SIDES = ("left", "right")
 _Y = np.array([0.0, 1.0, 0.0])
-
-
-class BlendParams(Params):
-    """Blending and constraint matching (KG04 §4; design §6)."""
-
-    #: ankle joint of each foot; empty = found by name (LeftFoot / lfoot / left_ankle ...)
-    feet: dict[str, str] = Field(default_factory=dict)
-    #: a foot is planted where its ankle is within this height (m) of its lowest point in the clip
-    plant_height: float = 0.05
-    #: ... and moves horizontally slower than this (m/s)
-    plant_speed: float = 0.25
-    #: shortest plant kept (s)
-    plant_min_s: float = 0.1
-    #: IK corrections ease in and out over this long before and after a plant (s)
-    ease_s: float = 0.15
-    #: shortest blended frame duration, as a fraction of the mean one (very negative weights)
-    min_step: float = 0.1
 
 
 # ----------------------------------------------------------------------------------- skeleton

@@ -15,24 +15,10 @@ O(F·P) copies.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 from motionweb.store.kinematics import axis_index, forward_kinematics, resample
 from motionweb.store.motion import Motion, Skeleton
-from motionweb.store.params import Params
-from pydantic import Field
-
-
-class FeatureParams(Params):
-    """Point-cloud features (design §3)."""
-
-    rates: list[float] = Field(default_factory=lambda: [10.0, 20.0, 30.0])
-    window: int = 5
-    joint_weights: dict[str, float] = Field(default_factory=dict)
-    dtype: Literal["float32", "float64"] = "float32"
-
-
+from motionweb.tasks.params.features import FeatureParams
 
 #: proper rotations taking each up axis to column 1 (y): rows are the new x, y, z axes.
 _TO_Y_UP: dict[int, np.ndarray] = {

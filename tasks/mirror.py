@@ -33,24 +33,11 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, replace
-from typing import Literal
 
 import numpy as np
 from motionweb.store.kinematics import forward_kinematics, quat_identity
 from motionweb.store.motion import Motion, Skeleton
-from motionweb.store.params import Params
-from pydantic import Field
-
-
-class MirrorParams(Params):
-    """Mirroring (design "Exports")."""
-
-    #: extra left/right joint pairs {joint: its partner}, added to and overriding the pairs found
-    #: by name (a joint mapped to itself is left unpaired)
-    pairs: dict[str, str] = Field(default_factory=dict)
-    #: normal of the mirror plane; auto = the axis along which paired joints lie furthest apart
-    #: in the rest pose
-    axis: Literal["auto", "x", "y", "z"] = "auto"
+from motionweb.tasks.params.mirror import MirrorParams
 
 
 @dataclass(frozen=True)

@@ -19,23 +19,13 @@ folds the root back into the hips. O(F·J).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Literal
 
 import numpy as np
 from motionweb.store.kinematics import axis_index, heading, quat_inv, quat_mul, quat_normalize, quat_rotate
 from motionweb.store.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
-from motionweb.store.params import Params
+from motionweb.tasks.params.rootmotion import RootMotionParams
 
 ROOT_MOTION_MODES = ("keep", "in-place")
-
-
-class RootMotionParams(Params):
-    """Root-motion extraction on exports (design "Exports")."""
-
-    #: keep: the hips carry the travel (as read); in-place: a root joint above the hips carries it
-    mode: Literal["keep", "in-place"] = "keep"
-    #: name of the added root joint (``_motion`` appended while the name is taken)
-    root_name: str = "root"
 
 
 def _unique(name: str, names: tuple[str, ...]) -> str:

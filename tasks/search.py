@@ -53,31 +53,14 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from motionweb.store.params import Params
 from motionweb.store.web import MatchWeb
 from motionweb.store.webs import WebSource
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
 from motionweb.tasks.matchweb.params import MatchWebParams, min_chain_extent
+from motionweb.tasks.params.search import SearchParams
 from numba import njit
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
-
-
-class SearchParams(Params):
-    """Search and match graph (design §5)."""
-
-    overlap_redundant: float = 0.5
-    new_node_below: float = 0.2
-    merge_above: float = 0.8
-    max_tiers: int = 10
-    all_categories: bool = False
-    #: default ε = this × the query's nearest match in another clip (``tasks.ranking.default_epsilon``)
-    eps_nearest_ratio: float = 2.0
-    #: trial ranking (``tasks.ranking.rank_trials``): window length, tiers, nodes per tier per window
-    window_s: float = 0.5
-    window_tiers: int = 3
-    window_nodes: int = 5
-
 
 INF = np.inf
 

@@ -11,7 +11,6 @@ from motionweb.store.kinematics import (
     resample,
 )
 from motionweb.store.motion import Motion
-from motionweb.store.params import Params
 from motionweb.tasks.guided_warp.features import (
     feature_spec,
     local_scores,
@@ -23,27 +22,7 @@ from motionweb.tasks.guided_warp.heuristic import band_windows, coarse_solution
 from motionweb.tasks.guided_warp.paths import dag_path, feasible_windows, fixed_length_path
 from motionweb.tasks.guided_warp.postprocess import apply_warp, smooth_warp
 from motionweb.tasks.guided_warp.reduction import Keytime, reduce_to_compression
-
-
-class WarpParams(Params):
-    """Guided time warping (design §7, HDP07 §3)."""
-
-    skip: int = 8
-    neighbours: int = 3
-    filter_width: int = 5
-    weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    heuristic_rate: int = 8
-    #: half-width (working frames) of the full-rate band around the coarse solution (--fast)
-    band: int = 48
-    #: moving-average width of the warp, output frames (HDP07 §3.4)
-    smooth_width: int = 5
-    #: average each output frame over the local compression (HDP07 §3.4)
-    adaptive_smoothing: bool = True
-    #: divide pose/velocity/acceleration features by the reference's RMS spread of each
-    normalize: bool = True
-    #: velocities include the root's travel and turning (differences in the middle frame's torso frame)
-    root_motion: bool = True
-
+from motionweb.tasks.params.warp import WarpParams
 
 # ----------------------------------------------------------------------------------------------------------
 # Results

@@ -10,19 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from motionweb.store.params import Params
-
-
-class MatchWebParams(Params):
-    """Match webs (design §4, KG04 §3.1-3.2)."""
-
-    valid_a: float = 0.15
-    slope_k: int = 3
-    min_chain_s: float = 0.25
-    bridge_max_s: float = 2.0
-    self_band_s: float = 0.25
-    keep_grids: bool = False
-
+from motionweb.tasks.params.matchweb import MatchWebParams
 
 #: value of a blocked cell (the ignored self band, cells outside the valid region)
 INF = np.inf

@@ -23,6 +23,7 @@ import numba
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Motion, Skeleton
+from motionweb.tasks.params.retime import DEFAULT_TOTAL_MASS
 
 WATER_DENSITY = 1000.0  # kg / m^3
 DEFAULT_RADIUS_RATIO = 0.15  # cylinder radius / bone length
@@ -37,7 +38,6 @@ SEGMENT_FRACTIONS: dict[str, float] = {
     "pelvis": 0.142, "torso": 0.335, "shoulder": 0.01, "head_neck": 0.081, "upper_arm": 0.028, "forearm": 0.016, "hand": 0.006,
     "thigh": 0.100, "shank": 0.0465, "foot": 0.0145,
 }
-DEFAULT_TOTAL_MASS = 70.0  # kg, an adult
 
 
 @dataclass(frozen=True, eq=False)
