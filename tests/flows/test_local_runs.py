@@ -132,3 +132,21 @@ def test_index_with_nothing_to_do_answers_without_prefect_unless_the_store_is_da
     assert unchanged_summary(cfg) is not None
     (tmp_path / "store" / "current").write_text("garbage")
     assert unchanged_summary(cfg) is None
+
+
+@pytest.mark.parametrize(("module", "absent"), [
+    ("motionweb.flows.cli", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio", "matplotlib")),
+    ("motionweb.flows.config", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio")),
+    ("motionweb.flows.index", ("numba", "prefect", "distributed", "pinocchio")),
+    ("motionweb.flows.requests", ("numpy", "numba", "zarr", "prefect")),
+])
+def test_light_modules_stay_light(module, absent) -> None:
+    """What every command imports before its work (the CLI, the run config with every stage's
+    parameter model, the index's plan, the request models) loads none of the heavy libraries the
+    work may need (issue 23: a command costs about its work)."""
+    import subprocess
+    import sys
+
+    code = f"import sys, {module}; print(','.join(m for m in {absent!r} if m in sys.modules))"
+    got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert got == "", f"importing {module} loads {got}"
