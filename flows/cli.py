@@ -424,6 +424,7 @@ def search(
     register: Annotated[bool, typer.Option(help="Register the matches: warps.csv/png, registered BVH.")] = False,
     export: Annotated[Path | None, typer.Option(help="Write every match as BVH into this folder.")] = None,
     out: Annotated[Path | None, typer.Option(help="Output folder (default: the config's output).")] = None,
+    format: Annotated[str, typer.Option("--format", help="Exported and registered motions: bvh or glb (glTF binary).")] = "bvh",
 ) -> None:
     """Search the index for motions like CLIP[START, END] (KG04 §3.3); print the matches.
 
@@ -433,7 +434,7 @@ def search(
 
     request = request_or_fail(QueryRequest, clip=clip, start=start, end=end, threshold=threshold, quantile=quantile,
                               tiers=tiers, all_categories=all_categories or None, register=register,
-                              export=str(export) if export else None, out=str(out) if out else None)
+                              export=str(export) if export else None, out=str(out) if out else None, format=format)
     try:
         res = forward_search(config, request)
     except ServiceError as exc:

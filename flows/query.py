@@ -309,8 +309,9 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
         export.mkdir(parents=True, exist_ok=True)
         for row, node in zip(rows, graph.nodes, strict=True):
             s = node.segment
-            p = export / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.bvh"
-            write_motion(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p)
+            p = export / f"{row['rank']:03d}_{Path(s.clip).stem}_{s.start}-{s.end}.{request.format}"
+            write_motion(segment_motion(motion_of(s.clip), np.arange(s.start, s.end + 1), graph.rate), p,
+                         up=gen_cfg.corpus.up_axis)
             files.append(p)
     if request.register_ and len(graph.nodes) > 1:
         t = time.perf_counter()
@@ -321,8 +322,8 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
         regdir = out / "registered"
         regdir.mkdir(exist_ok=True)
         for c, s in enumerate(reg.segments):
-            p = regdir / f"{rows[reg.nodes[c]]['rank']:03d}_{Path(s.clip).stem}.bvh"
-            write_motion(segment_motion(motion_of(s.clip), common[:, c], graph.rate), p)
+            p = regdir / f"{rows[reg.nodes[c]]['rank']:03d}_{Path(s.clip).stem}.{request.format}"
+            write_motion(segment_motion(motion_of(s.clip), common[:, c], graph.rate), p, up=gen_cfg.corpus.up_axis)
             files.append(p)
     timings["total_s"] = time.perf_counter() - t0
     return asdict(QueryResult(out=str(out), generation=gen.id, query=rows[0], epsilon=eps, matches=rows[1:],

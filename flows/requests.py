@@ -93,10 +93,12 @@ class QueryRequest(SearchQuery):
 
     export: str | None = Field(default=None, max_length=1000)
     out: str | None = Field(default=None, max_length=1000)
+    #: format of the exported and registered motions (BVH, or glTF binary: design §11)
+    format: Literal["bvh", "glb"] = "bvh"
 
     def search_query(self) -> SearchQuery:
-        """The request without the client's folders (what the service searches)."""
-        return SearchQuery(**self.model_dump(exclude={"export", "out"}, by_alias=True))
+        """The request without the client's folders and format (what the service searches)."""
+        return SearchQuery(**self.model_dump(exclude={"export", "out", "format"}, by_alias=True))
 
 
 class SpaceRequest(Request):

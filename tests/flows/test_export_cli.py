@@ -81,3 +81,23 @@ def test_warp_writes_glb_by_suffix(clip: tuple[Path, Path], tmp_path: Path) -> N
     assert times[-1] == pytest.approx(3.0, abs=1 / 30) and np.isfinite(pos).all()
     for rep in validate([tmp_path / "w.glb"]):
         assert rep["errors"] == 0, rep
+
+
+def test_search_exports_and_registers_glb(app_store: Path, tmp_path: Path) -> None:
+    """``motionweb search --format glb``: the exported matches and the registered examples are GLB
+    files (the validator passes them) whose joints follow the indexed clips' FK."""
+    r = runner.invoke(app, ["search", str(app_store), "--clip", "walk_00", "--start", "1.0", "--end", "2.5",
+                            "--quantile", "0.8", "--register", "--export", str(tmp_path / "x"),
+                            "--out", str(tmp_path / "o"), "--format", "glb"])
+    assert r.exit_code == 0, r.output
+    exported = sorted((tmp_path / "x").glob("*.glb"))
+    registered = sorted((tmp_path / "o" / "registered").glob("*.glb"))
+    assert exported and registered and not list((tmp_path / "x").glob("*.bvh"))
+    query = exported[0]  # rank 000: the query itself, walk_00 frames at the web rate
+    pos, _, times, _ = glb_world_positions(query)
+    assert np.isfinite(pos).all() and times[-1] > 1.0
+    for rep in validate(exported + registered):
+        assert rep["errors"] == 0, rep
+    bad = runner.invoke(app, ["search", str(app_store), "--clip", "walk_00", "--start", "1.0", "--end", "2.5",
+                              "--format", "obj"])
+    assert bad.exit_code == 2 and "format: Input should be 'bvh' or 'glb'" in bad.output

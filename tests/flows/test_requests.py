@@ -55,7 +55,7 @@ def test_a_request_survives_the_wire() -> None:
     assert QueryRequest(**q.wire()) == q
     assert q.search_query() == SearchQuery(clip="walk_00", start=1.0, end=2.5, tiers=3, register=True)
     assert list(q.wire()) == ["clip", "start", "end", "threshold", "quantile", "tiers", "all_categories",
-                              "register", "export", "out"]  # the order matches.json records
+                              "register", "export", "out", "format"]  # the order matches.json records
     s = SpaceRequest(clip="walk_00", start=1.0, end=2.5, param="final_root", quantile=0.8)
     assert list(s.wire()) == ["clip", "start", "end", "param", "threshold", "quantile", "samples", "out"]
     assert s.query() == QueryRequest(clip="walk_00", start=1.0, end=2.5, quantile=0.8)
