@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import shutil
 import statistics
@@ -97,26 +96,9 @@ def work_functions(cfg_path: Path, work: Path) -> dict[str, Callable[[], object]
     inproc = work / "inproc"
 
     def retime() -> object:
-        import motionweb.flows.retime as rt
+        from motionweb.flows.retime import retime_flow
 
-        if hasattr(rt, "run_retime"):
-            return rt.run_retime(clip, cfg, str(inproc / "retimed.bvh"), duration=2.5)
-        import json as _json
-
-        import numpy as np  # noqa: F401
-        from motionweb.store.bvh import write_bvh
-        from motionweb.tasks.retime import prepare, report, retime_plan
-
-        motion, humanoid = rt.load_clip(clip, cfg)
-        plan = prepare(motion, cfg.retime, up_axis=cfg.corpus.up_axis, gravity=None, mass={}, humanoid=humanoid,
-                       contact_intervals=cfg.retime.contact_intervals.get(motion.name) or None, weight_factors={})
-        retimed, res = retime_plan(plan, 2.5, [], cfg.retime)
-        out = inproc / "retimed.bvh"
-        out.parent.mkdir(parents=True, exist_ok=True)
-        write_bvh(retimed, out)
-        rep = report(plan, res)
-        out.with_suffix(".json").write_text(_json.dumps(rep, indent=1))
-        return rep
+        return retime_flow.fn(clip, cfg, str(inproc / "retimed.bvh"), duration=2.5)
 
     def warp() -> object:
         from motionweb.flows.requests import WarpRequest
@@ -135,19 +117,12 @@ def work_functions(cfg_path: Path, work: Path) -> dict[str, Callable[[], object]
         return write_outputs(cfg, request, q, graph, eps, Path(request.out), None, t0)
 
     def index() -> object:
-        import motionweb.flows.index as idx
+        from motionweb.flows.index import unchanged_summary
 
-        if hasattr(idx, "plan_index"):
-            return idx.plan_index(cfg)
-        # the original code: the flow's catalog and plan tasks as plain functions
-        from motionweb.store.generations import check_current, load_generation
-        from motionweb.store.zarr_store import MotionStore
-
-        idx.get_run_logger = lambda: logging.getLogger("bench")
-        store = MotionStore(cfg.store.path)
-        prev = load_generation(store, check_current(store))
-        cat = idx.catalog_task.fn(cfg)
-        return idx.plan_task.fn(idx.plan_chunks(cat.entries, cfg.index.chunk_by), cfg, prev)
+        summary = unchanged_summary(cfg)
+        if summary is None:
+            raise SystemExit("bench: the index has work to do; this row measures an index with nothing changed")
+        return summary
 
     def catalog() -> object:
         from motionweb.store.catalog import scan_corpus
