@@ -2,8 +2,9 @@
 
 Routes (every one answers JSON errors ``{"error": message}`` with the CLI's messages, never a
 traceback: 400 bad request, 401 bad token, 404 unknown clip or result, 409 store not indexed,
-413 request too large, 500 a search that crashed its worker process, with ``"query"``: the
-request's clip, start, end and options; the service goes on with a standby worker):
+413 request too large, 500 a search (or a retime session's work) that crashed its worker
+process, with ``"query"``: the request's clip, start, end and options (the session's request);
+the service goes on with a standby worker, or a fresh session worker):
 
     GET  /                                       the page (static/index.html)
     GET  /api/status                             generation, clip and web counts, categories
@@ -21,6 +22,11 @@ request's clip, start, end and options; the service goes on with a standby worke
     GET  /api/spaces/{sid}                       a space's parameter, examples, sampled cloud
     POST /api/spaces/{sid}/synthesize            {target}: the motion for it (§4.3), how close
     POST /api/spaces/{sid}/blend                 {weights}: the blend of the examples
+    POST /api/retime/sessions                    {clip, gravity, mass, weight}: a retime session (MPS06),
+                                                 its plan prepared once per (clip, physics); the original's poses
+    POST /api/retime/sessions/{sid}/edit         {duration, keytimes}: the retimed poses and the plots' data
+    GET  /api/retime/sessions/{sid}/bvh          the last retimed motion as a BVH download
+    GET  /api/retime/sessions/{sid}/report       the last retiming's report (the CLI's JSON)
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
@@ -42,6 +48,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed, QueryCrashed
+from motionweb.flows.app.sessions import EditBody, RetimeSessions, SessionBody
 from motionweb.flows.app.spaces import Spaces
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -288,6 +295,27 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     async def space_blend(sid: str, body: BlendBody) -> dict:
         return await run(lambda: spaces.answer(*spaces.blend(sid, body.weights), body.pose, body.bvh,
                                                MAX_DRAW_FRAMES))
+
+    # ---------------------------------------------------------------- retime sessions (MPS06, sessions.py)
+    retime = RetimeSessions(engine)
+    app.state.retime_sessions = retime
+    app.router.on_shutdown.append(retime.close)  # the session worker ends with the service
+
+    @app.post("/api/retime/sessions")
+    async def retime_open(body: SessionBody) -> dict:
+        return await run(retime.create, body)
+
+    @app.post("/api/retime/sessions/{sid}/edit")
+    async def retime_edit(sid: str, body: EditBody) -> dict:
+        return await run(retime.edit, sid, body)
+
+    @app.get("/api/retime/sessions/{sid}/bvh")
+    async def retime_bvh(sid: str) -> Response:
+        return download(await run(retime.bvh, sid))
+
+    @app.get("/api/retime/sessions/{sid}/report")
+    async def retime_report(sid: str) -> dict:
+        return await run(retime.report, sid)
 
     static = static_dir()
 

@@ -1,0 +1,208 @@
+"""The retime sessions' work in a child process, so a crash in it cannot take the service down.
+
+MPS06 §3 splits a retiming into what depends on the clip and its physics — path dynamics (§3.1),
+contacts (§3.2), the feasible polygons (§3.3-3.4) and the baked objective (§3.5) — and the timing
+optimised for one duration and keytimes (§3.6); the polygons are "reused for all subsequent
+retimings". This worker keeps the first part, a :class:`~motionweb.tasks.retime.RetimePlan` per
+(clip, physics), in a :class:`PlanCache` bounded by count and bytes (``AppParams.session_plans``,
+``session_bytes``; least recently used first out), and answers each timing edit from it with
+:func:`~motionweb.tasks.retime.retime_plan` and the CLI's :func:`~motionweb.tasks.retime.report`
+(the same functions ``motionweb retime`` runs, flows/retime.py).
+
+It runs as :class:`~motionweb.flows.app.worker.Worker` runs the search worker (a socket pair, one
+request at a time), with its own loop: ``("prepare", PrepareJob)`` → ``{"key", "nbytes", ...}``;
+``("edit", EditJob)`` → ``(retimed motion, report, polygons)``, or ``None`` when the plan is no longer kept
+(evicted, or the worker restarted: the service prepares it again); ``("ping", None)``. A crash
+(the compiled kernels: Pinocchio, numba, HiGHS) costs the request that ran it
+(:class:`~motionweb.flows.app.worker.WorkerCrashed`); the next request starts a fresh worker and
+prepares its plan again.
+
+Run as ``python -m motionweb.flows.app.session_worker FD STORE_URL`` by :class:`SessionWorker` only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import sys
+from collections import OrderedDict
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+from motionweb.flows.app.worker import Worker
+
+log = logging.getLogger("motionweb.app")
+#: test hook (off by default): a worker that prepares a clip named NAME sends itself SIGSEGV
+CRASH_ENV = "MOTIONWEB_TEST_CRASH_RETIME"
+
+
+@dataclass(frozen=True)
+class PrepareJob:
+    """Prepare one (clip, physics): the clip's motion, the retime section (``RetimeParams`` as a
+    dict), the up axis, gravity (3,) m/s² or None (the default), per-joint mass and weight factors
+    (MPS06 §3.2, Fig. 11) and, for a DeepMimic clip, its file (read by the service from the
+    generation's record, never named by a request) for the URDF humanoid."""
+
+    key: str
+    motion: Any  # motionweb.store.motion.Motion
+    opts: dict[str, Any]
+    up_axis: str
+    gravity: tuple[float, float, float] | None
+    mass: dict[str, float]
+    weight_factors: dict[str, float]
+    deepmimic_path: str | None = None
+
+
+@dataclass(frozen=True)
+class EditJob:
+    """One timing of a prepared plan: output duration (s) and keytimes [(source s, output s)]."""
+
+    key: str
+    duration: float
+    keytimes: tuple[tuple[float, float], ...]
+    opts: dict[str, Any]
+
+
+def nbytes(obj: Any, seen: set[int] | None = None) -> int:
+    """Bytes held by the numpy arrays reachable from ``obj`` (dataclasses, dicts, lists, tuples),
+    each array counted once: what a plan costs in memory, but for small Python objects and the
+    Pinocchio model (kilobytes)."""
+    seen = set() if seen is None else seen
+    if id(obj) in seen:
+        return 0
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        base = obj if obj.base is None else obj.base
+        if base is not obj and id(base) in seen:
+            return 0
+        seen.add(id(base))
+        return int(base.nbytes) if isinstance(base, np.ndarray) else int(obj.nbytes)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return sum(nbytes(getattr(obj, f.name), seen) for f in dataclasses.fields(obj))
+    if isinstance(obj, dict):
+        return sum(nbytes(v, seen) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return sum(nbytes(v, seen) for v in obj)
+    return 0
+
+
+class PlanCache:
+    """Prepared plans by key, at most ``max_plans`` of them and ``max_bytes`` in all (:func:`nbytes`);
+    the least recently used are dropped first (the newest is kept even alone over the bound)."""
+
+    def __init__(self, max_plans: int, max_bytes: int):
+        self.max_plans, self.max_bytes = max_plans, max_bytes
+        self.items: OrderedDict[str, tuple[Any, int]] = OrderedDict()
+        self.evicted = 0
+
+    @property
+    def total(self) -> int:
+        return sum(n for _, n in self.items.values())
+
+    def get(self, key: str) -> Any:
+        if key not in self.items:
+            return None
+        self.items.move_to_end(key)
+        return self.items[key][0]
+
+    def put(self, key: str, plan: Any) -> int:
+        size = nbytes(plan)
+        self.items[key] = (plan, size)
+        self.items.move_to_end(key)
+        while len(self.items) > 1 and (len(self.items) > self.max_plans or self.total > self.max_bytes):
+            self.items.popitem(last=False)
+            self.evicted += 1
+        return size
+
+
+class _State:
+    def __init__(self, max_plans: int, max_bytes: int):
+        self.plans = PlanCache(max_plans, max_bytes)
+
+    def prepare(self, job: PrepareJob) -> dict[str, Any]:
+        from motionweb.flows.retime import clip_humanoid
+        from motionweb.tasks.retime import RetimeParams, prepare
+
+        if job.motion.name and job.motion.name in os.environ.get(CRASH_ENV, "").split(","):
+            os.kill(os.getpid(), signal.SIGSEGV)
+        opts = RetimeParams.model_validate(job.opts)
+        humanoid = clip_humanoid(job.deepmimic_path) if job.deepmimic_path else None
+        plan = prepare(job.motion, opts, up_axis=job.up_axis,
+                       gravity=None if job.gravity is None else np.asarray(job.gravity, float), mass=dict(job.mass),
+                       humanoid=humanoid, contact_intervals=opts.contact_intervals.get(job.motion.name) or None,
+                       weight_factors=dict(job.weight_factors))
+        size = self.plans.put(job.key, plan)
+        return {"key": job.key, "nbytes": size, "timings": dict(plan.timings), **self.info()}
+
+    def edit(self, job: EditJob) -> tuple[Any, dict[str, Any], list] | None:
+        from motionweb.tasks.retime import RetimeParams, report, retime_plan
+
+        plan = self.plans.get(job.key)
+        if plan is None:
+            return None
+        opts = RetimeParams.model_validate(job.opts)
+        retimed, res = retime_plan(plan, job.duration, [tuple(k) for k in job.keytimes], opts)
+        return retimed, report(plan, res), plot_polygons(plan)
+
+    def info(self) -> dict[str, Any]:
+        return {"plans": len(self.plans.items), "plan_bytes": self.plans.total, "evicted": self.plans.evicted}
+
+
+def plot_polygons(plan: Any) -> list[list[list[float]]]:
+    """Per source frame its feasible polygon (K, 2) in (p̈, ṗ²) (MPS06 §3.4), 4 digits: what the
+    page draws around an output frame's (p̈, ṗ²)."""
+    return [np.round(v, 4).tolist() for v in plan.polygons.vertices]
+
+
+def child_main(fd: int, max_plans: int, max_bytes: int) -> None:
+    """The worker's loop (see the module docstring); ends on EOF (the service closed or died)."""
+    import faulthandler
+
+    faulthandler.enable()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    conn = Connection(fd)
+    from motionweb.tasks.retime import prepare  # noqa: F401  (the heavy stack imported before "ready")
+
+    state = _State(max_plans, max_bytes)
+    conn.send(("ready", os.getpid()))
+    while True:
+        try:
+            kind, payload = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            if kind == "prepare":
+                out = ("ok", state.prepare(payload))
+            elif kind == "edit":
+                out = ("ok", state.edit(payload))
+            elif kind == "info":
+                out = ("ok", state.info())
+            elif kind == "ping":
+                out = ("ok", os.getpid())
+            else:
+                out = ("error", f"unknown request {kind!r}")
+        except ValueError as exc:  # RetimeError, a bad joint name, ...: the request's fault
+            out = ("value", str(exc))
+        except Exception as exc:
+            logging.getLogger("motionweb.app").exception("session worker: %s failed", kind)
+            out = ("error", type(exc).__name__)
+        try:
+            conn.send(out)
+        except (EOFError, OSError):
+            return
+
+
+class SessionWorker(Worker):
+    """The session worker process (a :class:`~motionweb.flows.app.worker.Worker` running
+    :func:`child_main`, with the plan cache's bounds)."""
+
+    def __init__(self, max_plans: int, max_bytes: int):
+        super().__init__(str(max_plans), str(max_bytes), module="motionweb.flows.app.session_worker")
+
+
+if __name__ == "__main__":
+    child_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))

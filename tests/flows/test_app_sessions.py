@@ -1,0 +1,159 @@
+"""`motionweb app`'s retime sessions (MPS06, flows/app/sessions.py) through the JSON API: an edit
+writes the bytes `motionweb retime` writes, a physics change prepares again and changes the
+motion, bad inputs answer 400 JSON, the plan cache's bounds evict, a crash costs one request."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from motionweb.flows.app.api import create_app
+from motionweb.flows.app.engine import Engine
+from motionweb.flows.app.params import AppParams
+from motionweb.flows.app.session_worker import CRASH_ENV, PlanCache, nbytes
+from motionweb.flows.config import load_config
+from motionweb.flows.retime import retime_flow
+
+CLIP = "walk_00"
+
+
+@pytest.fixture(scope="module")
+def cfg(app_store):
+    return load_config(app_store)
+
+
+@pytest.fixture(scope="module")
+def client(cfg):
+    with TestClient(create_app(Engine(cfg, warm=False))) as c:
+        yield c
+
+
+def clip_file(cfg, stem: str) -> Path:
+    return next(Path(cfg.corpus.path).rglob(f"{stem}.bvh"))
+
+
+def open_session(client, **body) -> dict:
+    r = client.post("/api/retime/sessions", json={"clip": CLIP, **body})
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def edit(client, sid: str, **body) -> dict:
+    r = client.post(f"/api/retime/sessions/{sid}/edit", json=body)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+@pytest.mark.parametrize("physics", [{}, {"gravity": [1.5, -9.0, 0.0], "mass": {"LeftUpLeg": 2.0},
+                                          "weight": {"RightUpLeg": 3.0}}])
+def test_an_edit_writes_the_bytes_of_motionweb_retime(client, cfg, tmp_path: Path, physics) -> None:
+    """The session's BVH and report equal the CLI's path (flows/retime.py) for the same clip,
+    config, physics, duration and keytimes."""
+    s = open_session(client, **physics)
+    assert s["frames"] == len(s["original"]["positions"]) // (3 * len(s["joints"]))
+    duration = round(0.8 * s["duration"], 3)
+    keytimes = [[1.0, 0.85]]
+    ans = edit(client, s["session"], duration=duration, keytimes=keytimes)
+    out = tmp_path / "cli.bvh"
+    rep = retime_flow.fn(str(clip_file(cfg, CLIP)), cfg, str(out), duration=duration,
+                         keytimes=[tuple(k) for k in keytimes], gravity=physics.get("gravity"),
+                         mass=physics.get("mass"), weight_factors=physics.get("weight"))
+    bvh = client.get(f"/api/retime/sessions/{s['session']}/bvh")
+    assert bvh.status_code == 200 and "attachment" in bvh.headers["content-disposition"]
+    assert bvh.content == out.read_bytes()
+    mine = client.get(f"/api/retime/sessions/{s['session']}/report").json()
+    cli = json.loads(out.with_suffix(".json").read_text())
+    for key in ("frames", "flights", "contacts", "phase_seconds", "reachable", "infeasible_output_frames",
+                "gravity", "mass_factors", "weight_factors", "timing", "objective"):
+        assert mine[key] == cli[key], key
+    assert rep["frames_out"] == len(ans["t"]) == ans["pose"]["frames"]
+    # the plots' data: p(t) and linear timing, polygons, torques against limits, contacts, reachability
+    assert ans["p"] == [f["source_time"] for f in cli["frames"]]
+    assert ans["linear"][-1] == pytest.approx(s["duration"])
+    assert len(ans["polygons"]) == s["frames"] and max(ans["source_frame"]) < s["frames"]
+    assert len(ans["torques"]["max_ratio"]) == len(ans["t"]) and ans["torques"]["joints"]
+    assert ans["shortest_feasible_duration"] == cli["shortest_feasible_duration"]
+    assert set(ans["contacts"]) == set(cli["contacts"])
+
+
+def test_a_physics_change_prepares_again_and_changes_the_motion(client) -> None:
+    a = open_session(client)
+    b = open_session(client, gravity=[0.0, -4.0, 0.0])
+    c = open_session(client)  # the same physics as a: its plan is kept
+    assert b["plans"] == a["plans"] + 1 and c["plans"] == b["plans"]
+    ea, eb = (edit(client, x["session"], duration=round(0.7 * x["duration"], 3)) for x in (a, b))
+    assert ea["pose"]["positions"] != eb["pose"]["positions"] and ea["p"] != eb["p"]
+    ta, tb = (client.get(f"/api/retime/sessions/{x['session']}/bvh").content for x in (a, b))
+    assert ta != tb
+    assert edit(client, c["session"], duration=round(0.7 * c["duration"], 3))["p"] == ea["p"]
+    # a timing edit changes the motion that plays
+    e2 = edit(client, a["session"], duration=round(0.7 * a["duration"], 3), keytimes=[[1.0, 1.2]])
+    assert e2["pose"]["positions"] != ea["pose"]["positions"]
+
+
+@pytest.mark.parametrize(("path", "body", "status", "message"), [
+    ("/api/retime/sessions", {"clip": "no_such_clip"}, 404, "no_such_clip"),
+    ("/api/retime/sessions", {"clip": CLIP, "gravity": [0, -1000, 0]}, 400, "gravity"),
+    ("/api/retime/sessions", {"clip": CLIP, "gravity": [0, -9.8]}, 400, "gravity"),
+    ("/api/retime/sessions", {"clip": CLIP, "mass": {"NoSuchJoint": 2.0}}, 400, "NoSuchJoint"),
+    ("/api/retime/sessions", {"clip": CLIP, "weight": {"LeftUpLeg": -1}}, 400, "factor"),
+    ("/api/retime/sessions", {"clip": CLIP, "path": "/etc/passwd"}, 400, "path"),
+    ("/api/retime/sessions/nosuchsession/edit", {"duration": 2.0}, 404, "nosuchsession"),
+])
+def test_bad_session_requests_answer_json_errors(client, path, body, status, message) -> None:
+    r = client.post(path, json=body)
+    assert r.status_code == status, r.text
+    assert message in r.json()["error"] and "Traceback" not in r.text
+
+
+@pytest.mark.parametrize(("body", "message"), [
+    ({"duration": -1.0}, "duration"),
+    ({"duration": 1e9}, "duration"),
+    ({"duration": 3.0, "keytimes": [[99.0, 1.0]]}, "keytime"),
+    ({"duration": 3.0, "keytimes": [[1.0, 2.0], [0.5, 2.5]]}, "increase"),
+    ({"duration": 3.0, "keytimes": [[1.0]]}, "keytimes"),
+    ({"duration": "soon"}, "duration"),
+])
+def test_bad_edits_answer_400_with_the_reason(client, body, message) -> None:
+    s = open_session(client)
+    r = client.post(f"/api/retime/sessions/{s['session']}/edit", json=body)
+    assert r.status_code == 400, r.text
+    assert message in r.json()["error"]
+    assert client.get(f"/api/retime/sessions/{s['session']}/bvh").status_code == 404  # no timing yet
+
+
+def test_the_plan_cache_evicts_by_count_and_bytes(cfg) -> None:
+    cache = PlanCache(max_plans=2, max_bytes=10_000)
+    for k in "abc":
+        cache.put(k, {"x": np.zeros(100)})
+    assert list(cache.items) == ["b", "c"] and cache.evicted == 1
+    cache.get("b")
+    cache.put("d", {"x": np.zeros(1000)})  # 8000 bytes: c (least recently used) goes
+    assert list(cache.items) == ["b", "d"]
+    cache.put("e", {"x": np.zeros(1100)})  # 8800 bytes: b and d go, e stays alone
+    assert list(cache.items) == ["e"] and cache.total == 8800 and cache.evicted == 4
+    shared = np.zeros(10)
+    assert nbytes({"a": shared, "b": [shared, shared[2:]]}) == 80
+    # the service: one plan kept; an evicted session is prepared again on its next edit
+    with TestClient(create_app(Engine(cfg.model_copy(update={"app": AppParams(session_plans=1)}), warm=False))) as c:
+        a, b = open_session(c), open_session(c, clip="walk_01")
+        assert b["plans"] == 1
+        ea = edit(c, a["session"], duration=3.0)
+        assert ea["duration_out"] == pytest.approx(3.0)
+        info = c.app.app.state.retime_sessions.worker_info()
+        assert info["plans"] == 1 and info["evicted"] == 2
+
+
+def test_a_crash_in_a_session_costs_only_its_request(cfg, monkeypatch) -> None:
+    monkeypatch.setenv(CRASH_ENV, "walk_01")
+    with TestClient(create_app(Engine(cfg, warm=False))) as c:
+        a = open_session(c)
+        r = c.post("/api/retime/sessions", json={"clip": "walk_01"})
+        assert r.status_code == 500 and "crashed its worker process (SIGSEGV)" in r.json()["error"]
+        assert r.json()["query"]["clip"].endswith("walk_01.bvh")
+        # the next request gets a fresh worker, which prepares a's plan again
+        assert edit(c, a["session"], duration=3.0)["duration_out"] == pytest.approx(3.0)
+        assert c.app.app.state.retime_sessions.crashes == 1
