@@ -22,6 +22,7 @@ the service goes on with a standby worker, or a fresh session worker):
     GET  /api/spaces/{sid}                       a space's parameter, examples, sampled cloud
     POST /api/spaces/{sid}/synthesize            {target}: the motion for it (§4.3), how close
     POST /api/spaces/{sid}/blend                 {weights}: the blend of the examples
+    GET  /api/retime/status                      the session worker: pid, crashes, plans kept, their bytes
     POST /api/retime/sessions                    {clip, gravity, mass, weight}: a retime session (MPS06),
                                                  its plan prepared once per (clip, physics); the original's poses
     POST /api/retime/sessions/{sid}/edit         {duration, keytimes}: the retimed poses and the plots' data
@@ -300,6 +301,10 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     retime = RetimeSessions(engine)
     app.state.retime_sessions = retime
     app.router.on_shutdown.append(retime.close)  # the session worker ends with the service
+
+    @app.get("/api/retime/status")
+    async def retime_status() -> dict:
+        return await run(retime.worker_info)
 
     @app.post("/api/retime/sessions")
     async def retime_open(body: SessionBody) -> dict:
