@@ -10,8 +10,9 @@ retimings". This worker keeps the first part, a :class:`~motionweb.tasks.retime.
 (the same functions ``motionweb retime`` runs, flows/retime.py).
 
 It runs as :class:`~motionweb.flows.app.worker.Worker` runs the search worker (a socket pair, one
-request at a time), with its own loop: ``("prepare", PrepareJob)`` → ``{"key", "nbytes", ...}``;
-``("edit", EditJob)`` → ``(retimed motion, report, polygons)``, or ``None`` when the plan is no longer kept
+request at a time), with its own loop: ``("prepare", PrepareJob)`` → ``{"key", "nbytes",
+"polygons", ...}``;
+``("edit", EditJob)`` → ``(retimed motion, report)``, or ``None`` when the plan is no longer kept
 (evicted, or the worker restarted: the service prepares it again); ``("ping", None)``. A crash
 (the compiled kernels: Pinocchio, numba, HiGHS) costs the request that ran it
 (:class:`~motionweb.flows.app.worker.WorkerCrashed`); the next request starts a fresh worker and
@@ -48,6 +49,8 @@ class PrepareJob:
     generation's record, never named by a request) for the URDF humanoid."""
 
     key: str
+    #: the clip's key without the physics: plans of one clip share its path dynamics and contacts
+    clip_key: str
     motion: Any  # motionweb.store.motion.Motion
     opts: dict[str, Any]
     up_axis: str
@@ -92,11 +95,18 @@ def nbytes(obj: Any, seen: set[int] | None = None) -> int:
 
 class PlanCache:
     """Prepared plans by key, at most ``max_plans`` of them and ``max_bytes`` in all (:func:`nbytes`);
-    the least recently used are dropped first (the newest is kept even alone over the bound)."""
+    the least recently used are dropped first (the newest is kept even alone over the bound).
+
+    Beside them, per clip (``clip_key``) its :func:`~motionweb.tasks.retime.pipeline.clip_physics`
+    (body model, glitches, path dynamics, contacts: physics-independent, MPS06 §3.1-3.2), kept while
+    a plan of the clip is: a physics change reuses it. Its arrays are the plans' own (counted in
+    their bytes) but for the contacts' force basis before the root column, O(F · 6 · nλ)."""
 
     def __init__(self, max_plans: int, max_bytes: int):
         self.max_plans, self.max_bytes = max_plans, max_bytes
         self.items: OrderedDict[str, tuple[Any, int]] = OrderedDict()
+        self.clips: dict[str, str] = {}  # plan key -> clip key
+        self.physics: dict[str, Any] = {}  # clip key -> clip_physics(...)
         self.evicted = 0
 
     @property
@@ -109,13 +119,21 @@ class PlanCache:
         self.items.move_to_end(key)
         return self.items[key][0]
 
-    def put(self, key: str, plan: Any) -> int:
+    def put(self, key: str, plan: Any, clip_key: str | None = None, physics: Any = None) -> int:
         size = nbytes(plan)
         self.items[key] = (plan, size)
         self.items.move_to_end(key)
+        if clip_key is not None:
+            self.clips[key] = clip_key
+            if physics is not None:
+                self.physics[clip_key] = physics
         while len(self.items) > 1 and (len(self.items) > self.max_plans or self.total > self.max_bytes):
-            self.items.popitem(last=False)
+            old, _ = self.items.popitem(last=False)
+            self.clips.pop(old, None)
             self.evicted += 1
+        live = set(self.clips.values())
+        for k in [k for k in self.physics if k not in live]:
+            del self.physics[k]
         return size
 
 
@@ -126,19 +144,26 @@ class _State:
     def prepare(self, job: PrepareJob) -> dict[str, Any]:
         from motionweb.flows.retime import clip_humanoid
         from motionweb.tasks.retime import RetimeParams, prepare
+        from motionweb.tasks.retime.pipeline import clip_physics
 
         if job.motion.name and job.motion.name in os.environ.get(CRASH_ENV, "").split(","):
             os.kill(os.getpid(), signal.SIGSEGV)
         opts = RetimeParams.model_validate(job.opts)
         humanoid = clip_humanoid(job.deepmimic_path) if job.deepmimic_path else None
+        intervals = opts.contact_intervals.get(job.motion.name) or None
+        physics, tm = self.plans.physics.get(job.clip_key), {}
+        if physics is None:  # what prepare() computes first, kept for the clip's other physics
+            physics = clip_physics(job.motion, opts, up="xyz".index(job.up_axis), humanoid=humanoid,
+                                   contact_intervals=intervals, timings=tm)
         plan = prepare(job.motion, opts, up_axis=job.up_axis,
                        gravity=None if job.gravity is None else np.asarray(job.gravity, float), mass=dict(job.mass),
-                       humanoid=humanoid, contact_intervals=opts.contact_intervals.get(job.motion.name) or None,
-                       weight_factors=dict(job.weight_factors))
-        size = self.plans.put(job.key, plan)
-        return {"key": job.key, "nbytes": size, "timings": dict(plan.timings), **self.info()}
+                       humanoid=humanoid, contact_intervals=intervals, weight_factors=dict(job.weight_factors),
+                       physics=physics)
+        size = self.plans.put(job.key, plan, job.clip_key, physics)
+        return {"key": job.key, "nbytes": size, "timings": {**plan.timings, **tm}, "reused_dynamics": not tm,
+                "polygons": plot_polygons(plan), **self.info()}
 
-    def edit(self, job: EditJob) -> tuple[Any, dict[str, Any], list] | None:
+    def edit(self, job: EditJob) -> tuple[Any, dict[str, Any]] | None:
         from motionweb.tasks.retime import RetimeParams, report, retime_plan
 
         plan = self.plans.get(job.key)
@@ -146,7 +171,7 @@ class _State:
             return None
         opts = RetimeParams.model_validate(job.opts)
         retimed, res = retime_plan(plan, job.duration, [tuple(k) for k in job.keytimes], opts)
-        return retimed, report(plan, res), plot_polygons(plan)
+        return retimed, report(plan, res)
 
     def info(self) -> dict[str, Any]:
         return {"plans": len(self.plans.items), "plan_bytes": self.plans.total, "evicted": self.plans.evicted}

@@ -121,13 +121,21 @@ class Session:
         return {"session": self.id, "clip": self.rec["path"], **self.body.model_dump(exclude={"clip"})}
 
 
-def plan_key(rec: dict[str, Any], gen_cfg: Any, opts: dict[str, Any], body: SessionBody) -> str:
-    """The plan's cache key: the clip's content, the settings it is read with, the retime section
-    and the physics (canonical JSON, SHA-256)."""
-    data = {"sha256": rec["sha256"], "corpus": gen_cfg.corpus.model_dump(mode="json", exclude={"path", "manifest"}),
-            "retime": opts, "gravity": body.gravity, "mass": sorted(body.mass.items()),
-            "weight": sorted(body.weight.items())}
+def digest(data: Any) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def clip_key(rec: dict[str, Any], gen_cfg: Any, opts: dict[str, Any]) -> str:
+    """The clip's key in the plan cache: its content, the settings it is read with and the retime
+    section (canonical JSON, SHA-256): what its path dynamics and contacts depend on."""
+    return digest({"sha256": rec["sha256"], "path": rec["path"],
+                   "corpus": gen_cfg.corpus.model_dump(mode="json", exclude={"path", "manifest"}), "retime": opts})
+
+
+def plan_key(clip: str, body: SessionBody) -> str:
+    """The plan's key: the clip's (:func:`clip_key`) and the physics."""
+    return digest({"clip": clip, "gravity": body.gravity, "mass": sorted(body.mass.items()),
+                   "weight": sorted(body.weight.items())})
 
 
 def torque_plot(rep: dict[str, Any], joints: list[str]) -> dict[str, Any]:
@@ -149,8 +157,7 @@ def torque_plot(rep: dict[str, Any], joints: list[str]) -> dict[str, Any]:
                        for j in top]}
 
 
-def edit_answer(s: Session, retimed: Any, rep: dict[str, Any], polygons: list, pose: bool, seconds: float
-                ) -> dict[str, Any]:
+def edit_answer(s: Session, retimed: Any, rep: dict[str, Any], pose: bool, seconds: float) -> dict[str, Any]:
     """What the page draws after a timing edit (see the module docstring)."""
     frames = rep["frames"]
     t = [f["t"] for f in frames]
@@ -161,8 +168,9 @@ def edit_answer(s: Session, retimed: Any, rep: dict[str, Any], polygons: list, p
         "converged": rep["converged"],
         # p(t) against linear timing (the CLI's timing.png)
         "t": t, "p": [f["source_time"] for f in frames], "linear": [x * rep["duration_in"] / total for x in t],
-        # the polygon of each source frame, and each output frame's (p̈, ṗ²) in it (polygons.png)
-        "polygons": polygons, "source_frame": [f["source_frame"] for f in frames],
+        # each output frame's source frame and (p̈, ṗ²), drawn in that frame's polygon (the
+        # session's "polygons", polygons.png)
+        "source_frame": [f["source_frame"] for f in frames],
         "pdd": [f["accel"] for f in frames], "pd2": [round(f["speed"] ** 2, 6) for f in frames],
         "feasible": [f["feasible"] for f in frames],
         "torques": torque_plot(rep, s.prepared["joints"]),
@@ -224,7 +232,8 @@ class RetimeSessions:
 
     # -------------------------------------------------------------- requests
     def create(self, body: SessionBody) -> dict[str, Any]:
-        """Open a session: the clip's plan prepared (or found prepared) in the worker; the
+        """Open a session: the clip's plan prepared in the worker (a physics change of a clip the
+        worker holds reuses its path dynamics and contacts); every source frame's polygon; the
         original clip's joint positions for the player beside the retimed one."""
         body.check(self.params)
         t0 = time.perf_counter()
@@ -236,11 +245,13 @@ class RetimeSessions:
         motion = snap.motion(rec)
         opts = self.engine.cfg.retime.model_dump(mode="json")
         path = rec["path"]
-        job = PrepareJob(plan_key(rec, snap.gen_cfg, opts, body), motion, opts, snap.gen_cfg.corpus.up_axis,
+        ck = clip_key(rec, snap.gen_cfg, opts)
+        job = PrepareJob(plan_key(ck, body), ck, motion, opts, snap.gen_cfg.corpus.up_axis,
                          None if body.gravity is None else tuple(body.gravity), dict(body.mass), dict(body.weight),
                          str(Path(snap.gen_cfg.corpus.path) / path) if path.lower().endswith(".txt") else None)
         s = Session(uuid.uuid4().hex[:12], snap, rec, body, job, {})
         prepared = self._run("prepare", job, s.request())
+        polygons = prepared.pop("polygons")
         s.prepared = {**prepared, "joints": list(motion.skeleton.names), "prepare_s": time.perf_counter() - t0}
         self.sessions.put(s.id, s)
         if self.engine.on_query:
@@ -248,7 +259,10 @@ class RetimeSessions:
         return {"session": s.id, **snap.clip_row(rec), "generation": snap.gen.id,
                 "joints": s.prepared["joints"], "prepare_s": round(s.prepared["prepare_s"], 4),
                 "plan_bytes": prepared["nbytes"], "plans": prepared["plans"], "cache_bytes": prepared["plan_bytes"],
-                "timings": prepared["timings"], "physics": body.model_dump(exclude={"clip"}),
+                "timings": prepared["timings"], "reused_dynamics": prepared["reused_dynamics"],
+                "physics": body.model_dump(exclude={"clip"}),
+                # per source frame its feasible polygon (K, 2) in (p̈, ṗ²) (MPS06 §3.4; polygons.png)
+                "polygons": polygons,
                 "original": pose_payload(snap, motion, np.arange(motion.n_frames, dtype=float), motion.fps)}
 
     def session(self, sid: str) -> Session:
@@ -271,10 +285,10 @@ class RetimeSessions:
             out = self._run("edit", job, query)
             if out is None:
                 raise RuntimeError("the session worker dropped the plan it just prepared")
-        retimed, rep, polygons = out
+        retimed, rep = out
         with s.lock:
             s.last = (retimed, rep, {"duration": duration, "keytimes": [list(k) for k in job.keytimes]})
-        return edit_answer(s, retimed, rep, polygons, body.pose, time.perf_counter() - t0)
+        return edit_answer(s, retimed, rep, body.pose, time.perf_counter() - t0)
 
     def last(self, sid: str) -> tuple[Session, Any, dict[str, Any]]:
         s = self.session(sid)

@@ -73,7 +73,7 @@ def test_an_edit_writes_the_bytes_of_motionweb_retime(client, cfg, tmp_path: Pat
     # the plots' data: p(t) and linear timing, polygons, torques against limits, contacts, reachability
     assert ans["p"] == [f["source_time"] for f in cli["frames"]]
     assert ans["linear"][-1] == pytest.approx(s["duration"])
-    assert len(ans["polygons"]) == s["frames"] and max(ans["source_frame"]) < s["frames"]
+    assert len(s["polygons"]) == s["frames"] and max(ans["source_frame"]) < s["frames"]
     assert len(ans["torques"]["max_ratio"]) == len(ans["t"]) and ans["torques"]["joints"]
     assert ans["shortest_feasible_duration"] == cli["shortest_feasible_duration"]
     assert set(ans["contacts"]) == set(cli["contacts"])
@@ -84,6 +84,8 @@ def test_a_physics_change_prepares_again_and_changes_the_motion(client) -> None:
     b = open_session(client, gravity=[0.0, -4.0, 0.0])
     c = open_session(client)  # the same physics as a: its plan is kept
     assert b["plans"] == a["plans"] + 1 and c["plans"] == b["plans"]
+    assert b["reused_dynamics"] and c["reused_dynamics"]  # the clip's path dynamics and contacts kept
+    assert b["polygons"] != a["polygons"] and c["polygons"] == a["polygons"]
     ea, eb = (edit(client, x["session"], duration=round(0.7 * x["duration"], 3)) for x in (a, b))
     assert ea["pose"]["positions"] != eb["pose"]["positions"] and ea["p"] != eb["p"]
     ta, tb = (client.get(f"/api/retime/sessions/{x['session']}/bvh").content for x in (a, b))
@@ -135,6 +137,12 @@ def test_the_plan_cache_evicts_by_count_and_bytes(cfg) -> None:
     assert list(cache.items) == ["b", "d"]
     cache.put("e", {"x": np.zeros(1100)})  # 8800 bytes: b and d go, e stays alone
     assert list(cache.items) == ["e"] and cache.total == 8800 and cache.evicted == 4
+    kept = PlanCache(max_plans=1, max_bytes=10_000)  # a clip's dynamics live as long as a plan of it
+    kept.put("a1", {}, "clip-a", "dynamics-a")
+    kept.put("a2", {}, "clip-a", None)
+    assert kept.physics == {"clip-a": "dynamics-a"}
+    kept.put("b1", {}, "clip-b", "dynamics-b")
+    assert kept.physics == {"clip-b": "dynamics-b"}
     shared = np.zeros(10)
     assert nbytes({"a": shared, "b": [shared, shared[2:]]}) == 80
     # the service: one plan kept; an evicted session is prepared again on its next edit

@@ -219,7 +219,7 @@ function rtTiming() {
 function rtPolygon() {
   const r = rt.result;
   if (!r) return;
-  const k = Math.min(+$("rt-frame").value, r.t.length - 1), i = r.source_frame[k], poly = r.polygons[i] || [];
+  const k = Math.min(+$("rt-frame").value, r.t.length - 1), i = r.source_frame[k], poly = rt.session.polygons[i] || [];
   const xs = poly.map((v) => v[0]).concat([r.pdd[k], 0]), ys = poly.map((v) => v[1]).concat([r.pd2[k], 1]);
   const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(0, ...ys), y1 = Math.max(...ys);
   const mx = 0.1 * ((x1 - x0) || 1), my = 0.1 * ((y1 - y0) || 1);
