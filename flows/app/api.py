@@ -28,6 +28,11 @@ the service goes on with a standby worker, or a fresh session worker):
     POST /api/retime/sessions/{sid}/edit         {duration, keytimes}: the retimed poses and the plots' data
     GET  /api/retime/sessions/{sid}/bvh          the last retimed motion as a BVH download
     GET  /api/retime/sessions/{sid}/report       the last retiming's report (the CLI's JSON)
+    POST /api/warp/sessions                      {clip, reference}: a guided-warp session (HDP07), the
+                                                 reference's scores kept; the original's poses
+    POST /api/warp/sessions/{sid}/edit           {duration, keytimes, fast}: the warped poses, the warp curve,
+                                                 each flight's ratio
+    GET  /api/warp/sessions/{sid}/bvh            the last warp as a BVH download
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
@@ -49,7 +54,14 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed, QueryCrashed
-from motionweb.flows.app.sessions import EditBody, RetimeSessions, SessionBody
+from motionweb.flows.app.sessions import (
+    EditBody,
+    RetimeSessions,
+    SessionBody,
+    WarpEditBody,
+    WarpSessionBody,
+    WarpSessions,
+)
 from motionweb.flows.app.spaces import Spaces
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -321,6 +333,20 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     @app.get("/api/retime/sessions/{sid}/report")
     async def retime_report(sid: str) -> dict:
         return await run(retime.report, sid)
+
+    warps = WarpSessions(retime)  # HDP07, in the same session worker
+
+    @app.post("/api/warp/sessions")
+    async def warp_open(body: WarpSessionBody) -> dict:
+        return await run(warps.create, body)
+
+    @app.post("/api/warp/sessions/{sid}/edit")
+    async def warp_edit(sid: str, body: WarpEditBody) -> dict:
+        return await run(warps.edit, sid, body)
+
+    @app.get("/api/warp/sessions/{sid}/bvh")
+    async def warp_bvh(sid: str) -> Response:
+        return download(await run(warps.bvh, sid))
 
     static = static_dir()
 

@@ -7,13 +7,17 @@ retimings". This worker keeps the first part, a :class:`~motionweb.tasks.retime.
 (clip, physics), in a :class:`PlanCache` bounded by count and bytes (``AppParams.session_plans``,
 ``session_bytes``; least recently used first out), and answers each timing edit from it with
 :func:`~motionweb.tasks.retime.retime_plan` and the CLI's :func:`~motionweb.tasks.retime.report`
-(the same functions ``motionweb retime`` runs, flows/retime.py).
+(the same functions ``motionweb retime`` runs, flows/retime.py). Warp sessions (HDP07 §3) are
+kept the same way: the clip, its reference and the local scores of its triples (n, s, s) per
+working input, reused by every warp of another length or keytimes (``motionweb warp``'s
+``plan_motions`` and ``solve``, flows/warp.py).
 
 It runs as :class:`~motionweb.flows.app.worker.Worker` runs the search worker (a socket pair, one
 request at a time), with its own loop: ``("prepare", PrepareJob)`` → ``{"key", "nbytes",
 "polygons", ...}``;
 ``("edit", EditJob)`` → ``(retimed motion, report)``, or ``None`` when the plan is no longer kept
-(evicted, or the worker restarted: the service prepares it again); ``("ping", None)``. A crash
+(evicted, or the worker restarted: the service prepares it again); ``("warp_prepare",
+WarpPrepareJob)``, ``("warp_edit", WarpEditJob)`` likewise; ``("info", None)``; ``("ping", None)``. A crash
 (the compiled kernels: Pinocchio, numba, HiGHS) costs the request that ran it
 (:class:`~motionweb.flows.app.worker.WorkerCrashed`); the next request starts a fresh worker and
 prepares its plan again.
@@ -68,6 +72,28 @@ class EditJob:
     duration: float
     keytimes: tuple[tuple[float, float], ...]
     opts: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class WarpPrepareJob:
+    """A warp session's clip and reference (HDP07 §3; None: the clip itself, §4.1) with the
+    service's config (its warp section; its retime section tells flight phases, MPS06 §3.2)."""
+
+    key: str
+    motion: Any  # Motion
+    reference: Any  # Motion | None
+    config: Any  # motionweb.flows.config.Config
+
+
+@dataclass(frozen=True)
+class WarpEditJob:
+    """One warp of a prepared session: output duration (s), keytimes [(input s, output s)], and
+    whether to use the §3.3 heuristic (``fast``)."""
+
+    key: str
+    duration: float
+    keytimes: tuple[tuple[float, float], ...]
+    fast: bool
 
 
 def nbytes(obj: Any, seen: set[int] | None = None) -> int:
@@ -140,6 +166,44 @@ class PlanCache:
 class _State:
     def __init__(self, max_plans: int, max_bytes: int):
         self.plans = PlanCache(max_plans, max_bytes)
+        #: warp sessions' motions and their local scores by working input (HDP07 §3.2), same bounds
+        self.warps = PlanCache(max_plans, max_bytes)
+
+    def warp_prepare(self, job: WarpPrepareJob) -> dict[str, Any]:
+        from motionweb.tasks.guided_warp import check_compatible
+
+        if job.reference is not None:
+            check_compatible(job.motion, job.reference)
+        size = self.warps.put(job.key, {"job": job, "scores": {}})
+        return {"key": job.key, "nbytes": size}
+
+    def warp_edit(self, job: WarpEditJob) -> tuple[Any, dict[str, Any]] | None:
+        """(warped motion, summary) as ``motionweb warp`` computes them (flows/warp.py's
+        ``plan_motions`` and ``solve``), the local scores reused; None when no longer kept."""
+        from motionweb.flows.warp import WarpRequest, flight_phases, plan_motions, solve
+        from motionweb.tasks.guided_warp import linear_warp
+
+        entry = self.warps.get(job.key)
+        if entry is None:
+            return None
+        prep = entry["job"]
+        request = WarpRequest(input=prep.motion.name, out="", duration=job.duration, keytimes=job.keytimes,
+                              fast=job.fast)
+        plan = plan_motions(prep.config, request, prep.motion, prep.reference)
+        result = solve(plan, job.fast, False, scores=entry["scores"])
+        self.warps.items[job.key] = (entry, nbytes(entry))  # the scores it now holds
+        fps = plan.motion.fps
+        linear = linear_warp(plan.motion, result.n_out, plan.keytimes, resample_motion=False).times
+        return result.motion, {
+            "input_frames": plan.motion.n_frames, "output_frames": result.n_out, "fps": fps,
+            "input_s": plan.motion.duration, "output_s": (result.n_out - 1) / fps, "cost": result.cost,
+            "upsample": result.upsample, "heuristic": result.heuristic,
+            "keytimes_s": [(i / fps, o / fps) for i, o in result.keytimes],
+            # the warp curve (HDP07 Fig. 2): input seconds per output frame, the discrete path, linear
+            "times_s": np.round(result.times / fps, 5).tolist(), "raw_s": np.round(result.raw_times / fps, 5).tolist(),
+            "linear_s": np.round(linear / fps, 5).tolist(),
+            "flights": flight_phases(plan.motion, result, plan.contact_params, plan.up_axis),
+            "timings": result.timings}
 
     def prepare(self, job: PrepareJob) -> dict[str, Any]:
         from motionweb.flows.retime import clip_humanoid
@@ -204,6 +268,10 @@ def child_main(fd: int, max_plans: int, max_bytes: int) -> None:
                 out = ("ok", state.prepare(payload))
             elif kind == "edit":
                 out = ("ok", state.edit(payload))
+            elif kind == "warp_prepare":
+                out = ("ok", state.warp_prepare(payload))
+            elif kind == "warp_edit":
+                out = ("ok", state.warp_edit(payload))
             elif kind == "info":
                 out = ("ok", state.info())
             elif kind == "ping":

@@ -308,3 +308,114 @@ class RetimeSessions:
         ``output`` and ``plots``), with the session's request."""
         s, _, rep = self.last(sid)
         return {**rep, "session": s.request(), "request": s.last[2]}
+
+
+# ------------------------------------------------------------------ warp sessions (HDP07)
+class WarpSessionBody(BaseModel):
+    """A warp session (HDP07 §3): the clip, and the reference whose timing it takes (an index id,
+    corpus path or stem; None: the clip itself, HDP07 §4.1)."""
+
+    model_config = ConfigDict(extra="forbid")
+    clip: str = Field(min_length=1, max_length=300)
+    reference: str | None = Field(default=None, min_length=1, max_length=300)
+
+
+class WarpEditBody(BaseModel):
+    """A warp: output duration (s), keytimes [[input s, output s], ...] the warp passes through,
+    ``fast``: the §3.3 heuristic (the CLI's ``--fast``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    duration: float
+    keytimes: list[tuple[float, float]] = Field(default_factory=list)
+    fast: bool = False
+    pose: bool = True
+
+    def check(self, params: AppParams) -> None:
+        EditBody(duration=self.duration, keytimes=self.keytimes).check(params)
+
+
+@dataclass
+class WarpSession:
+    id: str
+    snap: Any
+    rec: dict[str, Any]
+    ref: dict[str, Any] | None
+    job: Any  # WarpPrepareJob
+    last: tuple[Any, dict[str, Any]] | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def request(self) -> dict[str, Any]:
+        return {"session": self.id, "clip": self.rec["path"], "reference": self.ref["path"] if self.ref else None}
+
+
+class WarpSessions:
+    """Warp sessions (HDP07 §3) in the retime sessions' worker (:class:`RetimeSessions`): the clip
+    and its reference are kept there with the local scores of the clip's triples, computed once
+    per working input (HDP07 §3.2) and reused by every edit of the length or the keytimes, which
+    then costs the shortest path (§3.3) and the postprocessing (§3.4)."""
+
+    def __init__(self, retime: RetimeSessions):
+        self.retime = retime
+        self.sessions = LRU(retime.params.sessions)
+
+    def create(self, body: WarpSessionBody) -> dict[str, Any]:
+        from motionweb.flows.app.session_worker import WarpPrepareJob
+
+        p = self.retime.params
+        snap = self.retime.engine.current()
+        rec = snap.clip(body.clip)
+        ref = snap.clip(body.reference) if body.reference else None
+        for r in (rec, ref):
+            if r is not None and r["duration"] > p.session_max_clip_s:
+                raise ValueError(f"{r['path']} lasts {r['duration']:g} s; a session takes at most "
+                                 f"{p.session_max_clip_s:g} s (app.session_max_clip_s)")
+        motion = snap.motion(rec)
+        reference = snap.motion(ref) if ref is not None else None
+        cfg = self.retime.engine.cfg
+        key = digest({"warp": [rec["sha256"], rec["path"], ref and ref["sha256"], ref and ref["path"]],
+                      "corpus": snap.gen_cfg.corpus.model_dump(mode="json", exclude={"path", "manifest"}),
+                      "warp_params": cfg.warp.model_dump(mode="json"), "retime": cfg.retime.model_dump(mode="json")})
+        job = WarpPrepareJob(key, motion, reference, cfg.model_copy(update={"corpus": snap.gen_cfg.corpus}))
+        s = WarpSession(uuid.uuid4().hex[:12], snap, rec, ref, job)
+        prepared = self.retime._run("warp_prepare", job, s.request())
+        self.sessions.put(s.id, s)
+        return {"session": s.id, **snap.clip_row(rec), "generation": snap.gen.id,
+                "reference": snap.clip_row(ref) if ref is not None else None, "nbytes": prepared["nbytes"],
+                "original": pose_payload(snap, motion, np.arange(motion.n_frames, dtype=float), motion.fps)}
+
+    def session(self, sid: str) -> WarpSession:
+        s = self.sessions.get(sid)
+        if s is None:
+            raise NotFound(f"unknown or expired warp session {sid!r}: open it again")
+        return s
+
+    def edit(self, sid: str, body: WarpEditBody) -> dict[str, Any]:
+        """Warp the session's clip to ``body``'s duration and keytimes (HDP07 §3)."""
+        from motionweb.flows.app.session_worker import WarpEditJob
+
+        body.check(self.retime.params)
+        s = self.session(sid)
+        t0 = time.perf_counter()
+        job = WarpEditJob(s.job.key, float(body.duration), tuple((float(a), float(b)) for a, b in body.keytimes),
+                          body.fast)
+        query = {**s.request(), "duration": job.duration, "keytimes": [list(k) for k in job.keytimes]}
+        out = self.retime._run("warp_edit", job, query)
+        if out is None:  # evicted, or the worker restarted
+            self.retime._run("warp_prepare", s.job, query)
+            out = self.retime._run("warp_edit", job, query)
+        warped, summary = out
+        with s.lock:
+            s.last = (warped, summary)
+        ans = {"session": s.id, **summary, "edit_s": round(time.perf_counter() - t0, 4)}
+        if body.pose:
+            ans["pose"] = pose_payload(s.snap, warped, np.arange(warped.n_frames, dtype=float), warped.fps)
+        return ans
+
+    def bvh(self, sid: str) -> tuple[str, str]:
+        """(file name, BVH text) of the last warp (as ``motionweb warp`` writes it)."""
+        s = self.session(sid)
+        with s.lock:
+            if s.last is None:
+                raise NotFound(f"warp session {sid} has no warp yet: POST .../edit first")
+            warped = s.last[0]
+        return f"{Path(s.rec['path']).stem}_warped.bvh", format_bvh(warped)

@@ -165,3 +165,39 @@ def test_a_crash_in_a_session_costs_only_its_request(cfg, monkeypatch) -> None:
         # the next request gets a fresh worker, which prepares a's plan again
         assert edit(c, a["session"], duration=3.0)["duration_out"] == pytest.approx(3.0)
         assert c.app.app.state.retime_sessions.crashes == 1
+
+
+# ---------------------------------------------------------------- warp sessions (HDP07)
+@pytest.mark.parametrize(("reference", "fast"), [(None, False), ("walk_01", True)])
+def test_a_warp_edit_writes_the_bytes_of_motionweb_warp(client, cfg, tmp_path: Path, reference, fast) -> None:
+    """The warp session's BVH equals `motionweb warp`'s (flows/warp.py) for the same clip,
+    reference, duration and keytimes; a second edit reuses the local scores (HDP07 §3.2)."""
+    from motionweb.flows.warp import WarpRequest, run_warp
+
+    r = client.post("/api/warp/sessions", json={"clip": CLIP, "reference": reference})
+    assert r.status_code == 200, r.text
+    s = r.json()
+    for duration, keytimes in ((round(0.7 * s["duration"], 3), [[1.0, 0.6]]), (round(0.8 * s["duration"], 3), [])):
+        e = client.post(f"/api/warp/sessions/{s['session']}/edit",
+                        json={"duration": duration, "keytimes": keytimes, "fast": fast})
+        assert e.status_code == 200, e.text
+        ans = e.json()
+        out = tmp_path / f"cli-{duration}.bvh"
+        summary = run_warp(cfg, WarpRequest(input=str(clip_file(cfg, CLIP)), out=str(out),
+                                            reference=str(clip_file(cfg, reference)) if reference else None,
+                                            duration=duration, keytimes=tuple(tuple(k) for k in keytimes), fast=fast))
+        bvh = client.get(f"/api/warp/sessions/{s['session']}/bvh")
+        assert bvh.content == out.read_bytes()
+        assert ans["output_frames"] == summary["output_frames"] == len(ans["times_s"]) == ans["pose"]["frames"]
+        assert ans["flights"] == summary["flights"] and ans["cost"] == pytest.approx(summary["cost"])
+        assert len(ans["linear_s"]) == len(ans["times_s"])
+    assert "objective" not in ans["timings"]  # the second edit: scores reused
+
+
+def test_bad_warp_requests_answer_json_errors(client) -> None:
+    assert client.post("/api/warp/sessions", json={"clip": CLIP, "reference": "nope"}).status_code == 404
+    s = client.post("/api/warp/sessions", json={"clip": CLIP}).json()
+    for body, message in (({"duration": -2}, "duration"), ({"duration": 2.0, "keytimes": [[50.0, 1.0]]}, "keytime"),
+                          ({}, "duration")):
+        r = client.post(f"/api/warp/sessions/{s['session']}/edit", json=body)
+        assert r.status_code == 400 and message in r.json()["error"].lower(), r.text
