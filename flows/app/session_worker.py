@@ -15,7 +15,7 @@ working input, reused by every warp of another length or keytimes (``motionweb w
 It runs as :class:`~motionweb.flows.app.worker.Worker` runs the search worker (a socket pair, one
 request at a time), with its own loop: ``("prepare", PrepareJob)`` → ``{"key", "nbytes",
 "polygons", ...}``;
-``("edit", EditJob)`` → ``(retimed motion, report)``, or ``None`` when the plan is no longer kept
+``("edit", EditJob)`` → ``(retimed motion, report, CPU seconds)``, or ``None`` when the plan is no longer kept
 (evicted, or the worker restarted: the service prepares it again); ``("warp_prepare",
 WarpPrepareJob)``, ``("warp_edit", WarpEditJob)`` likewise; ``("info", None)``; ``("ping", None)``. A crash
 (the compiled kernels: Pinocchio, numba, HiGHS) costs the request that ran it
@@ -32,6 +32,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from collections import OrderedDict
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -187,6 +188,7 @@ class _State:
         if entry is None:
             return None
         prep = entry["job"]
+        cpu = time.process_time()
         request = WarpRequest(input=prep.motion.name, out="", duration=job.duration, keytimes=job.keytimes,
                               fast=job.fast)
         plan = plan_motions(prep.config, request, prep.motion, prep.reference)
@@ -203,7 +205,7 @@ class _State:
             "times_s": np.round(result.times / fps, 5).tolist(), "raw_s": np.round(result.raw_times / fps, 5).tolist(),
             "linear_s": np.round(linear / fps, 5).tolist(),
             "flights": flight_phases(plan.motion, result, plan.contact_params, plan.up_axis),
-            "timings": result.timings}
+            "timings": result.timings, "cpu_s": time.process_time() - cpu}
 
     def prepare(self, job: PrepareJob) -> dict[str, Any]:
         from motionweb.flows.retime import clip_humanoid
@@ -212,6 +214,7 @@ class _State:
 
         if job.motion.name and job.motion.name in os.environ.get(CRASH_ENV, "").split(","):
             os.kill(os.getpid(), signal.SIGSEGV)
+        cpu = time.process_time()
         opts = RetimeParams.model_validate(job.opts)
         humanoid = clip_humanoid(job.deepmimic_path) if job.deepmimic_path else None
         intervals = opts.contact_intervals.get(job.motion.name) or None
@@ -225,17 +228,18 @@ class _State:
                        physics=physics)
         size = self.plans.put(job.key, plan, job.clip_key, physics)
         return {"key": job.key, "nbytes": size, "timings": {**plan.timings, **tm}, "reused_dynamics": not tm,
-                "polygons": plot_polygons(plan), **self.info()}
+                "polygons": plot_polygons(plan), "cpu_s": time.process_time() - cpu, **self.info()}
 
-    def edit(self, job: EditJob) -> tuple[Any, dict[str, Any]] | None:
+    def edit(self, job: EditJob) -> tuple[Any, dict[str, Any], float] | None:
         from motionweb.tasks.retime import RetimeParams, report, retime_plan
 
         plan = self.plans.get(job.key)
         if plan is None:
             return None
+        cpu = time.process_time()
         opts = RetimeParams.model_validate(job.opts)
         retimed, res = retime_plan(plan, job.duration, [tuple(k) for k in job.keytimes], opts)
-        return retimed, report(plan, res)
+        return retimed, report(plan, res), time.process_time() - cpu
 
     def info(self) -> dict[str, Any]:
         return {"plans": len(self.plans.items), "plan_bytes": self.plans.total, "evicted": self.plans.evicted}

@@ -259,6 +259,7 @@ class RetimeSessions:
         return {"session": s.id, **snap.clip_row(rec), "generation": snap.gen.id,
                 "joints": s.prepared["joints"], "prepare_s": round(s.prepared["prepare_s"], 4),
                 "plan_bytes": prepared["nbytes"], "plans": prepared["plans"], "cache_bytes": prepared["plan_bytes"],
+                "cpu_s": round(prepared["cpu_s"], 4),
                 "timings": prepared["timings"], "reused_dynamics": prepared["reused_dynamics"],
                 "physics": body.model_dump(exclude={"clip"}),
                 # per source frame its feasible polygon (K, 2) in (p̈, ṗ²) (MPS06 §3.4; polygons.png)
@@ -285,10 +286,10 @@ class RetimeSessions:
             out = self._run("edit", job, query)
             if out is None:
                 raise RuntimeError("the session worker dropped the plan it just prepared")
-        retimed, rep = out
+        retimed, rep, cpu = out
         with s.lock:
             s.last = (retimed, rep, {"duration": duration, "keytimes": [list(k) for k in job.keytimes]})
-        return edit_answer(s, retimed, rep, body.pose, time.perf_counter() - t0)
+        return {**edit_answer(s, retimed, rep, body.pose, time.perf_counter() - t0), "cpu_s": round(cpu, 4)}
 
     def last(self, sid: str) -> tuple[Session, Any, dict[str, Any]]:
         s = self.session(sid)
