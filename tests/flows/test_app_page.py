@@ -228,3 +228,30 @@ def test_retime_panel_edits_play_and_redraw(browser, service) -> None:
     errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
     assert not errors, errors
     assert drv.find_element(By.ID, "message").text == ""
+
+
+def test_warp_panel_warps_the_clip_and_a_keytime_changes_it(browser, service) -> None:
+    """The guided warp panel (static/warp.js, HDP07 sessions): the player's clip warped toward
+    itself, the warp curve drawn, a keytime added on it changes the motion that plays."""
+    drv = browser
+    wait = WebDriverWait(drv, 120)
+    drv.get(service.url + "/")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 6)
+    next(r for r in drv.find_elements(By.CSS_SELECTOR, "#catalog tbody tr") if "walk_00" in r.text).click()
+    wait.until(lambda d: "walk/walk_00.bvh" in d.find_element(By.ID, "clip-title").text)
+    drv.find_element(By.ID, "gw-open").click()
+    wait.until(lambda d: "cost" in d.find_element(By.ID, "gw-flights").text)
+    wait.until(lambda d: not d.execute_script("return gw.busy || gw.pending;"))
+    first = canvas_data(drv, "gw-view")
+    time.sleep(0.4)
+    assert canvas_data(drv, "gw-view") != first  # it plays
+    before = drv.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));")
+    curve = drv.find_element(By.ID, "gw-curve")
+    ActionChains(drv).move_to_element_with_offset(curve, 40, 20).double_click().perform()
+    wait.until(lambda d: d.execute_script("return gw.keytimes.length;") == 1)
+    time.sleep(0.3)
+    wait.until(lambda d: not d.execute_script("return gw.busy || gw.pending;"))
+    wait.until(lambda d: d.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));") != before)
+    errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    assert drv.find_element(By.ID, "message").text == ""
