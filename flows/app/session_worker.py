@@ -126,8 +126,9 @@ class PlanCache:
 
     Beside them, per clip (``clip_key``) its :func:`~motionweb.tasks.retime.pipeline.clip_physics`
     (body model, glitches, path dynamics, contacts: physics-independent, MPS06 §3.1-3.2), kept while
-    a plan of the clip is: a physics change reuses it. Its arrays are the plans' own (counted in
-    their bytes) but for the contacts' force basis before the root column, O(F · 6 · nλ)."""
+    a plan of the clip is: a physics change reuses it. Its arrays are the plans' own but for the
+    contacts' force basis before the root column, O(F · 6 · nλ); :attr:`total` counts each array
+    once."""
 
     def __init__(self, max_plans: int, max_bytes: int):
         self.max_plans, self.max_bytes = max_plans, max_bytes
@@ -138,7 +139,10 @@ class PlanCache:
 
     @property
     def total(self) -> int:
-        return sum(n for _, n in self.items.values())
+        """Bytes of every array the cache holds, each counted once (plans of one clip share its
+        path dynamics; the clips' kept ``clip_physics`` counted too)."""
+        seen: set[int] = set()
+        return sum(nbytes(p, seen) for p, _ in self.items.values()) + sum(nbytes(v, seen) for v in self.physics.values())
 
     def get(self, key: str) -> Any:
         if key not in self.items:

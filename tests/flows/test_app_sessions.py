@@ -143,6 +143,11 @@ def test_the_plan_cache_evicts_by_count_and_bytes(cfg) -> None:
     assert kept.physics == {"clip-a": "dynamics-a"}
     kept.put("b1", {}, "clip-b", "dynamics-b")
     assert kept.physics == {"clip-b": "dynamics-b"}
+    dyn = np.zeros(500)  # two physics of one clip share its path dynamics: counted once
+    two = PlanCache(max_plans=4, max_bytes=10_000)
+    two.put("p1", {"terms": dyn, "poly": np.zeros(10)}, "clip", {"terms": dyn})
+    two.put("p2", {"terms": dyn, "poly": np.zeros(10)}, "clip", {"terms": dyn})
+    assert two.total == 4000 + 160
     shared = np.zeros(10)
     assert nbytes({"a": shared, "b": [shared, shared[2:]]}) == 80
     # the service: one plan kept; an evicted session is prepared again on its next edit
