@@ -146,9 +146,9 @@ function rtTimeline() {
   for (const f of r.flights) { ctx.fillStyle = "rgba(255,193,7,0.45)"; ctx.fillRect(rtTX(f.output[0]), 18, rtTX(f.output[1]) - rtTX(f.output[0]), 26); }
   // the source frames' positions: a tick per source frame where p(t) shows it (longer each second)
   ctx.strokeStyle = "#78909c"; ctx.lineWidth = 1;
-  const fps = r.fps;
-  for (let i = 0; i <= Math.round(r.duration_in * fps); i++) {
-    const s = i / fps, t = rtInterp(s, r.p, r.t), whole = Math.abs(s - Math.round(s)) < 0.5 / fps;
+  const fps = r.fps, every = Math.max(1, Math.ceil(4 / Math.max(1e-9, rtTX(1 / fps) - rtTX(0))));  // >= 4 px apart
+  for (let i = 0; i <= Math.round(r.duration_in * fps); i += every) {
+    const s = i / fps, t = rtInterp(s, r.p, r.t), whole = Math.abs(s - Math.round(s)) < 0.5 * every / fps;
     ctx.beginPath(); ctx.moveTo(rtTX(t), whole ? 18 : 36); ctx.lineTo(rtTX(t), 44); ctx.stroke();
     if (whole) { ctx.fillStyle = "#37474f"; ctx.font = "10px sans-serif"; ctx.fillText(`${Math.round(s)}`, rtTX(t) + 2, 28); }
   }
