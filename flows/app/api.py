@@ -33,11 +33,16 @@ the service goes on with a standby worker, or a fresh session worker):
     POST /api/warp/sessions/{sid}/edit           {duration, keytimes, fast}: the warped poses, the warp curve,
                                                  each flight's ratio
     GET  /api/warp/sessions/{sid}/bvh            the last warp as a BVH download
+    POST /api/uploads                            {name, bvh | asf + amc, unit, scale_to_m, fps}: a clip of the
+                                                 user's own, parsed by the hardened readers, kept in memory
+                                                 (content-addressed, bounded); its id (up-...) names it in sessions
+    GET  /api/uploads/{uid}                      an upload's name, frames, fps, joints, unit
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
 filesystem path (clips by index id or corpus name looked up in the generation, downloads built in
-memory); bodies are at most :data:`MAX_BODY` bytes, query strings :data:`MAX_QUERY_STRING`.
+memory); bodies are at most :data:`MAX_BODY` bytes (an upload ``app.upload_bytes``), query strings
+:data:`MAX_QUERY_STRING`.
 """
 
 from __future__ import annotations
@@ -63,6 +68,7 @@ from motionweb.flows.app.sessions import (
     WarpSessions,
 )
 from motionweb.flows.app.spaces import Spaces
+from motionweb.flows.app.uploads import UploadBody
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
@@ -134,8 +140,9 @@ def error(status: int, message: str) -> JSONResponse:
 class Guard:
     """ASGI middleware: the token on every request (when set), bounded bodies and query strings."""
 
-    def __init__(self, app, token: str | None):
+    def __init__(self, app, token: str | None, limits: dict[str, int] | None = None):
         self.app, self.token = app, token
+        self.limits = limits or {}  # a larger body limit for some paths (the uploads)
 
     def authorized(self, scope) -> bool:
         if not self.token:
@@ -164,9 +171,10 @@ class Guard:
         if not self.authorized(scope):
             return await error(401, "missing or wrong token (Authorization: Bearer TOKEN, or open /?token=TOKEN)")(
                 scope, receive, send)
+        limit = self.limits.get(scope.get("path", ""), MAX_BODY)
         length = dict(scope.get("headers", [])).get(b"content-length")
-        if length is not None and (not length.isdigit() or int(length) > MAX_BODY):
-            return await error(413, f"request body larger than {MAX_BODY} bytes")(scope, receive, send)
+        if length is not None and (not length.isdigit() or int(length) > limit):
+            return await error(413, f"request body larger than {limit} bytes")(scope, receive, send)
         seen = 0
 
         async def bounded():
@@ -174,14 +182,14 @@ class Guard:
             msg = await receive()
             if msg["type"] == "http.request":
                 seen += len(msg.get("body", b""))
-                if seen > MAX_BODY:
+                if seen > limit:
                     raise TooLarge
             return msg
 
         try:
             await self.app(scope, bounded, send)
         except TooLarge:
-            await error(413, f"request body larger than {MAX_BODY} bytes")(scope, receive, send)
+            await error(413, f"request body larger than {limit} bytes")(scope, receive, send)
 
 
 class TooLarge(Exception):
@@ -338,6 +346,15 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
 
     warps = WarpSessions(retime)  # HDP07, in the same session worker
 
+    @app.post("/api/uploads")
+    async def upload(body: UploadBody) -> JSONResponse:
+        corpus = engine.cfg.corpus
+        return JSONResponse(await run(retime.uploads.add, body, corpus.length_unit, corpus.scale_to_m))
+
+    @app.get("/api/uploads/{uid}")
+    async def upload_info(uid: str) -> dict:
+        return retime.uploads.summary(retime.uploads.get(uid))
+
     @app.post("/api/warp/sessions")
     async def warp_open(body: WarpSessionBody) -> dict:
         return await run(warps.create, body)
@@ -361,4 +378,4 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         return resp
 
     app.mount("/static", StaticFiles(directory=static), name="static")
-    return Guard(app, token)
+    return Guard(app, token, {"/api/uploads": retime.params.upload_bytes})

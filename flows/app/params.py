@@ -28,3 +28,8 @@ class AppParams(Params):
     #: keytimes per edit, and per-limb mass or weight factors per session, at most
     session_max_keytimes: int = Field(64, ge=0)
     session_max_factors: int = Field(64, ge=0)
+    #: uploaded clips (POST /api/uploads, BVH or ASF+AMC): largest request (bytes), how many are
+    #: kept in memory (content-addressed, least recently used out) and for how long (seconds)
+    upload_bytes: int = Field(16 * 1024 * 1024, ge=64 * 1024, le=1024 * 1024 * 1024)
+    uploads: int = Field(32, ge=1, le=1024)
+    upload_ttl_s: float = Field(3600.0, gt=0)

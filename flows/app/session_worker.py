@@ -97,6 +97,40 @@ class WarpEditJob:
     fast: bool
 
 
+@dataclass(frozen=True)
+class UploadJob:
+    """An uploaded clip to parse with the hardened readers (store/bvh.py, store/asfamc.py): BVH
+    text, or ASF and AMC texts; the length unit (BVH declares none) and the AMC's frame rate."""
+
+    name: str
+    sha256: str
+    bvh: str | None = None
+    asf: str | None = None
+    amc: str | None = None
+    unit: str | None = None
+    scale_to_m: float | None = None
+    fps: float | None = None
+
+
+def parse_upload(job: UploadJob) -> Any:
+    """The :class:`~motionweb.store.motion.Motion` of an upload (MotionFormatError, a ValueError,
+    naming the line of what the reader refuses). Run in this worker: a crash in the readers'
+    compiled kernel costs the request, not the service."""
+    if job.bvh is not None:
+        from motionweb.store.bvh import parse_bvh
+
+        return parse_bvh(job.bvh, f"{job.name}.bvh", unit=job.unit, scale_to_m=job.scale_to_m, name=job.name,
+                         content_hash=job.sha256)
+    from dataclasses import replace as _replace
+
+    from motionweb.store.asfamc import CMU_FPS, parse_amc, parse_asf
+
+    asf = parse_asf(job.asf or "", f"{job.name}.asf", **({"length_unit": job.unit} if job.unit else {}))
+    m = parse_amc(job.amc or "", asf, f"{job.name}.amc", fps=job.fps or CMU_FPS, name=job.name,
+                  content_hash=job.sha256)
+    return _replace(m, scale_to_m=job.scale_to_m) if job.scale_to_m else m
+
+
 def nbytes(obj: Any, seen: set[int] | None = None) -> int:
     """Bytes held by the numpy arrays reachable from ``obj`` (dataclasses, dicts, lists, tuples),
     each array counted once: what a plan costs in memory, but for small Python objects and the
@@ -280,6 +314,8 @@ def child_main(fd: int, max_plans: int, max_bytes: int) -> None:
                 out = ("ok", state.warp_prepare(payload))
             elif kind == "warp_edit":
                 out = ("ok", state.warp_edit(payload))
+            elif kind == "parse":
+                out = ("ok", parse_upload(payload))
             elif kind == "info":
                 out = ("ok", state.info())
             elif kind == "ping":

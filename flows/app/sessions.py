@@ -196,6 +196,10 @@ class RetimeSessions:
         self._call = threading.Lock()
         self._worker: SessionWorker | None = None
         self.crashes = 0
+        from motionweb.flows.app.uploads import Uploads
+
+        #: clips of the user's own, parsed in the session worker (uploads.py)
+        self.uploads = Uploads(self.params, lambda job: self._run("parse", job, {"upload": job.name}))
         self._slot: list[SessionWorker | None] = [None]  # the worker, for the finalizer
         self._finalize = weakref.finalize(self, RetimeSessions._close_worker, self._slot)
 
@@ -230,6 +234,20 @@ class RetimeSessions:
             info.update(self._run("info", None, {}))
         return info
 
+    def clip(self, snap: Any, key: str) -> tuple[dict[str, Any], Any]:
+        """(record, motion) of a clip of the index (id, corpus path or stem) or of an upload (its
+        ``up-`` id); ValueError for one longer than ``app.session_max_clip_s``."""
+        from motionweb.flows.app.uploads import PREFIX
+
+        if key.startswith(PREFIX):
+            u = self.uploads.get(key)
+            return u.record(), u.motion
+        rec = snap.clip(key)
+        if rec["duration"] > self.params.session_max_clip_s:
+            raise ValueError(f"{rec['path']} lasts {rec['duration']:g} s; a session takes at most "
+                             f"{self.params.session_max_clip_s:g} s (app.session_max_clip_s)")
+        return rec, snap.motion(rec)
+
     # -------------------------------------------------------------- requests
     def create(self, body: SessionBody) -> dict[str, Any]:
         """Open a session: the clip's plan prepared in the worker (a physics change of a clip the
@@ -238,11 +256,7 @@ class RetimeSessions:
         body.check(self.params)
         t0 = time.perf_counter()
         snap = self.engine.current()
-        rec = snap.clip(body.clip)
-        if rec["duration"] > self.params.session_max_clip_s:
-            raise ValueError(f"the clip lasts {rec['duration']:g} s; a session prepares at most "
-                             f"{self.params.session_max_clip_s:g} s (app.session_max_clip_s)")
-        motion = snap.motion(rec)
+        rec, motion = self.clip(snap, body.clip)
         opts = self.engine.cfg.retime.model_dump(mode="json")
         path = rec["path"]
         ck = clip_key(rec, snap.gen_cfg, opts)
@@ -362,16 +376,9 @@ class WarpSessions:
     def create(self, body: WarpSessionBody) -> dict[str, Any]:
         from motionweb.flows.app.session_worker import WarpPrepareJob
 
-        p = self.retime.params
         snap = self.retime.engine.current()
-        rec = snap.clip(body.clip)
-        ref = snap.clip(body.reference) if body.reference else None
-        for r in (rec, ref):
-            if r is not None and r["duration"] > p.session_max_clip_s:
-                raise ValueError(f"{r['path']} lasts {r['duration']:g} s; a session takes at most "
-                                 f"{p.session_max_clip_s:g} s (app.session_max_clip_s)")
-        motion = snap.motion(rec)
-        reference = snap.motion(ref) if ref is not None else None
+        rec, motion = self.retime.clip(snap, body.clip)
+        ref, reference = self.retime.clip(snap, body.reference) if body.reference else (None, None)
         cfg = self.retime.engine.cfg
         key = digest({"warp": [rec["sha256"], rec["path"], ref and ref["sha256"], ref and ref["path"]],
                       "corpus": snap.gen_cfg.corpus.model_dump(mode="json", exclude={"path", "manifest"}),

@@ -206,3 +206,90 @@ def test_bad_warp_requests_answer_json_errors(client) -> None:
                           ({}, "duration")):
         r = client.post(f"/api/warp/sessions/{s['session']}/edit", json=body)
         assert r.status_code == 400 and message in r.json()["error"].lower(), r.text
+
+
+# ---------------------------------------------------------------- uploads (clips of the user's own)
+def upload(client, name: str, **body):
+    return client.post("/api/uploads", json={"name": name, **body})
+
+
+def test_an_uploaded_clip_retimes_and_warps_as_the_indexed_one(client, cfg) -> None:
+    """walk_00 uploaded under another name (a label, never a path) gives the indexed clip's bytes."""
+    text = clip_file(cfg, CLIP).read_text()
+    before = sorted(p.name for p in Path(cfg.corpus.path).rglob("*"))
+    r = upload(client, "../../etc/My walk.bvh", bvh=text, unit="m")
+    assert r.status_code == 200, r.text
+    up = r.json()
+    assert up["id"].startswith("up-") and up["name"] == "My_walk" and up["path"] == "upload/My_walk.bvh"
+    assert upload(client, "again", bvh=text, unit="m").json()["id"] == up["id"]  # content-addressed
+    assert client.get(f"/api/uploads/{up['id']}").json()["frames"] == up["frames"]
+    body = {"duration": 3.0, "keytimes": [[1.0, 0.9]]}
+    bvhs = []
+    for clip in (CLIP, up["id"]):
+        s = open_session(client, clip=clip)
+        edit(client, s["session"], **body)
+        bvhs.append(client.get(f"/api/retime/sessions/{s['session']}/bvh").content)
+    assert bvhs[0] == bvhs[1]
+    w = client.post("/api/warp/sessions", json={"clip": up["id"], "reference": CLIP}).json()
+    e = client.post(f"/api/warp/sessions/{w['session']}/edit", json={"duration": 2.5})
+    assert e.status_code == 200 and e.json()["output_frames"] == round(2.5 * up["fps"]) + 1
+    assert sorted(p.name for p in Path(cfg.corpus.path).rglob("*")) == before  # nothing written
+
+
+def test_an_asf_amc_pair_uploads(client) -> None:
+    from fixtures import CHAIN_AMC, CHAIN_ASF
+
+    r = upload(client, "chain", asf=CHAIN_ASF, amc=CHAIN_AMC, fps=30)
+    assert r.status_code == 200, r.text
+    assert r.json()["fps"] == 30 and r.json()["path"] == "upload/chain.amc"
+
+
+@pytest.mark.parametrize(("body", "status", "message"), [
+    ({"bvh": "HIERARCHY\nROOT Hips\n{"}, 400, "chain.bvh"),  # the reader's message names the upload
+    ({"bvh": "nothing here", "unit": "m"}, 400, "HIERARCHY"),
+    ({"bvh": "x", "asf": "y", "amc": "z"}, 400, "either bvh"),
+    ({"asf": "y"}, 400, "either bvh"),
+    ({"bvh": "x", "unit": "furlong"}, 400, "unit"),
+    ({"bvh": "x", "path": "/etc/passwd"}, 400, "path"),
+])
+def test_bad_uploads_answer_400_json(client, body, status, message) -> None:
+    r = upload(client, "chain", **body)
+    assert r.status_code == status, r.text
+    assert message in r.json()["error"] and "Traceback" not in r.text
+
+
+def test_uploads_are_bounded_and_expire(cfg) -> None:
+    text = clip_file(cfg, CLIP).read_text()
+    small = cfg.model_copy(update={"app": AppParams(upload_bytes=64 * 1024, uploads=1, upload_ttl_s=1e-3)})
+    with TestClient(create_app(Engine(small, warm=False))) as c:
+        r = upload(c, "big", bvh=text + " " * 70_000, unit="m")
+        assert r.status_code == 413 and "larger than 65536" in r.json()["error"]
+        assert c.post("/api/search", json={"clip": "x" * 70_000}).status_code == 413  # other routes: 64 KiB
+        cut = text.split("MOTION")[0] + "MOTION\nFrames: 2\nFrame Time: 0.0333\n" + "\n".join(
+            text.split("Frame Time:")[1].split("\n")[1:3]) + "\n"
+        up = upload(c, "two", bvh=cut, unit="m")
+        assert up.status_code == 200, up.text
+        import time
+
+        time.sleep(0.01)
+        assert c.get(f"/api/uploads/{up.json()['id']}").status_code == 404  # expired
+
+
+def test_the_upload_route_takes_the_reader_fuzz_mutants(client, cfg) -> None:
+    """Mutants of a BVH (tests/store/test_reader_fuzz.py's mutations) through the route: each is a
+    clip (200) or a JSON error naming the problem (400), never a crash or a traceback."""
+    import importlib.util
+    import random
+
+    spec = importlib.util.spec_from_file_location("reader_fuzz", Path(__file__).parents[1] / "store" / "test_reader_fuzz.py")
+    fuzz = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz)
+    text = clip_file(cfg, CLIP).read_text()
+    rng = random.Random(24)
+    seen = {200: 0, 400: 0}
+    for _ in range(60):
+        r = upload(client, "mutant", bvh=fuzz.mutate(text, rng), unit="m")
+        assert r.status_code in (200, 400), r.text
+        assert "Traceback" not in r.text and (r.status_code == 200 or r.json()["error"])
+        seen[r.status_code] += 1
+    assert seen[400] > 0
