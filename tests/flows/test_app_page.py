@@ -7,6 +7,7 @@ from __future__ import annotations
 import shutil
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from motionweb.flows.app.server import Service
@@ -225,6 +226,12 @@ def test_retime_panel_edits_play_and_redraw(browser, service) -> None:
     wait.until(lambda d: d.execute_script("return rt.result.session;") != sid)
     assert canvas_data(drv, "rt-timing") != plots["rt-timing"] or canvas_data(drv, "rt-torques") != plots["rt-torques"]
     assert drv.execute_script("return rt.session.physics.gravity;") == [4, -9.81, 0]
+    # a clip of the user's own: a BVH uploaded from a file input, retimed in the panel
+    clip = next(Path(service.cfg.corpus.path).rglob("walk_01.bvh"))
+    drv.find_element(By.ID, "rt-upload").send_keys(str(clip))
+    wait.until(lambda d: d.execute_script("return rt.session && rt.session.path;") == "upload/walk_01.bvh")
+    settle(drv, wait)
+    wait.until(lambda d: d.execute_script("return rt.result.session;") == d.execute_script("return rt.session.session;"))
     errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
     assert not errors, errors
     assert drv.find_element(By.ID, "message").text == ""

@@ -28,11 +28,12 @@ function rtPhysics() {
   return body;
 }
 
-// a new session (a clip, or new physics): prepared once, then the current timing replayed on it
-async function rtOpen(keepTiming) {
+// a new session (a clip, or new physics): prepared once, then the current timing replayed on it;
+// clipId: an upload's id (else the player's clip)
+async function rtOpen(keepTiming, clipId) {
   if (!keepTiming) {
-    if (!state.clip) { say("open a clip in the player first"); return; }
-    rt.clipId = state.clip.id; rt.keytimes = []; rt.duration = null;
+    if (!clipId && !state.clip) { say("open a clip in the player first"); return; }
+    rt.clipId = clipId || state.clip.id; rt.keytimes = []; rt.duration = null;
   }
   $("rt-info").textContent = "preparing the polygons…";
   $("rt-apply").disabled = true;
@@ -292,12 +293,32 @@ function rtTick(now) {
   requestAnimationFrame(rtTick);
 }
 
+// a clip of the user's own: a BVH, or an ASF and its AMC, sent as text (POST /api/uploads), kept
+// by the service in memory only; then retimed here
+async function rtUpload(files) {
+  const byExt = {};
+  for (const f of files) byExt[f.name.split(".").pop().toLowerCase()] = f;
+  const body = { name: (byExt.bvh || byExt.amc || files[0]).name };
+  if (byExt.bvh) body.bvh = await byExt.bvh.text();
+  else if (byExt.asf && byExt.amc) { body.asf = await byExt.asf.text(); body.amc = await byExt.amc.text(); }
+  else throw new Error("choose a .bvh file, or an .asf and its .amc");
+  if ($("rt-upload-unit").value) body.unit = $("rt-upload-unit").value;
+  say("uploading…");
+  const up = await api("/api/uploads", {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+  });
+  say("");
+  rt.upload = up;
+  await rtOpen(false, up.id);
+}
+
 function rtSetup() {
   rt.original = new Figure($("rt-original"), COLORS[5]);
   rt.retimed = new Figure($("rt-retimed"), COLORS[1]);
   rtSetupTimeline();
   $("rt-open").addEventListener("click", () => rtOpen(false).catch((e) => { say(e.message); $("rt-info").textContent = ""; }));
   $("rt-apply").addEventListener("click", () => rtOpen(true).catch((e) => { say(e.message); $("rt-apply").disabled = false; }));
+  $("rt-upload").addEventListener("change", (e) => rtUpload([...e.target.files]).catch((err) => say(err.message)));
   $("rt-duration").addEventListener("change", () => {
     const d = parseFloat($("rt-duration").value);
     if (!(d > 0)) { say("duration: a positive number of seconds"); return; }
