@@ -39,6 +39,7 @@ import numpy as np
 from motionweb.flows.app.engine import LRU, Engine, NotFound, QueryCrashed, pose_payload
 from motionweb.flows.app.params import AppParams
 from motionweb.flows.app.session_worker import EditJob, PrepareJob, SessionWorker
+from motionweb.flows.app.uploads import PREFIX, Uploads
 from motionweb.flows.app.worker import WorkerCrashed
 from motionweb.store.bvh import format_bvh
 from pydantic import BaseModel, ConfigDict, Field
@@ -46,6 +47,9 @@ from pydantic import BaseModel, ConfigDict, Field
 #: largest |gravity| (m/s²) and per-limb factor a session accepts
 MAX_GRAVITY = 100.0
 MAX_FACTOR = 1000.0
+#: what each job of the session worker is called in an error
+WORK = {"prepare": "preparation", "edit": "timing edit", "warp_prepare": "warp's preparation", "warp_edit": "warp",
+        "parse": "upload's parsing", "info": "status"}
 #: joints whose torque curves an edit returns (the most loaded, by peak |τ| / limit)
 TORQUE_JOINTS = 6
 
@@ -98,7 +102,7 @@ class SessionCrashed(QueryCrashed):
 
     def __init__(self, query: dict[str, Any], how: str, work: str):
         self.query, self.how = query, how
-        RuntimeError.__init__(self, f"the {work} of the retime session ({query}) crashed its worker process "
+        RuntimeError.__init__(self, f"the {work} of the session request ({query}) crashed its worker process "
                                     f"({how}); the service goes on, but this request cannot be answered: "
                                     "please report it")
 
@@ -196,8 +200,6 @@ class RetimeSessions:
         self._call = threading.Lock()
         self._worker: SessionWorker | None = None
         self.crashes = 0
-        from motionweb.flows.app.uploads import Uploads
-
         #: clips of the user's own, parsed in the session worker (uploads.py)
         self.uploads = Uploads(self.params, lambda job: self._run("parse", job, {"upload": job.name}))
         self._slot: list[SessionWorker | None] = [None]  # the worker, for the finalizer
@@ -225,7 +227,7 @@ class RetimeSessions:
             except WorkerCrashed as exc:
                 self.crashes += 1
                 self._worker = self._slot[0] = None
-                raise SessionCrashed(query, exc.how, "preparation" if kind == "prepare" else "timing edit") from None
+                raise SessionCrashed(query, exc.how, WORK.get(kind, kind)) from None
 
     def worker_info(self) -> dict[str, Any]:
         w = self._worker
@@ -237,8 +239,6 @@ class RetimeSessions:
     def clip(self, snap: Any, key: str) -> tuple[dict[str, Any], Any]:
         """(record, motion) of a clip of the index (id, corpus path or stem) or of an upload (its
         ``up-`` id); ValueError for one longer than ``app.session_max_clip_s``."""
-        from motionweb.flows.app.uploads import PREFIX
-
         if key.startswith(PREFIX):
             u = self.uploads.get(key)
             return u.record(), u.motion
