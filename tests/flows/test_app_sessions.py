@@ -293,3 +293,32 @@ def test_the_upload_route_takes_the_reader_fuzz_mutants(client, cfg) -> None:
         assert "Traceback" not in r.text and (r.status_code == 200 or r.json()["error"])
         seen[r.status_code] += 1
     assert seen[400] > 0
+
+
+def test_the_session_worker_ends_with_the_service(cfg, tmp_path: Path, monkeypatch) -> None:
+    import threading
+    import time
+    import urllib.request
+
+    import psutil
+    from motionweb.flows.app.server import Service
+
+    monkeypatch.setenv("MOTIONWEB_APP_DIR", str(tmp_path))
+    svc = Service(cfg, port=0, record=False, warm=False)
+    t = threading.Thread(target=svc.run, daemon=True)
+    t.start()
+    while not svc.server.started:
+        time.sleep(0.05)
+
+    def call(path: str, body: dict | None = None) -> dict:
+        req = urllib.request.Request(svc.url + path, data=None if body is None else json.dumps(body).encode(),
+                                     headers={"Content-Type": "application/json"})
+        with urllib.request.urlopen(req, timeout=120) as r:
+            return json.loads(r.read())
+
+    call("/api/retime/sessions", {"clip": CLIP})
+    pid = call("/api/retime/status")["pid"]
+    assert pid is not None and psutil.pid_exists(pid)
+    svc.stop()
+    t.join(30)
+    assert not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
