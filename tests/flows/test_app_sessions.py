@@ -322,3 +322,14 @@ def test_the_session_worker_ends_with_the_service(cfg, tmp_path: Path, monkeypat
     svc.stop()
     t.join(30)
     assert not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+
+
+def test_sessions_and_uploads_need_the_token(cfg) -> None:
+    token = "s3cret-token-0123456789"
+    with TestClient(create_app(Engine(cfg, warm=False), token=token)) as c:
+        for path, body in (("/api/retime/sessions", {"clip": CLIP}), ("/api/warp/sessions", {"clip": CLIP}),
+                           ("/api/uploads", {"name": "x", "bvh": "x"}), ("/api/retime/sessions/abc/edit", {})):
+            r = c.post(path, json=body)
+            assert r.status_code == 401 and "token" in r.json()["error"]
+        r = c.post("/api/retime/sessions", json={"clip": CLIP}, headers={"Authorization": f"Bearer {token}"})
+        assert r.status_code == 200, r.text
