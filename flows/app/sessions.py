@@ -54,6 +54,18 @@ WORK = {"prepare": "preparation", "edit": "timing edit", "warp_prepare": "warp's
 TORQUE_JOINTS = 6
 
 
+#: joint positions for the players are sent at most at this rate (Hz; the downloads keep the clip's)
+MAX_POSE_RATE = 60.0
+
+
+def draw_pose(snap: Any, motion: Any) -> dict[str, Any]:
+    """A motion's joint positions for a player (engine.pose_payload) at its own rate, or at
+    :data:`MAX_POSE_RATE` when faster (a 120 Hz clip: half the frames, every other one)."""
+    rate = min(float(motion.fps), MAX_POSE_RATE)
+    n = int(np.floor((motion.n_frames - 1) * rate / motion.fps + 1e-9)) + 1
+    return pose_payload(snap, motion, np.arange(n, dtype=float), rate)
+
+
 class SessionBody(BaseModel):
     """A retime session: the clip (index id, corpus path or stem) and its physics (MPS06 §3.2)."""
 
@@ -185,7 +197,7 @@ def edit_answer(s: Session, retimed: Any, rep: dict[str, Any], pose: bool, secon
         "free_fall": rep["free_fall"], "edit_s": round(seconds, 4),
     }
     if pose:
-        out["pose"] = pose_payload(s.snap, retimed, np.arange(retimed.n_frames, dtype=float), retimed.fps)
+        out["pose"] = draw_pose(s.snap, retimed)
     return out
 
 
@@ -278,7 +290,7 @@ class RetimeSessions:
                 "physics": body.model_dump(exclude={"clip"}),
                 # per source frame its feasible polygon (K, 2) in (p̈, ṗ²) (MPS06 §3.4; polygons.png)
                 "polygons": polygons,
-                "original": pose_payload(snap, motion, np.arange(motion.n_frames, dtype=float), motion.fps)}
+                "original": draw_pose(snap, motion)}
 
     def session(self, sid: str) -> Session:
         s = self.sessions.get(sid)
@@ -389,7 +401,7 @@ class WarpSessions:
         self.sessions.put(s.id, s)
         return {"session": s.id, **snap.clip_row(rec), "generation": snap.gen.id,
                 "reference": snap.clip_row(ref) if ref is not None else None, "nbytes": prepared["nbytes"],
-                "original": pose_payload(snap, motion, np.arange(motion.n_frames, dtype=float), motion.fps)}
+                "original": draw_pose(snap, motion)}
 
     def session(self, sid: str) -> WarpSession:
         s = self.sessions.get(sid)
@@ -416,7 +428,7 @@ class WarpSessions:
             s.last = (warped, summary)
         ans = {"session": s.id, **summary, "edit_s": round(time.perf_counter() - t0, 4)}
         if body.pose:
-            ans["pose"] = pose_payload(s.snap, warped, np.arange(warped.n_frames, dtype=float), warped.fps)
+            ans["pose"] = draw_pose(s.snap, warped)
         return ans
 
     def bvh(self, sid: str) -> tuple[str, str]:

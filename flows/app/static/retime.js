@@ -286,7 +286,7 @@ function rtTick(now) {
     rt.time += dt;
     const span = Math.max(rt.result.duration_out, rt.result.duration_in);
     if (rt.time > span) rt.time = 0;
-    rt.retimed.draw(Math.min(rt.retimed.pose.frames - 1, Math.round(rt.time * rt.result.fps)));
+    rt.retimed.draw(Math.min(rt.retimed.pose.frames - 1, Math.round(rt.time * rt.retimed.pose.rate)));
     rt.original.draw(Math.min(rt.original.pose.frames - 1, Math.round(rt.time * rt.original.pose.rate)));
     if (!rt.drag) rtTimeline();
   }

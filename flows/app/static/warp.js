@@ -116,7 +116,7 @@ function gwSetup() {
     gw.last = now;
     if (gw.result && gw.view.pose) {
       gw.time = (gw.time + dt) % Math.max(gw.result.output_s, 0.1);
-      gw.view.draw(Math.round(gw.time * gw.result.fps));
+      gw.view.draw(Math.min(gw.view.pose.frames - 1, Math.round(gw.time * gw.view.pose.rate)));
     }
     requestAnimationFrame(tick);
   };
