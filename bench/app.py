@@ -15,11 +15,19 @@ Printed, in one run (targets from the issue):
     flow (none fails, the service switches); an index run SIGKILLed mid-way (none fails, the
     generation stays).
 
+  * retime sessions (MPS06, flows/app/sessions.py; ``--sessions-only`` runs only these, on a small
+    store of CMU subject 16 trials cut to 400 frames at 120 Hz): `motionweb retime` from the CLI
+    (the baseline: one cold try), then through the warm service a timing edit (duration or a
+    keytime) on a prepared clip, p50 ≤ 150 ms; a physics change (gravity or a limb's mass: a new
+    session prepared, and its first edit) ≤ 1.5 s; preparing a new clip ≤ 2 s; each plan's bytes
+    and the session worker's memory per prepared clip.
+
 The corpus and its index (by category, 30 Hz) come from bench/corpus.py and are kept in --keep
 (the layout bench/search.py uses: corpus/, store-category-30/), reused when present. The fault
 runs index a copy of the corpus's demo categories only (a few seconds per run).
 
-    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50] [--faults-only | --cli-only]
+    .venv/bin/python -m bench.app [--keep DIR] [--clients 16] [--requests 50] [--faults-only | --cli-only |
+                                  --sessions-only]
 """
 
 from __future__ import annotations
@@ -333,6 +341,127 @@ def faults(work: Path, env: dict) -> None:
         proc.wait(30)
 
 
+SESSION_FRAMES = 400
+SESSION_CLIPS = ("16_16", "16_15", "16_11", "16_12", "16_35", "16_08")
+
+
+def session_store(work: Path) -> Path:
+    """A small indexed store of CMU subject 16 trials cut to their first :data:`SESSION_FRAMES`
+    frames (BVH in the ASF's unit; the config says ``scale_to_m``), and its config."""
+    from motionweb.flows.config import Config
+    from motionweb.flows.index import index_library
+    from motionweb.store.bvh import write_bvh
+    from motionweb.store.formats import read_motion
+    from motionweb.store.kinematics import sample_motion
+
+    corpus, store, cfg_path = work / "retime-corpus", work / "retime-store", work / "retime.yaml"
+    scale = 0.0254 / 0.45  # the CMU ASF's unit (README, CMU formats)
+    cfg = {"corpus": {"path": str(corpus), "scale_to_m": scale}, "features": {"rates": [10.0, 30.0]},
+           "store": {"path": str(store)}, "dask": {"processes": False}, "output": str(work / "retime-out")}
+    if load_generation(MotionStore(str(store))) is None:
+        shutil.rmtree(corpus, ignore_errors=True)
+        for name in SESSION_CLIPS:
+            m = read_motion(mocap_root() / "cmu" / "asf_amc" / "16" / f"{name}.amc", scale_to_m=scale)
+            if m.n_frames < SESSION_FRAMES:
+                continue
+            cut = sample_motion(m, np.arange(SESSION_FRAMES, dtype=float))
+            (corpus / "cmu16").mkdir(parents=True, exist_ok=True)
+            write_bvh(cut, corpus / "cmu16" / f"{name}.bvh")
+        index_library(Config.model_validate(cfg))
+    cfg_path.write_text(yaml.safe_dump(cfg))
+    return cfg_path
+
+
+def sessions(work: Path, env: dict, edits: int = 30) -> None:
+    """The retime sessions' figures (see the module docstring), the CLI's beside them."""
+    cfg_path = session_store(work)
+    gen = load_generation(MotionStore(str(work / "retime-store"), read_only=True))
+    clips = sorted(c["path"] for c in gen.clips)
+    first = clips[0]
+    src = work / "retime-corpus" / first
+    print(f"retime sessions: {len(clips)} clips of {SESSION_FRAMES} frames at 120 Hz (CMU subject 16); "
+          f"load average {os.getloadavg()[0]:.1f}")
+    dur = SESSION_FRAMES / 120.0
+    t = time.perf_counter()
+    r = motionweb("retime", str(src), "--duration", f"{0.8 * dur:.3f}", "--out", str(work / "retime-cli.bvh"),
+                  "--config", str(cfg_path), env=env)
+    cli = time.perf_counter() - t
+    print(f"  CLI `motionweb retime {first} --duration {0.8 * dur:.3f}` (cold, today): {cli:.1f} s (exit {r.returncode})")
+    proc, url = start_service(cfg_path, env)
+    try:
+        api = Api(url)
+        wait_warm(api)
+        t = time.perf_counter()
+        s = api.json("POST", "/api/retime/sessions", {"clip": first})
+        api.json("POST", f"/api/retime/sessions/{s['session']}/edit", {"duration": 0.8 * dur})
+        print(f"  warm-up (the session worker's start, imports, compiled kernels): {time.perf_counter() - t:.1f} s")
+        rss0 = psutil.Process(api.json("GET", "/api/retime/status")["pid"]).memory_info().rss
+        rng = random.Random(5)
+        times, server, cpu = [], [], []
+        for k in range(edits):
+            body = ({"duration": round(dur * rng.uniform(0.75, 1.3), 3)} if k % 2 == 0 else
+                    {"duration": round(dur, 3), "keytimes": [[1.5, round(rng.uniform(1.1, 1.9), 3)]]})
+            t = time.perf_counter()
+            e = api.json("POST", f"/api/retime/sessions/{s['session']}/edit", body)
+            times.append(time.perf_counter() - t)
+            server.append(e["edit_s"])
+            cpu.append(e["cpu_s"])
+        print(f"  timing edit on a prepared clip (duration or a keytime), {edits} edits through HTTP: p50 "
+              f"{pct(times, 50):.0f} ms, p90 {pct(times, 90):.0f} ms (in the service p50 {pct(server, 50):.0f} ms; "
+              f"CPU of the worker p50 {pct(cpu, 50):.0f} ms)   target: p50 <= 150 ms")
+        phys, pcpu = [], []
+        held = api.json("GET", "/api/retime/status")["plan_bytes"]
+        bodies = [{"gravity": g} for g in ([1.0, -9.81, 0.0], [0.0, -4.9, 0.0], [0.0, -14.0, 0.0])] + \
+                 [{"mass": {joint: 3.0}} for joint in ("lfemur", "rtibia")]
+        for b in bodies:
+            t = time.perf_counter()
+            p = api.json("POST", "/api/retime/sessions", {"clip": first, **b})
+            e = api.json("POST", f"/api/retime/sessions/{p['session']}/edit", {"duration": 0.8 * dur})
+            phys.append(time.perf_counter() - t)
+            pcpu.append(p["cpu_s"] + e["cpu_s"])
+        grown = api.json("GET", "/api/retime/status")["plan_bytes"] - held
+        print(f"  physics change (3 gravities, 2 limb masses: a new session prepared, and its first edit): "
+              f"p50 {pct(phys, 50) / 1000:.2f} s, max {max(phys):.2f} s (CPU of the worker p50 "
+              f"{pct(pcpu, 50) / 1000:.2f} s)   target: <= 1.5 s; each physics of a kept clip adds "
+              f"{grown / len(bodies) / 1e6:.1f} MB to the cache")
+        new, sizes, ncpu = [], [], []
+        for clip in clips[1:]:
+            t = time.perf_counter()
+            p = api.json("POST", "/api/retime/sessions", {"clip": clip})
+            new.append(time.perf_counter() - t)
+            sizes.append(p["plan_bytes"])
+            ncpu.append(p["cpu_s"])
+        st = api.json("GET", "/api/retime/status")
+        rss1 = psutil.Process(st["pid"]).memory_info().rss
+        n_new = len(clips) - 1
+        print(f"  preparing a new {SESSION_FRAMES}-frame clip ({n_new} clips): p50 {pct(new, 50) / 1000:.2f} s, "
+              f"max {max(new):.2f} s (CPU of the worker p50 {pct(ncpu, 50) / 1000:.2f} s)   target: <= 2 s")
+        print(f"  memory: a new clip's plan holds {np.median(sizes) / 1e6:.1f} MB of arrays (median); the session worker's RSS "
+              f"grew {(rss1 - rss0) / 1e6 / max(n_new, 1):.1f} MB per new clip ({rss1 / 1e6:.0f} MB in all, "
+              f"{st['plans']} plans kept, {st['plan_bytes'] / 1e6:.0f} MB, {st['evicted']} evicted)")
+        # a warp session (HDP07) at a size of Table 1: n = r = 400 (self reference), m = 230, s = 8
+        t = time.perf_counter()
+        w = api.json("POST", "/api/warp/sessions", {"clip": first})
+        m_s = 229 / 120.0
+        e = api.json("POST", f"/api/warp/sessions/{w['session']}/edit", {"duration": m_s})
+        first_warp = time.perf_counter() - t
+        wt, wcpu = [], []
+        for k in range(edits):
+            body = {"duration": round(m_s * rng.uniform(0.9, 1.1), 3),
+                    "keytimes": [] if k % 2 == 0 else [[1.6, round(rng.uniform(0.7, 1.1), 3)]]}
+            t = time.perf_counter()
+            e = api.json("POST", f"/api/warp/sessions/{w['session']}/edit", body)
+            wt.append(time.perf_counter() - t)
+            wcpu.append(e["cpu_s"])
+        print(f"  warp session (HDP07, n = r = {SESSION_FRAMES}, m ~ {round(m_s * 120) + 1}, s = 8, full search): "
+              f"open + first warp (the local scores) {first_warp:.2f} s; {edits} edits (duration or a keytime) "
+              f"through HTTP p50 {pct(wt, 50):.0f} ms, p90 {pct(wt, 90):.0f} ms (CPU of the worker p50 "
+              f"{pct(wcpu, 50):.0f} ms)   target: <= 300 ms per edit")
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(60)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--keep", default=None, help="work folder (corpus/, store-category-30/), reused when present")
@@ -342,7 +471,17 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=40)
     ap.add_argument("--faults-only", action="store_true", help="only the fault runs (needs --keep with a corpus)")
     ap.add_argument("--cli-only", action="store_true", help="only the CLI timings (cold, then with the service)")
+    ap.add_argument("--sessions-only", action="store_true", help="only the retime sessions' figures")
     args = ap.parse_args()
+    if args.sessions_only:
+        if not mocap_root().is_dir():
+            print(f"real motion capture not found at {mocap_root()}: the sessions need CMU subject 16")
+            return
+        work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-app-"))
+        work.mkdir(parents=True, exist_ok=True)
+        sessions(work, {**os.environ, "MOTIONWEB_APP_DIR": str(work / "discovery")})
+        print(f"load average at the end {os.getloadavg()[0]:.1f}")
+        return
     if args.faults_only:
         work = Path(args.keep)
         print("faults (a store of the corpus's walk, run and kick clips):")
@@ -429,6 +568,8 @@ def main() -> None:
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(60)
+    print()
+    sessions(work, env)
     print("\nfaults (a store of the corpus's walk, run and kick clips):")
     faults(work, env)
     print(f"load average at the end {os.getloadavg()[0]:.1f}")

@@ -3,7 +3,8 @@
 Every run is driven by one config file. Each section is the parameter model that lives beside its
 stage (``corpus`` = :class:`~motionweb.store.catalog.CorpusParams`, ``features`` =
 :class:`~motionweb.tasks.features.FeatureParams`, ...), with its defaults in that model only;
-the sections that only the flows use (demo, dask, store, index) are defined here. Unknown keys
+the sections that only the flows use (demo, dask, store, index) are defined here, the service's
+(app) in :mod:`motionweb.flows.app.params`. Unknown keys
 and wrong types fail with a message naming the key path and the file. ``configs/default.yaml``
 (package data, :mod:`motionweb.configs`) lists every section and key with its default.
 """
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
+from motionweb.flows.app.params import AppParams
 from motionweb.flows.paths import resolve_path
 from motionweb.store.catalog import CorpusParams
 from motionweb.store.params import Params
@@ -88,6 +90,7 @@ class Config(Params):
     parameterize: ParameterizeParams = Field(default_factory=ParameterizeParams)
     mirror: MirrorParams = Field(default_factory=MirrorParams)
     root_motion: RootMotionParams = Field(default_factory=RootMotionParams)
+    app: AppParams = Field(default_factory=AppParams)
     output: str = "motionweb-out"
 
     def digest(self, section: str | None = None) -> str:

@@ -25,12 +25,16 @@ from motionweb.tasks.retime import (
 def load_clip(path: str | Path, cfg: Config) -> tuple[Motion, object | None]:
     """The clip and, for DeepMimic clips, the URDF humanoid with its real masses."""
     motion = read_motion(path, unit=cfg.corpus.length_unit, scale_to_m=cfg.corpus.scale_to_m)
-    humanoid = None
-    if Path(path).suffix.lower() == ".txt":
-        from motionweb.store.deepmimic import default_urdf, read_humanoid_urdf
+    return motion, clip_humanoid(path)
 
-        humanoid = read_humanoid_urdf(default_urdf(path))
-    return motion, humanoid
+
+def clip_humanoid(path: str | Path) -> object | None:
+    """The URDF humanoid (real masses) of a DeepMimic clip (``.txt``); None for other formats."""
+    if Path(path).suffix.lower() != ".txt":
+        return None
+    from motionweb.store.deepmimic import default_urdf, read_humanoid_urdf
+
+    return read_humanoid_urdf(default_urdf(path))
 
 
 @task()

@@ -56,11 +56,17 @@ def load_motion(path: str | Path, config: Config) -> Motion:
 
 def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
     """Load and check a request; raises ValueError (or MotionFormatError) naming the problem."""
+    motion = load_motion(request.input, config)
+    reference = load_motion(request.reference, config) if request.reference else None
+    return plan_motions(config, request, motion, reference)
+
+
+def plan_motions(config: Config, request: WarpRequest, motion: Motion, reference: Motion | None) -> WarpPlan:
+    """:func:`plan_warp` of motions already read (``request.input`` / ``reference`` are only
+    names then; the warp sessions of ``motionweb app`` read them from the index)."""
     cfg = config.warp
     if request.skip is not None:
         cfg = cfg.model_copy(update={"skip": request.skip})
-    motion = load_motion(request.input, config)
-    reference = load_motion(request.reference, config) if request.reference else None
     if reference is not None:
         check_compatible(motion, reference)
     fps = motion.fps
@@ -75,10 +81,11 @@ def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
     return WarpPlan(motion, reference, n_out, keys, cfg, config.corpus.up_axis, config.retime)
 
 
-def solve(plan: WarpPlan, fast: bool = False, backward: bool = False) -> WarpResult:
-    """The guided warp of a checked plan with the config's parameters."""
+def solve(plan: WarpPlan, fast: bool = False, backward: bool = False, scores: dict | None = None) -> WarpResult:
+    """The guided warp of a checked plan with the config's parameters (``scores``: the local
+    scores kept by the caller for this input and reference, see :func:`guided_warp`)."""
     return guided_warp(plan.motion, plan.reference, n_out=plan.n_out, keytimes=plan.keytimes,
-                       params=plan.config, fast=fast, backward=backward)
+                       params=plan.config, fast=fast, backward=backward, scores=scores)
 
 
 def plot_warp(result: WarpResult, fps: float, path: str | Path, linear: WarpResult | None = None,
@@ -192,5 +199,5 @@ def format_summary(summary: dict[str, Any]) -> str:
     ] + ([f"plot {summary['plot']}"] if summary.get("plot") else []))
 
 
-__all__ = ["WarpPlan", "WarpRequest", "format_summary", "load_motion", "plan_warp", "plot_warp", "run_warp",
-           "solve", "warp", "write_outputs"]
+__all__ = ["WarpPlan", "WarpRequest", "format_summary", "load_motion", "plan_motions", "plan_warp", "plot_warp",
+           "run_warp", "solve", "warp", "write_outputs"]

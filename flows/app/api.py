@@ -2,8 +2,9 @@
 
 Routes (every one answers JSON errors ``{"error": message}`` with the CLI's messages, never a
 traceback: 400 bad request, 401 bad token, 404 unknown clip or result, 409 store not indexed,
-413 request too large, 500 a search that crashed its worker process, with ``"query"``: the
-request's clip, start, end and options; the service goes on with a standby worker):
+413 request too large, 500 a search (or a retime session's work) that crashed its worker
+process, with ``"query"``: the request's clip, start, end and options (the session's request);
+the service goes on with a standby worker, or a fresh session worker):
 
     GET  /                                       the page (static/index.html)
     GET  /api/status                             generation, clip and web counts, categories
@@ -21,11 +22,27 @@ request's clip, start, end and options; the service goes on with a standby worke
     GET  /api/spaces/{sid}                       a space's parameter, examples, sampled cloud
     POST /api/spaces/{sid}/synthesize            {target}: the motion for it (§4.3), how close
     POST /api/spaces/{sid}/blend                 {weights}: the blend of the examples
+    GET  /api/retime/status                      the session worker: pid, crashes, plans kept, their bytes
+    POST /api/retime/sessions                    {clip, gravity, mass, weight}: a retime session (MPS06),
+                                                 its plan prepared once per (clip, physics); the original's poses
+    POST /api/retime/sessions/{sid}/edit         {duration, keytimes}: the retimed poses and the plots' data
+    GET  /api/retime/sessions/{sid}/bvh          the last retimed motion as a BVH download
+    GET  /api/retime/sessions/{sid}/report       the last retiming's report (the CLI's JSON)
+    POST /api/warp/sessions                      {clip, reference}: a guided-warp session (HDP07), the
+                                                 reference's scores kept; the original's poses
+    POST /api/warp/sessions/{sid}/edit           {duration, keytimes, fast}: the warped poses, the warp curve,
+                                                 each flight's ratio
+    GET  /api/warp/sessions/{sid}/bvh            the last warp as a BVH download
+    POST /api/uploads                            {name, bvh | asf + amc, unit, scale_to_m, fps}: a clip of the
+                                                 user's own, parsed by the hardened readers, kept in memory
+                                                 (content-addressed, bounded); its id (up-...) names it in sessions
+    GET  /api/uploads/{uid}                      an upload's name, frames, fps, joints, unit
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
 filesystem path (clips by index id or corpus name looked up in the generation, downloads built in
-memory); bodies are at most :data:`MAX_BODY` bytes, query strings :data:`MAX_QUERY_STRING`.
+memory); bodies are at most :data:`MAX_BODY` bytes (an upload ``app.upload_bytes``), query strings
+:data:`MAX_QUERY_STRING`.
 """
 
 from __future__ import annotations
@@ -41,7 +58,16 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from motionweb.flows.app.engine import MAX_DRAW_FRAMES, Engine, NotFound, NotIndexed, QueryCrashed
+from motionweb.flows.app.sessions import (
+    EditBody,
+    RetimeSessions,
+    SessionBody,
+    WarpEditBody,
+    WarpSessionBody,
+    WarpSessions,
+)
 from motionweb.flows.app.spaces import Spaces
+from motionweb.flows.app.uploads import UploadBody
 from motionweb.flows.requests import BlendRequest, QueryRequest, SearchQuery, SynthesizeRequest, message
 from pydantic import Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -96,8 +122,9 @@ def error(status: int, message: str) -> JSONResponse:
 class Guard:
     """ASGI middleware: the token on every request (when set), bounded bodies and query strings."""
 
-    def __init__(self, app, token: str | None):
+    def __init__(self, app, token: str | None, limits: dict[str, int] | None = None):
         self.app, self.token = app, token
+        self.limits = limits or {}  # a larger body limit for some paths (the uploads)
 
     def authorized(self, scope) -> bool:
         if not self.token:
@@ -126,9 +153,10 @@ class Guard:
         if not self.authorized(scope):
             return await error(401, "missing or wrong token (Authorization: Bearer TOKEN, or open /?token=TOKEN)")(
                 scope, receive, send)
+        limit = self.limits.get(scope.get("path", ""), MAX_BODY)
         length = dict(scope.get("headers", [])).get(b"content-length")
-        if length is not None and (not length.isdigit() or int(length) > MAX_BODY):
-            return await error(413, f"request body larger than {MAX_BODY} bytes")(scope, receive, send)
+        if length is not None and (not length.isdigit() or int(length) > limit):
+            return await error(413, f"request body larger than {limit} bytes")(scope, receive, send)
         seen = 0
 
         async def bounded():
@@ -136,14 +164,14 @@ class Guard:
             msg = await receive()
             if msg["type"] == "http.request":
                 seen += len(msg.get("body", b""))
-                if seen > MAX_BODY:
+                if seen > limit:
                     raise TooLarge
             return msg
 
         try:
             await self.app(scope, bounded, send)
         except TooLarge:
-            await error(413, f"request body larger than {MAX_BODY} bytes")(scope, receive, send)
+            await error(413, f"request body larger than {limit} bytes")(scope, receive, send)
 
 
 class TooLarge(Exception):
@@ -273,6 +301,56 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         return await run(lambda: spaces.answer(*spaces.blend(sid, body.weights), body.pose, body.bvh,
                                                MAX_DRAW_FRAMES))
 
+    # ---------------------------------------------------------------- retime sessions (MPS06, sessions.py)
+    retime = RetimeSessions(engine)
+    app.state.retime_sessions = retime
+    app.router.on_shutdown.append(retime.close)  # the session worker ends with the service
+
+    @app.get("/api/retime/status")
+    async def retime_status() -> dict:
+        return await run(retime.worker_info)
+
+    @app.post("/api/retime/sessions")
+    async def retime_open(body: SessionBody) -> JSONResponse:
+        return JSONResponse(await run(retime.create, body))
+
+    # the edits' answers are plain JSON (floats, lists): serialized at once, not walked by FastAPI's
+    # encoder (~30 ms for a 400-frame clip's poses and plots)
+    @app.post("/api/retime/sessions/{sid}/edit")
+    async def retime_edit(sid: str, body: EditBody) -> JSONResponse:
+        return JSONResponse(await run(retime.edit, sid, body))
+
+    @app.get("/api/retime/sessions/{sid}/bvh")
+    async def retime_bvh(sid: str) -> Response:
+        return download(await run(retime.bvh, sid))
+
+    @app.get("/api/retime/sessions/{sid}/report")
+    async def retime_report(sid: str) -> dict:
+        return await run(retime.report, sid)
+
+    warps = WarpSessions(retime)  # HDP07, in the same session worker
+
+    @app.post("/api/uploads")
+    async def upload(body: UploadBody) -> JSONResponse:
+        corpus = engine.cfg.corpus
+        return JSONResponse(await run(retime.uploads.add, body, corpus.length_unit, corpus.scale_to_m))
+
+    @app.get("/api/uploads/{uid}")
+    async def upload_info(uid: str) -> dict:
+        return retime.uploads.summary(retime.uploads.get(uid))
+
+    @app.post("/api/warp/sessions")
+    async def warp_open(body: WarpSessionBody) -> dict:
+        return await run(warps.create, body)
+
+    @app.post("/api/warp/sessions/{sid}/edit")
+    async def warp_edit(sid: str, body: WarpEditBody) -> JSONResponse:
+        return JSONResponse(await run(warps.edit, sid, body))
+
+    @app.get("/api/warp/sessions/{sid}/bvh")
+    async def warp_bvh(sid: str) -> Response:
+        return download(await run(warps.bvh, sid))
+
     static = static_dir()
 
     @app.get("/")
@@ -284,4 +362,4 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         return resp
 
     app.mount("/static", StaticFiles(directory=static), name="static")
-    return Guard(app, token)
+    return Guard(app, token, {"/api/uploads": retime.params.upload_bytes})

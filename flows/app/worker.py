@@ -224,10 +224,12 @@ def child_main(fd: int, url: str) -> None:
 class Worker:
     """One worker process and its end of the socket pair; :meth:`call` is one request at a time."""
 
-    def __init__(self, url: str):
+    def __init__(self, *args: str, module: str = "motionweb.flows.app.worker"):
+        """Start ``python -m module FD *args`` (this module's loop, given the store URL; or another
+        worker's, e.g. :mod:`motionweb.flows.app.session_worker`)."""
         mine, theirs = socket.socketpair()
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.proc = subprocess.Popen([sys.executable, "-m", "motionweb.flows.app.worker", str(theirs.fileno()), url],
+        self.proc = subprocess.Popen([sys.executable, "-m", module, str(theirs.fileno()), *args],
                                      pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
                                      stdout=subprocess.DEVNULL, env=env, close_fds=True)
         theirs.close()

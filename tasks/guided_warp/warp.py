@@ -95,6 +95,7 @@ def guided_warp(
     backward: bool = False,
     up: str = "y",
     resample_motion: bool = True,
+    scores: dict | None = None,
 ) -> WarpResult:
     """Guided time warp of ``motion`` towards the timing of ``reference`` (HDP07 §3).
 
@@ -110,6 +111,11 @@ def guided_warp(
             band is empty).
         backward: play the input backwards (keytime input frames then decrease).
         resample_motion: build the output motion (else ``motion`` in the result is None).
+        scores: a dict the caller keeps for one (``motion``, ``reference``, ``params``, ``up``): the
+            local scores (n, s, s) are stored in it by working input (upsample factor, direction)
+            and reused, since they do not depend on the output length or the keytimes (HDP07
+            §3.2: f scores input triples against the reference), which then cost only the path
+            (the editing sessions of ``motionweb app``); the result is the same as without it.
 
     Cost: O(n s² (r + D)) for the scores and O(m n s²) for the path (O(n s²) unconstrained).
     """
@@ -121,17 +127,22 @@ def guided_warp(
     red = reduce_to_compression(n0, n_out, keytimes, skip, backward)
     timings: dict[str, float] = {}
 
-    t0 = time.perf_counter()
-    track0 = motion_track(motion, filter_width, up)
-    ref_track = motion_track(_with_fps(reference, motion.fps), filter_width, up)
-    track = track0.sample(red.to_source(np.arange(red.n), n0))
-    spec = feature_spec(ref_track, p.weights, p.normalize, p.root_motion)
-    ref_f = reference_features(ref_track, spec)
-    timings["features"] = time.perf_counter() - t0
+    key = (red.upsample, red.backward, red.n)
+    table = None if scores is None else scores.get(key)
+    if table is None:
+        t0 = time.perf_counter()
+        track0 = motion_track(motion, filter_width, up)
+        ref_track = motion_track(_with_fps(reference, motion.fps), filter_width, up)
+        track = track0.sample(red.to_source(np.arange(red.n), n0))
+        spec = feature_spec(ref_track, p.weights, p.normalize, p.root_motion)
+        ref_f = reference_features(ref_track, spec)
+        timings["features"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    table = local_scores(track, ref_f, skip, spec, neighbours)
-    timings["objective"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        table = local_scores(track, ref_f, skip, spec, neighbours)
+        timings["objective"] = time.perf_counter() - t0
+        if scores is not None:
+            scores[key] = table
 
     used_heuristic = False
     t0 = time.perf_counter()

@@ -149,21 +149,30 @@ def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray
 def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = "y", gravity: np.ndarray | None = None,
             mass: dict[str, float] | None = None, humanoid: Any | None = None,
             contact_intervals: dict[str, list[tuple[float, float]]] | None = None,
-            weight_factors: dict[str, float] | None = None) -> RetimePlan:
+            weight_factors: dict[str, float] | None = None,
+            physics: tuple[BodyModel, list[Glitch], DynamicsTerms, Contacts] | None = None) -> RetimePlan:
     """Dynamics, contacts, original forces, feasible polygons and the baked objective (MPS06 §3.1-3.6).
 
     ``mass`` multiplies bodies' masses (inertia and weight, MPS06 §3.2: τ is linear in each);
     ``weight_factors`` multiplies only their weight, the gravity load, inertia kept (MPS06 §4.2 Fig. 11:
     "the left femur's weight multiplied by ten"; the CLI's ``--weight``, one name from there to
     ``DynamicsTerms.combine`` and ``RetimePlan.weight_factors``, per body there).
+    ``physics``: the clip's :func:`clip_physics` for the same ``opts``, ``up_axis``, ``humanoid``
+    and ``contact_intervals``, when the caller keeps it: the path dynamics and contacts do not
+    depend on gravity, masses or weights (τ = a p̈ + b ṗ² + c with c linear in gravity and τ linear
+    in each body's mass, MPS06 §3.1-3.2), so a physics change skips them (the retime sessions of
+    ``motionweb app``); the plan is the same as without it.
     Raises ``RetimeError`` when no foot touches the ground (unless ``allow_flight_only``), and
     ``ValueError`` for an unknown unit or an unknown joint in ``mass`` or ``weight_factors``.
     """
     opts = opts or RetimeParams()
     tm: dict[str, float] = {}
     up = "xyz".index(up_axis)
-    body, glitches, terms, contacts = clip_physics(motion, opts, up=up, humanoid=humanoid,
-                                                   contact_intervals=contact_intervals, timings=tm)
+    if physics is None:
+        physics = clip_physics(motion, opts, up=up, humanoid=humanoid, contact_intervals=contact_intervals, timings=tm)
+    else:
+        tm.update(dynamics=0.0, contacts=0.0)
+    body, glitches, terms, contacts = physics
     factors = mass_factors(body, mass or {})
     weight_factors = mass_factors(body, weight_factors or {})  # {joint: factor} -> (B,) per body
     if not contacts.active.any() and not opts.allow_flight_only:

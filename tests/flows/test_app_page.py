@@ -187,3 +187,109 @@ def test_page_plays_a_glb_in_its_own_loader(browser, service, app_store) -> None
     first = canvas_data(drv, "view")
     time.sleep(0.5)
     assert canvas_data(drv, "view") != first
+
+
+# ---------------------------------------------------------------- the Retime panel (retime sessions)
+
+def retimed_positions(drv) -> str:
+    return drv.execute_script("return JSON.stringify(rt.result && rt.result.pose.positions.slice(0, 300));")
+
+
+def settle(drv, wait) -> None:
+    """Wait until the panel's last (debounced) edit is answered."""
+    time.sleep(0.3)
+    wait.until(lambda d: not d.execute_script("return rt.busy || rt.pending;"))
+
+
+def test_retime_panel_edits_play_and_redraw(browser, service) -> None:
+    """The Retime panel (static/retime.js, MPS06 sessions): open a session on the player's clip, set
+    the duration and drag a keytime (the retimed motion that plays changes), change gravity (the
+    plots are redrawn), with no console errors."""
+    drv = browser
+    wait = WebDriverWait(drv, 120)
+    drv.get(service.url + "/")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 6)
+    row = next(r for r in drv.find_elements(By.CSS_SELECTOR, "#catalog tbody tr") if "walk_00" in r.text)
+    row.click()
+    wait.until(lambda d: "walk/walk_00.bvh" in d.find_element(By.ID, "clip-title").text)
+    drv.find_element(By.ID, "rt-open").click()
+    wait.until(lambda d: "prepared in" in d.find_element(By.ID, "rt-info").text)
+    wait.until(lambda d: d.execute_script("return rt.result !== null;"))
+    settle(drv, wait)
+    # the retimed motion plays beside the original
+    first = canvas_data(drv, "rt-retimed")
+    time.sleep(0.4)
+    assert canvas_data(drv, "rt-retimed") != first
+    assert "shortest reachable" in drv.find_element(By.ID, "rt-reach").text
+    # a duration: another motion plays
+    before = retimed_positions(drv)
+    el = drv.find_element(By.ID, "rt-duration")
+    el.clear()
+    el.send_keys("3.1")
+    drv.execute_script("document.getElementById('rt-duration').dispatchEvent(new Event('change'));")
+    wait.until(lambda d: d.execute_script("return rt.result.duration_out;") == pytest.approx(3.1, abs=1e-6))
+    settle(drv, wait)
+    after_duration = retimed_positions(drv)
+    assert after_duration != before
+    # a keytime added (double-click) and dragged on the timeline: another motion again
+    tl = drv.find_element(By.ID, "rt-timeline")
+    w = tl.size["width"]
+    ActionChains(drv).move_to_element_with_offset(tl, -w // 2 + int(0.4 * w), 0).double_click().perform()
+    wait.until(lambda d: d.execute_script("return rt.keytimes.length;") == 1)
+    settle(drv, wait)
+    with_key = retimed_positions(drv)
+    kt_before = drv.execute_script("return rt.keytimes[0][1];")
+    (ActionChains(drv).move_to_element_with_offset(tl, -w // 2 + int(0.4 * w), 0).click_and_hold()
+     .move_by_offset(30, 0).move_by_offset(30, 0).release().perform())
+    wait.until(lambda d: d.execute_script("return rt.keytimes[0][1];") > kt_before + 0.1)
+    settle(drv, wait)
+    wait.until(lambda d: d.execute_script("return JSON.stringify(rt.result.pose.positions.slice(0, 300));") != with_key)
+    assert drv.execute_script("return rt.result.duration_out;") == pytest.approx(3.1, abs=1e-6)
+    # gravity: a new session, the plots redrawn
+    plots = {c: canvas_data(drv, c) for c in ("rt-timing", "rt-torques", "rt-polygon")}
+    sid = drv.execute_script("return rt.session.session;")
+    el = drv.find_element(By.ID, "rt-gx")
+    el.clear()
+    el.send_keys("4")
+    drv.find_element(By.ID, "rt-apply").click()
+    wait.until(lambda d: d.execute_script("return rt.session.session;") != sid)
+    settle(drv, wait)
+    wait.until(lambda d: d.execute_script("return rt.result.session;") != sid)
+    assert canvas_data(drv, "rt-timing") != plots["rt-timing"] or canvas_data(drv, "rt-torques") != plots["rt-torques"]
+    assert drv.execute_script("return rt.session.physics.gravity;") == [4, -9.81, 0]
+    # a clip of the user's own: a BVH uploaded from a file input, retimed in the panel
+    clip = next(Path(service.cfg.corpus.path).rglob("walk_01.bvh"))
+    drv.find_element(By.ID, "rt-upload").send_keys(str(clip))
+    wait.until(lambda d: d.execute_script("return rt.session && rt.session.path;") == "upload/walk_01.bvh")
+    settle(drv, wait)
+    wait.until(lambda d: d.execute_script("return rt.result.session;") == d.execute_script("return rt.session.session;"))
+    errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    assert drv.find_element(By.ID, "message").text == ""
+
+
+def test_warp_panel_warps_the_clip_and_a_keytime_changes_it(browser, service) -> None:
+    """The guided warp panel (static/warp.js, HDP07 sessions): the player's clip warped toward
+    itself, the warp curve drawn, a keytime added on it changes the motion that plays."""
+    drv = browser
+    wait = WebDriverWait(drv, 120)
+    drv.get(service.url + "/")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 6)
+    next(r for r in drv.find_elements(By.CSS_SELECTOR, "#catalog tbody tr") if "walk_00" in r.text).click()
+    wait.until(lambda d: "walk/walk_00.bvh" in d.find_element(By.ID, "clip-title").text)
+    drv.find_element(By.ID, "gw-open").click()
+    wait.until(lambda d: "cost" in d.find_element(By.ID, "gw-flights").text)
+    wait.until(lambda d: not d.execute_script("return gw.busy || gw.pending;"))
+    first = canvas_data(drv, "gw-view")
+    time.sleep(0.4)
+    assert canvas_data(drv, "gw-view") != first  # it plays
+    before = drv.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));")
+    curve = drv.find_element(By.ID, "gw-curve")
+    ActionChains(drv).move_to_element_with_offset(curve, 40, 20).double_click().perform()
+    wait.until(lambda d: d.execute_script("return gw.keytimes.length;") == 1)
+    time.sleep(0.3)
+    wait.until(lambda d: not d.execute_script("return gw.busy || gw.pending;"))
+    wait.until(lambda d: d.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));") != before)
+    errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    assert drv.find_element(By.ID, "message").text == ""

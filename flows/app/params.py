@@ -1,0 +1,35 @@
+"""The service's own settings (the config's ``app`` section): the bounds of its editing sessions.
+
+Defaults live here only (``configs/default.yaml`` lists them; a test holds the two equal). The
+session routes (:mod:`motionweb.flows.app.sessions`) and their worker
+(:mod:`motionweb.flows.app.session_worker`) read them from ``Config.app``.
+"""
+
+from __future__ import annotations
+
+from motionweb.store.params import Params
+from pydantic import Field
+
+
+class AppParams(Params):
+    """Bounds of the retime sessions of ``motionweb app`` (design §8, §10; MPS06 §3: a clip's
+    polygons are prepared once per physics and reused for every timing)."""
+
+    #: prepared retime plans (one per clip × physics) the session worker keeps, at most
+    session_plans: int = Field(8, ge=1, le=256)
+    #: and their total size (bytes, numpy arrays counted), at most; the least recently used go first
+    session_bytes: int = Field(512 * 1024 * 1024, ge=1024 * 1024)
+    #: sessions the service remembers (their clip, physics and last result), at most
+    sessions: int = Field(64, ge=1, le=4096)
+    #: longest clip a session prepares (seconds): preparing costs O(frames)
+    session_max_clip_s: float = Field(60.0, gt=0)
+    #: longest output a timing edit may ask for (seconds)
+    session_max_duration_s: float = Field(120.0, gt=0)
+    #: keytimes per edit, and per-limb mass or weight factors per session, at most
+    session_max_keytimes: int = Field(64, ge=0)
+    session_max_factors: int = Field(64, ge=0)
+    #: uploaded clips (POST /api/uploads, BVH or ASF+AMC): largest request (bytes), how many are
+    #: kept in memory (content-addressed, least recently used out) and for how long (seconds)
+    upload_bytes: int = Field(16 * 1024 * 1024, ge=64 * 1024, le=1024 * 1024 * 1024)
+    uploads: int = Field(32, ge=1, le=1024)
+    upload_ttl_s: float = Field(3600.0, gt=0)
