@@ -384,15 +384,21 @@ def matches_table(rows: list[dict]) -> str:
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(x, widths, strict=True)).rstrip() for x in [head, *body])
 
 
-def run_query(cfg: Config, request: QueryRequest) -> dict:
-    """Check the request, run the query flow's body here and print its matches (:func:`run_command`)."""
+def run_query(cfg: Config, request: QueryRequest, query_file: Path | None = None) -> dict:
+    """Check the request, run the query flow's body here and print its matches (:func:`run_command`).
+    With ``query_file`` the query is that clip, from outside the index (its webs built on demand)."""
     from motionweb.flows.query import plan_query, query
 
     def work() -> dict:
-        plan_query(cfg, request)
-        return query.fn(cfg, request)
+        motion = None
+        if query_file is not None:
+            from motionweb.flows.warp import load_motion  # the config's unit for a BVH that declares none
 
-    return run_command("query", {"store": cfg.store.path, "request": request.wire()}, work, print_query, strip=True)
+            motion = load_motion(query_file, cfg)
+        return query.fn(cfg, request, plan_query(cfg, request, motion))  # resolved once
+
+    params = {"store": cfg.store.path, "request": request.wire(), "query_file": str(query_file) if query_file else None}
+    return run_command("query", params, work, print_query, strip=True)
 
 
 def print_query(res: dict) -> None:
@@ -414,9 +420,10 @@ def print_query(res: dict) -> None:
 @app.command()
 def search(
     config: Annotated[Path, typer.Argument(help="Config file (store, search, output).")],
-    clip: Annotated[str, typer.Option(help="Query clip: corpus path or file stem.")],
     start: Annotated[float, typer.Option(help="Query start, seconds.")],
     end: Annotated[float, typer.Option(help="Query end, seconds.")],
+    clip: Annotated[str | None, typer.Option(help="Query clip: corpus path or file stem.")] = None,
+    query_file: Annotated[Path | None, typer.Option(help="Query clip from outside the index (.bvh, .amc, DeepMimic .txt): its webs against the indexed clips are built on demand.")] = None,
     threshold: Annotated[float | None, typer.Option(help="Absolute threshold ε on average web values (default: search.eps_nearest_ratio × the query's nearest match).")] = None,
     quantile: Annotated[float | None, typer.Option(help="ε as this quantile (0-1) of the searched webs' values.")] = None,
     tiers: Annotated[int | None, typer.Option(help="Search tiers (default: config search.max_tiers).")] = None,
@@ -432,9 +439,16 @@ def search(
     from motionweb.flows.app.client import ServiceError, forward_search
     from motionweb.flows.requests import QueryRequest
 
+    if (clip is None) == (query_file is None):
+        fail("give exactly one of --clip NAME (an indexed clip) and --query-file FILE (a clip from outside the index)")
+    if query_file is not None:
+        clip = query_file.name
     request = request_or_fail(QueryRequest, clip=clip, start=start, end=end, threshold=threshold, quantile=quantile,
                               tiers=tiers, all_categories=all_categories or None, register=register,
                               export=str(export) if export else None, out=str(out) if out else None, format=format)
+    if query_file is not None:  # a file is searched here: no request names a path to the service
+        run_query(config_or_fail(config), request, query_file)
+        return
     try:
         res = forward_search(config, request)
     except ServiceError as exc:

@@ -26,9 +26,10 @@ from motionweb.store.formats import read_motion, write_motion
 from motionweb.store.generations import Generation, current_id, load_generation, package_versions
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion
-from motionweb.store.webs import StoreWebs
+from motionweb.store.webs import StoreWebs, WebSource
 from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
+from motionweb.tasks.query_clip import WithQueryClip
 from motionweb.tasks.ranking import NO_MATCH, search_query
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch
@@ -110,34 +111,74 @@ def segment_motion(motion: Motion, frames: np.ndarray, rate: float) -> Motion:
 @dataclass
 class PreparedQuery:
     """A request resolved against the committed generation: its clip record, the query segment
-    at the web rate and the webs it searches."""
+    at the web rate and the webs it searches; ``motion`` is the query clip when it is a file from
+    outside the index (``--query-file``), whose webs were built on demand."""
 
     store: MotionStore
     gen: Generation
     gen_cfg: Config
     record: dict[str, Any]
     segment: Segment
-    webs: StoreWebs
+    webs: WebSource
+    motion: Motion | None = None
 
 
-def prepare_query(cfg: Config, request: QueryRequest) -> PreparedQuery:
+#: the web-source name of a query clip from outside the index (never an indexed corpus path)
+FILE_PREFIX = "file:"
+#: a query file's record holds its features (by rate, point weights) under this key (never written out)
+FILE_FEATURES = "_features"
+
+
+def prepare_query(cfg: Config, request: QueryRequest, query_motion: Motion | None = None) -> PreparedQuery:
     """Resolve ``request`` on the store's committed generation (ValueError for a store never
-    indexed, an unknown clip, a range outside it)."""
+    indexed, an unknown clip, a range outside it). With ``query_motion`` (``search --query-file``)
+    the query is that clip, from outside the index: :func:`prepare_file_query`."""
     store, gen = committed_generation(cfg.store.path)
     gen_cfg = indexed_config(gen)
     rate = max(float(r) for r in gen_cfg.features.rates)
-    rec = resolve_clip(gen, request.clip)
-    seg = query_segment(rec, request.start, request.end, rate)
     all_cats = cfg.search.all_categories if request.all_categories is None else request.all_categories
+    if query_motion is not None:
+        indexed = [c for c in gen.clips if c["sha256"] == query_motion.content_hash]
+        if not indexed:
+            return prepare_file_query(store, gen, gen_cfg, rate, request, query_motion)
+        rec = indexed[0]  # the same bytes are indexed: the query is that clip (content-addressed)
+    else:
+        rec = resolve_clip(gen, request.clip)
+    seg = query_segment(rec, request.start, request.end, rate)
     return PreparedQuery(store, gen, gen_cfg, rec, seg, StoreWebs.for_query(store, seg.clip, all_cats, generation=gen))
 
 
-def plan_query(cfg: Config, request: QueryRequest) -> Segment:
+def prepare_file_query(store: MotionStore, gen: Generation, gen_cfg: Config, rate: float, request: QueryRequest,
+                       motion: Motion) -> PreparedQuery:
+    """A query on a clip from outside the index (issue 24): its features and its webs against
+    every indexed clip with its skeleton, built on demand as the index would
+    (``tasks/query_clip.py``), added to the webs of every category (the file has none). Cost: one
+    web per compatible indexed clip."""
+    from motionweb.tasks.query_clip import clip_operands, query_clip_webs
+
+    sig = motion.skeleton.signature()
+    others = {c["path"]: c["sha256"] for c in gen.clips if c.get("skeleton") == sig}
+    if not others:
+        raise ValueError(f"{request.clip}: no indexed clip has its skeleton ({motion.skeleton.n_joints} joints: "
+                         f"{', '.join(motion.skeleton.names[:6])}, ...); its frames cannot be compared")
+    key = FILE_PREFIX + request.clip
+    rec = {"path": key, "category": "", "sha256": motion.content_hash, "duration": motion.duration,
+           "frames": motion.n_frames, "fps": motion.fps, "skeleton": sig}
+    seg = query_segment(rec, request.start, request.end, rate)
+    fdig = gen.params["features"]
+    by_rate, weights, mine = clip_operands(motion, gen_cfg.features, gen_cfg.corpus.up_axis)
+    rec[FILE_FEATURES] = (by_rate, weights)  # for the registration (never written out)
+    webs = query_clip_webs(motion, mine, others, lambda name: store.read_features(others[name], fdig),
+                           gen_cfg.matchweb)
+    return PreparedQuery(store, gen, gen_cfg, rec, seg, WithQueryClip(StoreWebs(store, gen, None), key, webs), motion)
+
+
+def plan_query(cfg: Config, request: QueryRequest, query_motion: Motion | None = None) -> PreparedQuery:
     """Every check of a request that needs no search (also: the range is long enough), so the
-    CLI can refuse a bad request before a flow run starts."""
-    q = prepare_query(cfg, request)
+    CLI can refuse a bad request before the search; the prepared query, for the run to reuse."""
+    q = prepare_query(cfg, request, query_motion)
     MatchSearch(q.webs, cfg.search, q.gen_cfg.matchweb).check(q.segment)
-    return q.segment
+    return q
 
 
 # ------------------------------------------------------------------------------------ outputs
@@ -243,6 +284,10 @@ def register_graph(store: MotionStore, gen: Generation, gen_cfg: Config, graph: 
     fdig = gen.params["features"]
     feats, weights = {}, {}
     for clip in sorted({n.segment.clip for n in graph.nodes}):  # a fixed order, whatever the set's
+        if FILE_FEATURES in clips[clip]:  # a query file's, computed for this query
+            by_rate, weights[clip] = clips[clip][FILE_FEATURES]
+            feats[clip] = by_rate[graph.rate]
+            continue
         try:
             by_rate, weights[clip] = store.read_features(clips[clip]["sha256"], fdig, [graph.rate])
         except StoreError as exc:
@@ -261,15 +306,16 @@ def register_task(store: MotionStore, gen: Generation, gen_cfg: Config, graph: M
 
 
 @flow(name="query")
-def query(config: str | Config, request: QueryRequest) -> dict[str, Any]:
+def query(config: str | Config, request: QueryRequest, prepared: PreparedQuery | None = None) -> dict[str, Any]:
     """Search the committed index for ``request`` (KG04 §3.3), optionally register (§4.1) and
     export; writes the outputs listed in the module docstring and returns a :class:`QueryResult`
     as a dict. Cost: one tier reads the webs of the query's chunk once and walks them in
-    O(cells of the paths and bridges touching rows a..b); tiers repeat that per new node."""
+    O(cells of the paths and bridges touching rows a..b); tiers repeat that per new node.
+    ``prepared``: the request already resolved by :func:`plan_query` (not resolved twice)."""
     cfg = config if isinstance(config, Config) else load_config(config)
     logger = run_logger()
     t0 = time.perf_counter()
-    q = prepare_query(cfg, request)
+    q = prepared if prepared is not None else prepare_query(cfg, request)
     graph, eps = call(search_task, q, cfg, request)
     logger.info("query %s [%d, %d]: ε = %s, %d matches", q.segment.clip, q.segment.start, q.segment.end,
                 "none" if eps is None else f"{eps:.4g}", len(graph.nodes) - 1)
@@ -288,6 +334,8 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
     store, gen, gen_cfg = q.store, q.gen, q.gen_cfg
     timings = {"search_s": time.perf_counter() - t0}
     clips = {c["path"]: c for c in gen.clips}
+    if q.motion is not None:  # a query file: its record, with its features
+        clips[q.record["path"]] = q.record
     rows = match_rows(graph, clips)
     out.mkdir(parents=True, exist_ok=True)
     message = NO_MATCH if eps is None else ""
@@ -299,6 +347,9 @@ def write_outputs(cfg: Config, request: QueryRequest, q: PreparedQuery, graph: M
     plot_graph(graph, rows, files[2])
 
     motions: dict[str, Motion] = {}
+
+    if q.motion is not None:
+        motions[q.record["path"]] = q.motion
 
     def motion_of(clip: str) -> Motion:
         if clip not in motions:
