@@ -74,7 +74,7 @@ def main() -> None:
     cmu = mocap_dir(args.mocap) / "cmu"
     work = (args.keep or Path(tempfile.mkdtemp(prefix="bench-qf-"))).resolve()
     work.mkdir(parents=True, exist_ok=True)
-    corpus, n = build_corpus(cmu, work, args.held)
+    _, n = build_corpus(cmu, work, args.held)
     cfg_path = work / "config.yaml"
     cfg_path.write_text(yaml.safe_dump({"corpus": {"path": "corpus", "manifest": "manifest.csv"},
                                         "store": {"path": "store"}, "output": "out"}))
