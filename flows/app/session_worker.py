@@ -35,7 +35,6 @@ import sys
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
@@ -291,47 +290,13 @@ def plot_polygons(plan: Any) -> list[list[list[float]]]:
 
 
 def child_main(fd: int, max_plans: int, max_bytes: int) -> None:
-    """The worker's loop (see the module docstring); ends on EOF (the service closed or died)."""
-    import faulthandler
-
-    faulthandler.enable()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    conn = Connection(fd)
+    """The session worker's loop (see the module docstring) through :func:`~motionweb.flows.app.worker.serve`."""
+    from motionweb.flows.app.worker import serve
     from motionweb.tasks.retime import prepare  # noqa: F401  (the heavy stack imported before "ready")
 
     state = _State(max_plans, max_bytes)
-    conn.send(("ready", os.getpid()))
-    while True:
-        try:
-            kind, payload = conn.recv()
-        except (EOFError, OSError):
-            return
-        try:
-            if kind == "prepare":
-                out = ("ok", state.prepare(payload))
-            elif kind == "edit":
-                out = ("ok", state.edit(payload))
-            elif kind == "warp_prepare":
-                out = ("ok", state.warp_prepare(payload))
-            elif kind == "warp_edit":
-                out = ("ok", state.warp_edit(payload))
-            elif kind == "parse":
-                out = ("ok", parse_upload(payload))
-            elif kind == "info":
-                out = ("ok", state.info())
-            elif kind == "ping":
-                out = ("ok", os.getpid())
-            else:
-                out = ("error", f"unknown request {kind!r}")
-        except ValueError as exc:  # RetimeError, a bad joint name, ...: the request's fault
-            out = ("value", str(exc))
-        except Exception as exc:
-            logging.getLogger("motionweb.app").exception("session worker: %s failed", kind)
-            out = ("error", type(exc).__name__)
-        try:
-            conn.send(out)
-        except (EOFError, OSError):
-            return
+    serve(fd, "session worker", {"prepare": state.prepare, "edit": state.edit, "warp_prepare": state.warp_prepare,
+                                 "warp_edit": state.warp_edit, "parse": parse_upload, "info": lambda _: state.info()})
 
 
 class SessionWorker(Worker):

@@ -40,6 +40,7 @@ import sys
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
 from typing import Any
@@ -181,17 +182,17 @@ def _test_crash(clip: str, stage: str = "search") -> None:
             os.kill(os.getpid(), signal.SIGSEGV)
 
 
-def child_main(fd: int, url: str) -> None:
-    """The worker's loop: ("search", job) / ("warm", (gen, category)) in, ("ok", answer) /
-    ("value", message) / ("error", type name) out; ends on EOF (the service closed or died)."""
+def serve(fd: int, name: str, handlers: dict[str, Callable[[Any], Any]]) -> None:
+    """A worker process's loop, for the search worker and the session worker alike: (kind,
+    payload) in, ("ok", ``handlers[kind](payload)``) / ("value", message: a ValueError, the
+    request's fault) / ("error", type name: anything else, logged) out; ("ping", _) answers the
+    pid. Sends ("ready", pid) first; ends on EOF (the service closed or died). Crashes leave a
+    Python traceback in the service's log (faulthandler); Ctrl-C is the service's to handle."""
     import faulthandler
 
-    faulthandler.enable()  # a crash leaves a Python traceback in the service's log
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the service's to handle
+    faulthandler.enable()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn = Connection(fd)
-    from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
-
-    state = _State(url)
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -199,25 +200,31 @@ def child_main(fd: int, url: str) -> None:
         except (EOFError, OSError):
             return
         try:
-            if kind == "search":
-                out = ("ok", state.search(payload))
-            elif kind == "warm":
-                out = ("ok", state.warm(*payload))
-            elif kind == "register":
-                out = ("ok", state.register(*payload))
-            elif kind == "ping":
+            if kind == "ping":
                 out = ("ok", os.getpid())
+            elif kind in handlers:
+                out = ("ok", handlers[kind](payload))
             else:
                 out = ("error", f"unknown request {kind!r}")
         except ValueError as exc:
             out = ("value", str(exc))
         except Exception as exc:
-            logging.getLogger("motionweb.app").exception("search worker: %s failed", kind)
+            logging.getLogger("motionweb.app").exception("%s: %s failed", name, kind)
             out = ("error", type(exc).__name__)
         try:
             conn.send(out)
         except (EOFError, OSError):
             return
+
+
+def child_main(fd: int, url: str) -> None:
+    """The search worker: ("search", job) / ("warm", (gen, category)) / ("register", (gen,
+    graph)) through :func:`serve`."""
+    from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
+
+    state = _State(url)
+    serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
+                                "register": lambda p: state.register(*p)})
 
 
 # --------------------------------------------------------------------------------- the parent
