@@ -103,3 +103,30 @@ def test_a_closing_local_cluster_s_heartbeat_traceback_is_dropped() -> None:
         quiet_heartbeat(on=False)
         log.removeHandler(handler)
     assert seen == ["another worker error", HEARTBEAT_LOST + "."]
+
+
+def test_other_stages_with_their_defaults_write_what_the_cli_writes(demo_jump: Path, tmp_path: Path) -> None:
+    """The same for guided warping (``guided_warp`` with ``WarpParams()``), mirroring
+    (``MirrorParams()``) and foot-slide cleanup (``BlendParams()``): each stage called with its
+    parameter model's defaults gives the bytes the CLI writes with the default config."""
+    from motionweb.tasks.blend import BlendParams
+    from motionweb.tasks.cleanup import cleanup
+    from motionweb.tasks.guided_warp import WarpParams, guided_warp
+    from motionweb.tasks.mirror import MirrorParams, mirror
+
+    motion = read_motion(demo_jump)
+    n_out = round(2.5 * motion.fps) + 1
+    own = {"warp": guided_warp(motion, None, n_out=n_out, keytimes=(), params=WarpParams()).motion,
+           "mirror": mirror(motion, MirrorParams()).motion,
+           "cleanup": cleanup(motion, BlendParams(), up="y").motion}
+    runs = {"warp": ["warp", str(demo_jump), "--duration", "2.5"], "mirror": ["mirror", str(demo_jump)],
+            "cleanup": ["cleanup", str(demo_jump)]}
+    for name, args in runs.items():
+        cli_out = tmp_path / "cli" / f"{name}.bvh"
+        r = subprocess.run([*motionweb_cli(), *args, "--out", str(cli_out)], cwd=tmp_path, env=cli_env(tmp_path),
+                           capture_output=True, text=True, timeout=600, check=False)
+        assert r.returncode == 0, (name, r.stdout, r.stderr)
+        mine = tmp_path / "own" / f"{name}.bvh"
+        mine.parent.mkdir(exist_ok=True)
+        write_bvh(own[name], mine)
+        assert mine.read_bytes() == cli_out.read_bytes(), name
