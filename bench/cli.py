@@ -41,6 +41,9 @@ os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 
 MOTIONWEB = [sys.executable, "-c", "from motionweb.flows.cli import main; main()"]
 CLIP = "jump/jump_00.bvh"
+#: the query of the space synthesize and blend use (KG04 §4: a walk's final root position)
+SPACE_QUERY = ["--clip", "walk_00", "--start", "1.0", "--end", "2.5", "--param", "final_root", "--quantile", "0.8",
+               "--samples", "200"]
 
 
 def cold_env(app_dir: Path) -> dict[str, str]:
@@ -82,7 +85,32 @@ def setup(work: Path, env: dict[str, str]) -> Path:
                           fps=base.demo.fps, variants=base.demo.variants)
     print(f"indexing {work} once (not timed) ...", flush=True)
     run_cli(["index", str(cfg_path), "--no-progress"], env, work)
+    space_file = work / "space.txt"
+    if not space_file.exists():
+        print("a motion space for synthesize and blend (not timed) ...", flush=True)
+        proc = subprocess.run([*MOTIONWEB, "parameterize", str(cfg_path), *SPACE_QUERY], check=False, env=env,
+                              cwd=work, capture_output=True, text=True)
+        if proc.returncode != 0 or not proc.stdout.startswith("space "):
+            sys.exit(f"FAILED: motionweb parameterize\n{proc.stdout}\n{proc.stderr}")
+        space_file.write_text(proc.stdout.split()[1].rstrip(":"))
     return cfg_path
+
+
+def space_args(cfg_path: Path, work: Path) -> tuple[str, list[float], dict[str, float]]:
+    """The bench's space: its id, a target (its first example's parameter) and equal weights of
+    its first two examples."""
+    from motionweb.flows.config import load_config
+    from motionweb.flows.space import space_info
+
+    sid = (work / "space.txt").read_text().strip()
+    _, info, arrays = space_info(load_config(cfg_path), sid)
+    names = info["names"]
+    if len(names) < 2:
+        sys.exit(f"bench: space {sid} has {len(names)} examples; blend needs two")
+    target = [round(float(v), 4) for v in arrays["example_params"][0]] if "example_params" in arrays else None
+    if target is None:
+        sys.exit(f"bench: space {sid} records no example parameters ({sorted(arrays)})")
+    return sid, target, {names[0]: 0.5, names[1]: 0.5}
 
 
 # ------------------------------------------------------------------- the work, in-process
@@ -136,12 +164,36 @@ def work_functions(cfg_path: Path, work: Path) -> dict[str, Callable[[], object]
         store = MotionStore(cfg.store.path)
         return verify_generation(store, load_generation(store, check_current(store)))
 
-    return {"retime": retime, "warp": warp, "search": search, "index": index, "catalog": catalog, "verify": verify}
+    def synthesize() -> object:
+        import numpy as np
+        from motionweb.flows.space import load_space
+        from motionweb.store.formats import write_motion
+
+        sid, target, _ = space_args(cfg_path, work)
+        motion, _ = load_space(cfg, sid).synthesize(np.array(target))
+        return write_motion(motion, inproc / "synth.bvh")
+
+    def blend() -> object:
+        from motionweb.flows.space import load_space
+        from motionweb.store.formats import write_motion
+
+        sid, _, weights = space_args(cfg_path, work)
+        return write_motion(load_space(cfg, sid).blend(weights), inproc / "blend.bvh")
+
+    def preview() -> object:
+        from motionweb.flows.preview import render_gif
+        from motionweb.store.formats import read_motion
+
+        return render_gif(read_motion(clip), inproc / "preview.gif", max_frames=60, fps=15.0, up="y")
+
+    return {"retime": retime, "warp": warp, "search": search, "index": index, "catalog": catalog, "verify": verify,
+            "synthesize": synthesize, "blend": blend, "preview": preview}
 
 
 def cli_rows(cfg_path: Path, work: Path) -> dict[str, tuple[str, list[str]]]:
     clip = str(work / "corpus" / CLIP)
     c = str(cfg_path)
+    sid, target, weights = space_args(cfg_path, work)
     return {
         "retime": ("retime jump_00.bvh --duration 2.5", ["retime", clip, "--duration", "2.5", "--out",
                                                          str(work / "cli" / "retimed.bvh"), "--config", c]),
@@ -152,6 +204,12 @@ def cli_rows(cfg_path: Path, work: Path) -> dict[str, tuple[str, list[str]]]:
         "index": ("index, nothing changed", ["index", c, "--no-progress"]),
         "catalog": ("catalog", ["catalog", str(work / "corpus"), "--config", c]),
         "verify": ("verify", ["verify", c]),
+        "synthesize": ("synthesize (no app)", ["synthesize", sid, "--target", ",".join(map(str, target)), "--out",
+                                               str(work / "cli" / "synth.bvh"), "--config", c]),
+        "blend": ("blend (no app)", ["blend", sid, *[x for k, v in weights.items() for x in ("--weights", f"{k}={v}")],
+                                     "--out", str(work / "cli" / "blend.bvh"), "--config", c]),
+        "preview": ("preview jump_00.bvh (60 frames)", ["preview", clip, "--out", str(work / "cli" / "p.gif"),
+                                                        "--max-frames", "60"]),
     }
 
 
