@@ -67,6 +67,14 @@ class IndexConfig(Params):
     keep_generations: int = Field(3, ge=1)
 
 
+class AppConfig(Params):
+    """``motionweb app`` (flows/app/): what its search workers keep in memory."""
+
+    #: MiB of webs and packed walk graphs each search worker keeps, least recently used dropped
+    #: first (the primary and its standby each hold up to this; design §5)
+    cache_mb: float = Field(512.0, gt=0)
+
+
 #: the config's path fields, which say where things are, not how they are computed
 LOCATIONS: dict = {"corpus": {"path", "manifest"}, "store": {"path"}, "output": True}
 
@@ -80,6 +88,7 @@ class Config(Params):
     store: StoreConfig = Field(default_factory=StoreConfig)
     index: IndexConfig = Field(default_factory=IndexConfig)
     search: SearchParams = Field(default_factory=SearchParams)
+    app: AppConfig = Field(default_factory=AppConfig)
     warp: WarpParams = Field(default_factory=WarpParams)
     retime: RetimeParams = Field(default_factory=RetimeParams)
     blend: BlendParams = Field(default_factory=BlendParams)
