@@ -275,15 +275,20 @@ def subset(corpus: Path, entries, frames: int, out: Path, seed: int = 0) -> tupl
 
 # ------------------------------------------------------------------------------------ runs
 class PeakRSS:
-    """Peak of the summed RSS of this process and its children, Prefect's server excluded."""
+    """Peak of the summed RSS of ``root`` (default: this process) and its children, Prefect's
+    server excluded."""
 
-    def __init__(self, interval: float = 0.05):
+    def __init__(self, interval: float = 0.05, root: psutil.Process | None = None):
         self.interval, self.peak, self._stop = interval, 0, threading.Event()
         self._skip: set[int] = set()
+        self.root = root
 
     def _sample(self) -> int:
-        me = psutil.Process()
-        total = me.memory_info().rss
+        me = self.root or psutil.Process()
+        try:
+            total = me.memory_info().rss
+        except psutil.Error:
+            return 0
         for c in me.children(recursive=True):
             try:
                 if c.pid in self._skip:
