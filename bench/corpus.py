@@ -326,7 +326,7 @@ def serial_compute_s(store: Path, every: int) -> float:
     """Seconds to rebuild every ``every``-th web of the store's current generation in this
     process, scaled to all its pairs: the web computation alone (operands read and prepared
     beforehand, compiled kernels warmed up), the baseline the flow's wall time is compared with."""
-    from motionweb.flows.workers import clip_operands
+    from motionweb.flows.workers import clear_operands, clip_operands
     from motionweb.tasks.matchweb.build import build_web_operands
 
     gen = load_generation(MotionStore(str(store)))
@@ -339,7 +339,7 @@ def serial_compute_s(store: Path, every: int) -> float:
     t = time.perf_counter()
     for oa, ob, self_pair in jobs:
         build_web_operands(oa, oa if self_pair else ob, cfg.matchweb, self_pair)
-    clip_operands.cache_clear()
+    clear_operands()
     return (time.perf_counter() - t) * len(webs) / len(jobs)
 
 
