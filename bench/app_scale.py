@@ -18,7 +18,7 @@ store (``--no-record``: no Prefect) and measured:
     scope's web values, 3 tiers) asked once each, then asked again and timed: median, p90, max
     (bench/app.py's "warm" figure; target on 381k frames: median ≤ 100 ms);
   * memory: peak RSS of the service and its search workers, sampled every 50 ms (target ≤ 2 GB),
-    and the worker's cache at the end (this checkout only).
+    each process's RSS at the end, and the worker's cache then (this checkout only).
 A code that is not ready within ``--timeout`` s is reported so and stopped.
 
     .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base main] [--queries 40]
@@ -137,6 +137,11 @@ def measure(cfg_path: Path, queries: list[dict], env: dict, timeout: float) -> d
                 times.append(time.perf_counter() - t)
             out["median_ms"], out["p90_ms"], out["max_ms"] = pct(times, 50), pct(times, 90), max(times) * 1000
             out["cache"] = api.json("GET", "/api/status").get("cache")
+            try:  # resident memory now: the service, then its search workers (primary, standby)
+                root = psutil.Process(proc.pid)
+                out["rss_gb"] = [root.memory_info().rss / 1e9] + [c.memory_info().rss / 1e9 for c in root.children(recursive=True)]
+            except psutil.Error:
+                pass
         out["peak_gb"] = mem.peak / 1e9
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
@@ -157,7 +162,9 @@ def row(name: str, r: dict) -> str:
              f"{cache['webs_read']} webs read") if cache else ""
     return (f"{name:>8} {f('load', '5.1f')} {f('listening_s', '9.1f')} {f('first_search_s', '9.1f')} "
             f"{f('warm_s', '8.1f')} {f('median_ms', '8.1f')} {f('p90_ms', '8.1f')} {f('max_ms', '8.1f')} "
-            f"{f('peak_gb', '7.2f')}{extra}{'  ' + r['error'] if 'error' in r else ''}")
+            f"{f('peak_gb', '7.2f')}{extra}{'  ' + r['error'] if 'error' in r else ''}"
+            + (f"  RSS GB now: service {r['rss_gb'][0]:.2f}, children {', '.join(f'{x:.2f}' for x in r['rss_gb'][1:])}"
+               if r.get("rss_gb") else ""))
 
 
 def main() -> None:
