@@ -54,7 +54,7 @@ from motionweb.flows.query import (
 )
 from motionweb.store.bvh import format_bvh
 from motionweb.store.cache import LRU
-from motionweb.store.generations import Generation, current_id, load_generation
+from motionweb.store.generations import Generation, current_id, load_generation, pointer_signature
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
@@ -222,6 +222,7 @@ class Engine:
         self.cfg, self.on_query, self.warm = cfg, on_query, warm
         self.url = cfg.store.path
         self._snap: Snapshot | None = None
+        self._pointer: tuple[tuple | None, str | None] = (None, None)  # (pointer_signature, its generation)
         self._lock = threading.Lock()
         self._loading: threading.Thread | None = None
         self.results = LRU(max_items=KEEP_RESULTS)
@@ -238,7 +239,16 @@ class Engine:
 
     # ------------------------------------------------------------------ generations
     def pointer(self) -> str | None:
-        return current_id(MotionStore(self.url, read_only=True))
+        """The current generation's id (``current_id``: the strict check, which reads the whole
+        manifest, O(webs), runs only when the pointer or its manifest changed since the last
+        request: :func:`~motionweb.store.generations.pointer_signature`)."""
+        store = MotionStore(self.url, read_only=True)
+        sig = pointer_signature(store)
+        if sig is not None and sig == self._pointer[0]:
+            return self._pointer[1]
+        gen_id = current_id(store)
+        self._pointer = (sig, gen_id)
+        return gen_id
 
     def _open(self, gen_id: str) -> Snapshot:
         gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
