@@ -8,7 +8,7 @@ with ``--corpus`` its corpus), or the demo corpus grown to ``--variants`` clips 
 cluster of 2 workers, built in ``--keep`` when absent (the corpus is checked to hold the clips and
 categories asked for; bench.corpus.CorpusError otherwise).
 
-Then for each code — the previous revision ``--base`` (default ``main``; ``git archive`` of it
+Then for each code — the previous revision ``--base`` (default: where this branch left ``main``; ``git archive`` of it
 into the work folder, put first on PYTHONPATH, so its ``motionweb app`` and search workers run
 the old code with this checkout's environment) and this checkout — the service is started on the
 store (``--no-record``: no Prefect) and measured:
@@ -21,7 +21,7 @@ store (``--no-record``: no Prefect) and measured:
     each process's RSS at the end, and the worker's cache then (this checkout only).
 A code that is not ready within ``--timeout`` s is reported so and stopped.
 
-    .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base main] [--queries 40]
+    .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base REV] [--queries 40]
 """
 
 from __future__ import annotations
@@ -79,10 +79,18 @@ def build_store(work: Path, variants: int) -> tuple[Path, Path]:
     return corpus, store
 
 
-def base_code(work: Path, rev: str) -> Path:
-    """A PYTHONPATH entry whose ``motionweb.{store,tasks,flows,configs}`` are revision ``rev``."""
-    sha = subprocess.run(["git", "-C", str(REPO), "rev-parse", rev], capture_output=True, text=True,
-                         check=True).stdout.strip()
+def previous_revision() -> str:
+    """Where this branch left ``main`` (``git merge-base HEAD main``): the code before this work,
+    with this checkout's dependencies (``main`` itself may have moved on to others)."""
+    return subprocess.run(["git", "-C", str(REPO), "merge-base", "HEAD", "main"], capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def base_code(work: Path, rev: str | None = None) -> Path:
+    """A PYTHONPATH entry whose ``motionweb.{store,tasks,flows,configs}`` are revision ``rev``
+    (default :func:`previous_revision`)."""
+    sha = subprocess.run(["git", "-C", str(REPO), "rev-parse", rev or previous_revision()], capture_output=True,
+                         text=True, check=True).stdout.strip()
     src, pkg = work / f"code-{sha[:10]}", work / f"pkg-{sha[:10]}"
     if not src.is_dir():
         src.mkdir(parents=True)
@@ -173,7 +181,8 @@ def main() -> None:
     ap.add_argument("--store", help="an indexed store to serve instead of the grown demo")
     ap.add_argument("--corpus", help="the corpus of --store")
     ap.add_argument("--keep", help="work folder (corpus, store, the base code), reused when present")
-    ap.add_argument("--base", default="main", help="the previous revision measured in the same run")
+    ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
+                                                 "(default: where this branch left main)")
     ap.add_argument("--queries", type=int, default=40)
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds a code may take to be ready")
     args = ap.parse_args()
@@ -194,7 +203,8 @@ def main() -> None:
     frames = sum(c["frames"] for c in gen.clips)
     print(f"store {store}: {len(gen.clips)} clips, {frames} frames (native rates), {len(gen.webs)} webs; "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f} (shared machine: times are upper bounds)")
-    codes = {args.base: base_code(work, args.base), "this": None}
+    base = args.base or previous_revision()[:10]
+    codes = {base[:10]: base_code(work, base), "this": None}
     print(f"{'code':>8} {'load':>5} {'listen s':>9} {'1st srch s':>9} {'warm s':>8} {'med ms':>8} {'p90 ms':>8} "
           f"{'max ms':>8} {'peak GB':>7}")
     for name, pkg in codes.items():

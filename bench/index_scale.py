@@ -7,14 +7,15 @@ per pair: the larger category pays more per pair. This measures where: one demo 
 computed in this process into a store, then the pair plan and batches the index flow makes for
 2 workers (``flows.index.plan_pairs``, ``balance_batches``, ``batch_count``), of which the first
 ``--batches`` are computed by ``flows.workers.compute_web_batch`` (what a Dask worker runs) in one
-child process per code: the previous revision ``--base`` (default ``main``; ``git archive`` of
+child process per code: the previous revision ``--base`` (default: where this branch left
+``main``; ``git archive`` of
 it put first on PYTHONPATH) and this checkout, each into its own copy of the store. Printed per
 code: seconds, ms per pair, and the clips' feature reads (a read and a preparation per miss of
 the worker's operand cache; the floor is one per clip of the batch), with the load average.
 Then every web computed is compared byte for byte between the two codes (arrays and
 attributes): the webs must be identical.
 
-    .venv/bin/python -m bench.index_scale [--clips 180] [--batches 1] [--keep DIR] [--base main]
+    .venv/bin/python -m bench.index_scale [--clips 180] [--batches 1] [--keep DIR] [--base REV]
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from motionweb.store.demo.corpus import write_demo_corpus
 from motionweb.store.keys import web_digest
 from motionweb.store.zarr_store import MotionStore
 
-from bench.app_scale import base_code
+from bench.app_scale import base_code, previous_revision
 from bench.corpus import CorpusError, frames60
 
 CHILD = r"""
@@ -126,7 +127,8 @@ def main() -> None:
     ap.add_argument("--clips", type=int, default=180, help="clips of the category (180: the 381k corpus's)")
     ap.add_argument("--batches", type=int, default=1, help="batches of the flow's plan computed per code")
     ap.add_argument("--keep", help="work folder (corpus, features, base code), reused when present")
-    ap.add_argument("--base", default="main", help="the previous revision measured in the same run")
+    ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
+                                                 "(default: where this branch left main)")
     args = ap.parse_args()
     work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -150,7 +152,8 @@ def main() -> None:
           f"{len(todo)} batch(es) touching {clips_used} clips; {os.cpu_count()} cores")
     print(f"{'code':>8} {'load':>5} {'seconds':>8} {'ms/pair':>8} {'feature reads':>13}  (floor: {clips_used})")
     stores = {}
-    for name, pkg in ((args.base, base_code(work, args.base)), ("this", None)):
+    base = args.base or previous_revision()[:10]
+    for name, pkg in ((base[:10], base_code(work, base)), ("this", None)):
         dst = work / f"store-{name.replace('/', '-')}"
         shutil.rmtree(dst, ignore_errors=True)
         shutil.copytree(store, dst)
