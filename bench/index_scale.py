@@ -15,7 +15,15 @@ the worker's operand cache; the floor is one per clip of the batch), with the lo
 Then every web computed is compared byte for byte between the two codes (arrays and
 attributes): the webs must be identical.
 
+With ``--commit-store STORE`` (an indexed store, e.g. bench/app_scale.py's 381k one) it measures
+the index flow's serial tail instead: the commit task called inside a Prefect flow with that
+store's generation (146,610 web records for the 381k corpus) as its argument, as the previous
+code passes it and quoted (``prefect.utilities.annotations.quote``) as this checkout does; the
+task's body is the same no-op in both, so the difference is Prefect's walk over the argument
+(resolving futures, recording task inputs: O(objects in the argument), in Python).
+
     .venv/bin/python -m bench.index_scale [--clips 180] [--batches 1] [--keep DIR] [--base REV]
+    .venv/bin/python -m bench.index_scale --commit-store DIR
 """
 
 from __future__ import annotations
@@ -122,14 +130,50 @@ def same_webs(a: Path, b: Path, keys: list[str]) -> list[str]:
     return bad
 
 
+def commit_tail(store_dir: str) -> None:
+    """The Prefect task call of the commit with a real generation, unquoted and quoted."""
+    from motionweb.store.generations import load_generation
+    from prefect import flow, task
+    from prefect.cache_policies import NO_CACHE
+    from prefect.utilities.annotations import quote
+
+    gen = load_generation(MotionStore(store_dir, read_only=True))
+    if gen is None:
+        raise CorpusError(f"{store_dir} was never indexed")
+
+    @task(name="commit", cache_policy=NO_CACHE)
+    def commit_like(g, store_url: str) -> int:
+        return len(g.webs)
+
+    @flow(name="commit-tail")
+    def tail() -> dict[str, float]:
+        out = {}
+        for name, arg in (("previous (unquoted)", gen), ("this (quoted)", quote(gen))):
+            t = time.perf_counter()
+            n = commit_like(arg, store_dir)
+            out[name] = time.perf_counter() - t
+            assert n == len(gen.webs)
+        return out
+
+    print(f"commit task on a generation of {len(gen.clips)} clips, {len(gen.webs)} webs, "
+          f"{len(gen.checksums)} checksums; load {os.getloadavg()[0]:.1f}")
+    for name, sec in tail().items():
+        print(f"  {name:20s} {sec:7.2f} s  (the task's body: a no-op)")
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--clips", type=int, default=180, help="clips of the category (180: the 381k corpus's)")
     ap.add_argument("--batches", type=int, default=1, help="batches of the flow's plan computed per code")
     ap.add_argument("--keep", help="work folder (corpus, features, base code), reused when present")
+    ap.add_argument("--commit-store", help="measure the commit task's Prefect overhead on this store instead")
     ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
                                                  "(default: where this branch left main)")
     args = ap.parse_args()
+    if args.commit_store:
+        commit_tail(args.commit_store)
+        return
     work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
     work.mkdir(parents=True, exist_ok=True)
     cfg = Config.model_validate({"corpus": {"path": str(work), "length_unit": "m"},
