@@ -111,8 +111,9 @@ def measure(cfg_path: Path, queries: list[dict], env: dict, timeout: float) -> d
     t0 = time.perf_counter()
     proc = subprocess.Popen([str(exe), "app", str(cfg_path), "--port", "0", "--no-record"], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, env=env, start_new_session=True)
+    mem = PeakRSS(root=psutil.Process(proc.pid))
     try:
-        with PeakRSS(root=psutil.Process(proc.pid)) as mem:
+        with mem:
             line = proc.stdout.readline()
             if "motionweb app:" not in line:
                 raise RuntimeError(f"the service did not start: {line}{proc.stdout.read()}")
@@ -150,8 +151,8 @@ def measure(cfg_path: Path, queries: list[dict], env: dict, timeout: float) -> d
                 out["rss_gb"] = [root.memory_info().rss / 1e9] + [c.memory_info().rss / 1e9 for c in root.children(recursive=True)]
             except psutil.Error:
                 pass
-        out["peak_gb"] = mem.peak / 1e9
     finally:
+        out["peak_gb"] = mem.peak / 1e9  # also when it was not ready in time
         os.killpg(proc.pid, signal.SIGTERM)
         try:
             proc.wait(60)
