@@ -185,6 +185,7 @@ def main() -> None:
     ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
                                                  "(default: where this branch left main)")
     ap.add_argument("--queries", type=int, default=40)
+    ap.add_argument("--only-this", action="store_true", help="measure this checkout only (no previous code)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds a code may take to be ready")
     args = ap.parse_args()
 
@@ -205,7 +206,8 @@ def main() -> None:
     print(f"store {store}: {len(gen.clips)} clips, {frames} frames (native rates), {len(gen.webs)} webs; "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f} (shared machine: times are upper bounds)")
     base = args.base or previous_revision()[:10]
-    codes = {base[:10]: base_code(work, base), "this": None}
+    codes = {} if args.only_this else {base[:10]: base_code(work, base)}
+    codes["this"] = None
     print(f"{'code':>8} {'load':>5} {'listen s':>9} {'1st srch s':>9} {'warm s':>8} {'med ms':>8} {'p90 ms':>8} "
           f"{'max ms':>8} {'peak GB':>7}")
     for name, pkg in codes.items():

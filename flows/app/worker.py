@@ -111,17 +111,22 @@ class _State:
 
         self.url = url
         self.cache = LRU(max_bytes=cache_bytes)
-        self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope]]] = OrderedDict()
+        #: per open generation: (generation, its indexed config, its scopes, its store)
+        self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope], Any]] = OrderedDict()
 
-    def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope]]:
-        """(generation, its indexed config, its scopes), opened once."""
+    def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope], Any]:
+        """(generation, its indexed config, its scopes, its store), opened once."""
         from motionweb.flows.query import indexed_config
         from motionweb.store.generations import load_generation
         from motionweb.store.zarr_store import MotionStore
 
         if gen_id not in self.gens:
-            gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
-            self.gens[gen_id] = (gen, indexed_config(gen), {})
+            # one store per generation, shared by its scopes and registrations: a store holds the
+            # index of every web's bytes once read (O(webs of the store)), so one per scope would
+            # hold it once per category searched
+            store = MotionStore(self.url, read_only=True)
+            gen = load_generation(store, gen_id)
+            self.gens[gen_id] = (gen, indexed_config(gen), {}, store)
             while len(self.gens) > KEEP_GENERATIONS:
                 self.gens.popitem(last=False)
         self.gens.move_to_end(gen_id)
@@ -129,13 +134,12 @@ class _State:
 
     def scope(self, gen_id: str, category: str | None) -> _Scope:
         from motionweb.store.webs import StoreWebs
-        from motionweb.store.zarr_store import MotionStore
         from motionweb.tasks.search import MatchSearch, SearchParams
 
-        gen, gen_cfg, scopes = self.generation(gen_id)
+        gen, gen_cfg, scopes, store = self.generation(gen_id)
         sc = scopes.get(category)
         if sc is None:
-            webs = StoreWebs(MotionStore(self.url, read_only=True), gen, category, self.cache)
+            webs = StoreWebs(store, gen, category, self.cache)
             sc = scopes[category] = _Scope(webs, MatchSearch(webs, SearchParams(), gen_cfg.matchweb,
                                                              self.cache, (gen_id, category)))
         return sc
@@ -147,7 +151,7 @@ class _State:
 
     def stats(self) -> dict[str, Any]:
         """The cache's entries, bytes and bound, and the webs read from the store so far."""
-        reads = sum(sc.webs.reads for _, _, scopes in self.gens.values() for sc in scopes.values())
+        reads = sum(sc.webs.reads for _, _, scopes, _ in self.gens.values() for sc in scopes.values())
         return {**self.cache.stats(), "webs_read": reads}
 
     def search(self, job: SearchJob) -> tuple[Any, float | None]:
@@ -176,11 +180,10 @@ class _State:
     def register(self, gen_id: str, graph: Any) -> Any:
         """The registration of a search's match graph (KG04 §4.1)."""
         from motionweb.flows.query import register_graph
-        from motionweb.store.zarr_store import MotionStore
 
-        gen, gen_cfg, _ = self.generation(gen_id)
+        gen, gen_cfg, _, store = self.generation(gen_id)
         _test_crash(graph.nodes[0].segment.clip, "register")
-        return register_graph(MotionStore(self.url, read_only=True), gen, gen_cfg, graph,
+        return register_graph(store, gen, gen_cfg, graph,
                               {c["path"]: c for c in gen.clips})
 
 
