@@ -81,8 +81,15 @@ def setup(work: Path, env: dict[str, str]) -> Path:
         data = base.model_dump(mode="json")
         data["corpus"]["path"], data["store"]["path"], data["output"] = "corpus", "store", "out"
         cfg_path.write_text(yaml.safe_dump(data, sort_keys=False))
-        write_demo_corpus(work / "corpus", seed=base.demo.seed, variants_per_category=base.demo.variants_per_category,
-                          fps=base.demo.fps, variants=base.demo.variants)
+        paths = write_demo_corpus(work / "corpus", seed=base.demo.seed,
+                                  variants_per_category=base.demo.variants_per_category, fps=base.demo.fps,
+                                  variants=base.demo.variants)
+        from motionweb.store.catalog import scan_corpus
+
+        from bench.corpus import check_corpus  # stops unless every clip written loads, in its category
+
+        check_corpus(work / "corpus", scan_corpus(work / "corpus", base.corpus),
+                     {p.relative_to(work / "corpus").as_posix(): p.parent.name for p in paths}, 0)
     print(f"indexing {work} once (not timed) ...", flush=True)
     run_cli(["index", str(cfg_path), "--no-progress"], env, work)
     space_file = work / "space.txt"

@@ -51,6 +51,11 @@ def corpus(folder: Path, trials) -> None:
     (folder / "16.asf").symlink_to(src / "16.asf")
     for t in trials:
         (folder / f"16_{t:02d}.amc").symlink_to(src / f"16_{t:02d}.amc")
+    from motionweb.store.catalog import UNCATEGORIZED, scan_corpus
+
+    from bench.corpus import check_corpus  # stops unless every trial loads (with its skeleton)
+
+    check_corpus(folder, scan_corpus(folder), {f"16_{t:02d}.amc": UNCATEGORIZED for t in trials}, 0)
 
 
 def example_skates(st, bcfg: BlendParams) -> list[float]:

@@ -69,6 +69,9 @@ class IndexConfig(Params):
     schedule: str = "0 2 * * *"
     #: generations kept by the gc after each run (the current one and those committed before it)
     keep_generations: int = Field(3, ge=1)
+    #: MiB of clip distance operands each Dask worker keeps between the pairs it computes (least
+    #: recently used dropped first; about 48·frames·points bytes per clip and rate)
+    operand_cache_mb: float = Field(512.0, gt=0)
 
 
 #: the config's path fields, which say where things are, not how they are computed

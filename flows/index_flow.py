@@ -27,6 +27,7 @@ from motionweb.flows.index import (
 from motionweb.store.generations import check_current, load_generation, repair_current
 from motionweb.store.zarr_store import MotionStore
 from prefect import flow, get_run_logger
+from prefect.utilities.annotations import quote
 
 
 @flow(name="index-library")
@@ -37,6 +38,9 @@ def index_library(config: str | Config) -> dict[str, Any]:
     the final commit switches the store's ``current`` generation.
     """
     cfg = config if isinstance(config, Config) else load_config(config)
+    # Large task arguments (chunk plans, generations: O(pairs) objects) are passed quoted: Prefect
+    # otherwise walks every element of them to resolve futures and record task inputs, in Python,
+    # which at 146,610 webs made the commit a serial tail of minutes (issue 25)
     logger = get_run_logger()
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -55,7 +59,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     timings["catalog_s"] = time.perf_counter() - t0
     chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
     t = time.perf_counter()
-    plans = plan_task(chunks, cfg, prev)
+    plans = plan_task(quote(chunks), cfg, quote(prev))
     timings["plan_s"] = time.perf_counter() - t
 
     todo_cells = sum(j.cells for p in plans for j in p.todo)
@@ -66,14 +70,14 @@ def index_library(config: str | Config) -> dict[str, Any]:
         with dask_scheduler(cfg.dask, small=todo_cells < SMALL_RUN_CELLS) as address:
             logger.info("dask scheduler %s; %d pairs (%.3g cells) to compute",
                         address, sum(len(p.todo) for p in plans), todo_cells)
-            feats = [features_task.submit(p, cfg, address) for p in plans]
+            feats = [features_task.submit(quote(p), cfg, address) for p in plans]
             for rec in (r for f in feats for r in f.result()):
                 if "error" in rec:
                     failed[rec["sha256"]] = rec["error"]
             timings["features_s"] = time.perf_counter() - t
-            webs = [webs_task.submit(p, cfg, address, set(failed)) for p in plans]
+            webs = [webs_task.submit(quote(p), cfg, address, set(failed)) for p in plans]
             for rec in (r for f in webs for r in f.result()):
                 results[rec["key"]] = rec
     timings["compute_s"] = time.perf_counter() - t
     return finish(cfg, store, catalog, plans, results, failed, parent, prev, damage, timings, t0,
-                  lambda gen: commit_task(gen, cfg.store.path))
+                  lambda gen: commit_task(quote(gen), cfg.store.path))

@@ -20,6 +20,7 @@ from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from motionweb.store.cache import LRU
 from motionweb.store.catalog import ClipEntry, load_clip
 from motionweb.store.keys import feature_digest
 from motionweb.store.zarr_store import MotionStore
@@ -65,12 +66,30 @@ def worker_store(url: str) -> MotionStore:
     return MotionStore(url)
 
 
-@lru_cache(maxsize=128)
+#: the distance operands of the clips this worker process used last, least recently used dropped
+#: first beyond ``index.operand_cache_mb`` (set by each batch; unbounded until then). Bounded by
+#: bytes, not clips: a batch visits its columns clips in a cycle (pairs sorted by rows clip), so a
+#: bound of 128 clips made every pair of a chunk of more clips (180 in the issue 25 corpus of
+#: 381k frames) read and prepare its columns clip again.
+_OPERANDS = LRU()
+
+
 def clip_operands(url: str, sha: str, fdigest: str) -> dict[float, ClipOperands]:
     """A clip's distance operands by rate (:class:`~motionweb.tasks.distance.ClipOperands`), cached per worker:
-    a clip appears in many pairs, and is read and prepared once, not once per pair."""
-    by_rate, weights = worker_store(url).read_features(sha, fdigest)
-    return {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
+    a clip appears in many pairs, and is read and prepared once, not once per pair (O(F·P) per clip
+    and rate, about 48·F·P bytes kept)."""
+    key = (url, sha, fdigest)
+    ops = _OPERANDS.get(key)
+    if ops is None:
+        by_rate, weights = worker_store(url).read_features(sha, fdigest)
+        ops = {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
+        _OPERANDS.put(key, ops, sum(o.nbytes for o in ops.values()))
+    return ops
+
+
+def clear_operands() -> None:
+    """Forget the cached operands (:func:`clip_operands`) of this process."""
+    _OPERANDS.clear()
 
 
 def web_counts(arrays: dict[str, Any]) -> dict[str, int]:
@@ -116,6 +135,7 @@ def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, stor
     Returns small records only.
     """
     pin_blas_threads()
+    _OPERANDS.max_bytes = int(cfg.index.operand_cache_mb * 2**20)
     store = worker_store(store_url)
     fdig = feature_digest(cfg)
     rate = float(max(cfg.features.rates))

@@ -258,6 +258,23 @@ def current_id(store: MotionStore) -> str | None:
         return exc.fallback
 
 
+def pointer_signature(store: MotionStore) -> tuple | None:
+    """What changes when the current generation or its manifest may have changed: the pointer's
+    bytes and the size and modification time of the manifest it names (None when either cannot
+    be read). Cheap (a small read and a stat), where :func:`check_current` reads and hashes the
+    whole manifest, O(webs): a long-lived reader (the service) checks strictly only when this
+    changes."""
+    try:
+        raw = store.fs.cat_file(store.path(POINTER))
+        gid = json.loads(raw).get("generation")
+        if not _valid_id(gid):
+            return None
+        info = store.fs.info(store.path(_manifest_path(gid)))
+    except (OSError, ValueError, AttributeError):
+        return None
+    return raw, info.get("size"), info.get("mtime", info.get("LastModified", info.get("last_modified")))
+
+
 def repair_current(store: MotionStore) -> PointerError | None:
     """Make a damaged pointer sound again; returns the damage found (None: nothing to repair).
 

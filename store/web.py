@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from motionweb.store.cache import array_bytes
 
 
 def empty_cells() -> np.ndarray:
@@ -66,6 +67,12 @@ class MatchWeb:
     @property
     def n_bridges(self) -> int:
         return len(self.bridges)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its arrays (the grid included when kept): what a cache of webs counts."""
+        return array_bytes(self.paths_cells, self.paths_values, self.paths_offsets, self.bridges,
+                           self.bridges_cells, self.bridges_values, self.bridges_offsets, self.grid)
 
     def path(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         """(cells (n, 2), values (n,)) of path ``p``."""

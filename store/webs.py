@@ -1,7 +1,10 @@
 """The webs of a committed store generation as a web source for the search (KG04 §3.3).
 
 :class:`StoreWebs` maps a clip to the webs touching it, each oriented with that clip as rows,
-restricted to one category or not; each stored web is read once and cached.
+restricted to one category or not. Opening one reads no web: it indexes the manifest's web
+records by clip, O(webs of the generation); a web is read from the store when a clip it touches
+is first asked for, and kept in a cache (:class:`~motionweb.store.cache.LRU`: unbounded by
+default, so each web is read once; the service passes one bounded by bytes).
 """
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+from motionweb.store.cache import LRU
 from motionweb.store.generations import Generation, load_generation
 from motionweb.store.web import MatchWeb, transpose
 from motionweb.store.zarr_store import MotionStore, StoreError
@@ -19,10 +23,12 @@ WebSource = Mapping[str, Sequence[tuple[str, MatchWeb]]]
 
 class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     """A :data:`WebSource` over a committed store generation: the webs touching a clip, oriented
-    with it as rows, restricted to clips of ``category`` (None: all). Each stored web is read once
-    and cached (with its transpose when needed)."""
+    with it as rows, restricted to clips of ``category`` (None: all). A web is read when first
+    asked for and kept in ``cache`` (with its transpose when needed; keyed by the web's content
+    key, so scopes and generations sharing a cache share its webs); ``reads`` counts the reads."""
 
-    def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None):
+    def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None,
+                 cache: LRU | None = None):
         gen = generation if generation is not None else load_generation(store)
         if gen is None:
             raise ValueError(f"store {store.url} was never indexed (no committed generation)")
@@ -34,8 +40,8 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
                 self._by_clip.setdefault(w["a"], []).append(w)
                 if w["b"] != w["a"]:
                     self._by_clip.setdefault(w["b"], []).append(w)
-        self._webs: dict[str, MatchWeb] = {}
-        self._transposed: dict[str, MatchWeb] = {}
+        self.cache = cache if cache is not None else LRU()
+        self.reads = 0
 
     @classmethod
     def for_query(cls, store: MotionStore, clip: str, all_categories: bool = False,
@@ -49,17 +55,25 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
             raise ValueError(f"unknown clip {clip!r}: not in generation {gen.id} of {store.url}")
         return cls(store, gen, None if all_categories else cats[clip])
 
+    def _load(self, rec: dict[str, Any]) -> MatchWeb:
+        """Read the web of ``rec`` from the store (a StoreError naming the pair when it is missing
+        or damaged)."""
+        try:
+            web = self.store.read_web(rec["key"])
+        except KeyError:
+            raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) is missing; "
+                             "run motionweb index to recompute it") from None
+        except StoreError as exc:
+            raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) {exc.reason}; "
+                             "run motionweb index to recompute it") from None
+        self.reads += 1
+        return web
+
     def _read(self, rec: dict[str, Any]) -> MatchWeb:
-        web = self._webs.get(rec["key"])
+        web = self.cache.get(("web", rec["key"]))
         if web is None:
-            try:
-                web = self._webs[rec["key"]] = self.store.read_web(rec["key"])
-            except KeyError:
-                raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) is missing; "
-                                 "run motionweb index to recompute it") from None
-            except StoreError as exc:
-                raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) {exc.reason}; "
-                                 "run motionweb index to recompute it") from None
+            web = self._load(rec)
+            self.cache.put(("web", rec["key"]), web, web.nbytes)
         return web
 
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
@@ -71,9 +85,10 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
             if rec["a"] == clip:
                 out.append((rec["b"], web))
             else:
-                t = self._transposed.get(rec["key"])
+                t = self.cache.get(("web-t", rec["key"]))
                 if t is None:
-                    t = self._transposed[rec["key"]] = transpose(web)
+                    t = transpose(web)
+                    self.cache.put(("web-t", rec["key"]), t, t.nbytes)
                 out.append((rec["a"], t))
         return out
 
@@ -83,7 +98,18 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     def __len__(self) -> int:
         return len(self._by_clip)
 
+    def records(self) -> list[dict[str, Any]]:
+        """The manifest records of every web of the restriction, once each."""
+        return list({r["key"]: r for rs in self._by_clip.values() for r in rs}.values())
+
     def all_webs(self) -> list[MatchWeb]:
-        """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`)."""
-        recs = {r["key"]: r for rs in self._by_clip.values() for r in rs}
-        return [self._read(r) for r in recs.values()]
+        """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`), kept in
+        the cache."""
+        return [self._read(r) for r in self.records()]
+
+    def iter_webs(self) -> Iterator[MatchWeb]:
+        """Every web of the restriction once, those not in the cache read and not kept: one pass
+        over the scope (e.g. a quantile of its values) in the memory of one web."""
+        for r in self.records():
+            web = self.cache.get(("web", r["key"]))
+            yield web if web is not None else self._load(r)

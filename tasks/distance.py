@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from motionweb.store.cache import array_bytes
 from numba import njit
 
 DTypeLike = type[np.floating] | np.dtype | str
@@ -128,6 +129,12 @@ class ClipOperands:
     @property
     def n_frames(self) -> int:
         return self.y.shape[0]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its arrays, about 48·F·P (what the index workers' operand cache counts)."""
+        return array_bytes(self.w, self.xx, self.zz, self.y, self.heights, self.left, self.right, self.right_rot,
+                           self.centroid)
 
     def prepare(self, y0: float = 0.0) -> PreparedFeatures:
         """The GEMM operands with heights shifted by ``y0`` (O(F·P) elementwise)."""

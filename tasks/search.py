@@ -53,6 +53,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from motionweb.store.cache import LRU, array_bytes
 from motionweb.store.web import MatchWeb
 from motionweb.store.webs import WebSource
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
@@ -113,6 +114,13 @@ class WalkGraph:
     @property
     def n_states(self) -> int:
         return len(self.rows)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes it holds, its work buffers counted whether allocated yet or not (7 arrays of
+        ``n_states`` 8-byte items): what the service's cache counts."""
+        return array_bytes(self.rows, self.cols, self.values, self.nxt, self.branch_off, self.branch_to,
+                           self.web_rows, self.start_off, self.starts, self.clip_rank) + 56 * self.n_states
 
     @property
     def work(self) -> tuple[np.ndarray, ...]:
@@ -681,18 +689,23 @@ def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
 
 
 class MatchSearch:
-    """Searches over a :data:`WebSource`, one :class:`WalkGraph` packed and cached per clip
-    (KG04 §3.3). Not thread-safe (graphs share work buffers)."""
+    """Searches over a :data:`WebSource`, one :class:`WalkGraph` packed per clip when a search
+    first reaches it (KG04 §3.3) and kept in ``graphs`` (an :class:`~motionweb.store.cache.LRU`,
+    unbounded by default; the service shares one bounded by bytes between its scopes, each with
+    its own ``key``). Packing a clip's graph costs O(cells of its webs). Not thread-safe (graphs
+    share work buffers)."""
 
-    def __init__(self, webs: WebSource, cfg: SearchParams | None = None, web_cfg: MatchWebParams | None = None):
+    def __init__(self, webs: WebSource, cfg: SearchParams | None = None, web_cfg: MatchWebParams | None = None,
+                 graphs: LRU | None = None, key: tuple = ()):
         self.webs = webs
         self.cfg = cfg or SearchParams()
         self.web_cfg = web_cfg or MatchWebParams()
-        self._graphs: dict[str, WalkGraph] = {}
+        self._graphs = graphs if graphs is not None else LRU()
+        self._key = ("graph", *key)
 
     def graph(self, clip: str) -> WalkGraph:
         """The packed webs of ``clip`` (ValueError naming an unknown clip)."""
-        g = self._graphs.get(clip)
+        g = self._graphs.get((*self._key, clip))
         if g is None:
             try:
                 webs = self.webs[clip]
@@ -700,7 +713,8 @@ class MatchSearch:
                 raise ValueError(f"unknown clip {clip!r}: it is not in the index searched") from None
             if not webs:
                 raise ValueError(f"clip {clip!r} has no match webs in the index searched")
-            g = self._graphs[clip] = walk_graph(webs)
+            g = walk_graph(webs)
+            self._graphs.put((*self._key, clip), g, g.nbytes)
         return g
 
     def check(self, query: Segment) -> WalkGraph:

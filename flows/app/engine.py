@@ -1,20 +1,22 @@
-"""The service's in-memory side: one committed generation's webs kept in memory, queries on it.
+"""The service's in-memory side: one committed generation opened, queries on it.
 
 A :class:`Snapshot` is one committed generation of the store opened once: its clip records (each
 with an opaque id, the first 12 hex digits of the SHA-256 of its corpus path, so no request names
 a path). The searches run in a supervised worker process (:mod:`motionweb.flows.app.worker`) that
-keeps, per search scope (a category, or all of them), the webs read and packed (KG04 §3.3: the web
-is searched in memory), so a crash in a search's compiled kernels costs that one request (HTTP
+reads the webs a search reaches from the store and keeps them packed (KG04 §3.3: the web is
+searched in memory) in a cache bounded by ``app.cache_mb``, so a crash in a search's compiled kernels costs that one request (HTTP
 500 naming the query, :class:`QueryCrashed`), never the service. :class:`Engine` holds the current
 snapshot and, between requests, notices a newly committed generation (the store's pointer moved),
-opens it and has its webs read in the background, then swaps it in: a request works on the snapshot it started with from first to
+opens it (in the background), then swaps it in: a request works on the snapshot it started with from first to
 last, so it never mixes two generations (design §9), and a killed index run, which never moves the
 pointer, changes nothing. Results keep their snapshot, so registering or exporting an older result
 reads its own generation.
 
-Cost: opening a generation reads its manifest, O(clips + webs); warming reads every web once and
-packs each clip's webs into one walk graph, O(web cells) time and memory; a warm search costs what
-:meth:`MatchSearch.search` costs (linear in the cells of the webs it walks, per tier).
+Cost: opening a generation reads its manifest, O(clips + webs), and reads no web, whatever the
+size of the library; a search that first reaches a clip reads its webs and packs them into its
+walk graph, O(cells of those webs), kept while the cache's bound allows; a warm search costs what
+:meth:`MatchSearch.search` costs (linear in the cells of the webs it walks, per tier). Memory: the
+manifest, plus per search worker at most ``app.cache_mb`` of webs and graphs (design §5).
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ import time
 import uuid
 import weakref
 import zipfile
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,7 +53,8 @@ from motionweb.flows.query import (
 )
 from motionweb.flows.requests import QueryRequest, SearchQuery, parse
 from motionweb.store.bvh import format_bvh
-from motionweb.store.generations import Generation, current_id, load_generation
+from motionweb.store.cache import LRU
+from motionweb.store.generations import Generation, current_id, load_generation, pointer_signature
 from motionweb.store.gltf import glb_bytes
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
@@ -101,27 +103,6 @@ def clip_id(path: str) -> str:
     return hashlib.sha256(path.encode()).hexdigest()[:12]
 
 
-class LRU:
-    """A small thread-safe least-recently-used map."""
-
-    def __init__(self, size: int):
-        self.size, self._items, self._lock = size, OrderedDict(), threading.Lock()
-
-    def get(self, key: Any) -> Any:
-        with self._lock:
-            if key not in self._items:
-                return None
-            self._items.move_to_end(key)
-            return self._items[key]
-
-    def put(self, key: Any, value: Any) -> None:
-        with self._lock:
-            self._items[key] = value
-            self._items.move_to_end(key)
-            while len(self._items) > self.size:
-                self._items.popitem(last=False)
-
-
 class Snapshot:
     """One committed generation, opened once (see the module docstring)."""
 
@@ -132,7 +113,7 @@ class Snapshot:
         self.by_path = {c["path"]: c for c in gen.clips}
         self.by_id = {clip_id(c["path"]): c for c in gen.clips}
         self.categories = sorted({c.get("category", "") for c in gen.clips})
-        self.motions = LRU(KEEP_MOTIONS)
+        self.motions = LRU(max_items=KEEP_MOTIONS)
         self.warmed = threading.Event()
 
     def clip(self, key: str) -> dict[str, Any]:
@@ -147,8 +128,8 @@ class Snapshot:
             raise NotFound(str(exc)) from None
 
     def warm(self, workers: SearchWorkers) -> None:
-        """Have the search workers read every category's webs and pack every clip's walk graph
-        (KG04 §3.4: in memory)."""
+        """Have the search workers open every category's scope (reading no web: searches read
+        the webs they reach)."""
         try:
             workers.prepare(self.gen.id, list(self.categories))
         finally:
@@ -232,8 +213,9 @@ class Engine:
     """The current snapshot of one store and the queries on it (see the module docstring).
 
     ``on_query(kind, parameters, summary)`` is called after every answered query (the recorder
-    makes a Prefect flow run of it); ``warm`` reads all webs of a generation before serving it
-    and keeps a warm standby search worker. :meth:`close` ends the search workers (also done
+    makes a Prefect flow run of it); ``warm`` opens a generation's scopes in the search worker
+    before it is swapped in and keeps a warm standby search worker (each worker keeps at most
+    ``cfg.app.cache_mb`` of webs and graphs). :meth:`close` ends the search workers (also done
     when the engine is garbage-collected, and at exit).
     """
 
@@ -241,12 +223,13 @@ class Engine:
         self.cfg, self.on_query, self.warm = cfg, on_query, warm
         self.url = cfg.store.path
         self._snap: Snapshot | None = None
+        self._pointer: tuple[tuple | None, str | None] = (None, None)  # (pointer_signature, its generation)
         self._lock = threading.Lock()
         self._loading: threading.Thread | None = None
-        self.results = LRU(KEEP_RESULTS)
+        self.results = LRU(max_items=KEEP_RESULTS)
         self._plot_lock = threading.Lock()  # one figure drawn at a time (they share font caches)
         self.switches = 0
-        self.workers = SearchWorkers(self.url, standby=warm)
+        self.workers = SearchWorkers(self.url, standby=warm, cache_bytes=int(cfg.app.cache_mb * 2**20))
         self._finalize = weakref.finalize(self, self.workers.close)
         if warm:
             threading.Thread(target=prime_plots, name="prime-plots", daemon=True).start()
@@ -257,7 +240,16 @@ class Engine:
 
     # ------------------------------------------------------------------ generations
     def pointer(self) -> str | None:
-        return current_id(MotionStore(self.url, read_only=True))
+        """The current generation's id (``current_id``: the strict check, which reads the whole
+        manifest, O(webs), runs only when the pointer or its manifest changed since the last
+        request: :func:`~motionweb.store.generations.pointer_signature`)."""
+        store = MotionStore(self.url, read_only=True)
+        sig = pointer_signature(store)
+        if sig is not None and sig == self._pointer[0]:
+            return self._pointer[1]
+        gen_id = current_id(store)
+        self._pointer = (sig, gen_id)
+        return gen_id
 
     def _open(self, gen_id: str) -> Snapshot:
         gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
@@ -310,7 +302,7 @@ class Engine:
         return {"generation": snap.gen.id, "committed": snap.gen.completed, "clips": len(snap.gen.clips),
                 "webs": len(snap.gen.webs), "rate": snap.rate, "categories": cats,
                 "loading": self._loading is not None, "warm": snap.warmed.is_set(), "max_query_s": MAX_QUERY_S,
-                "max_tiers": MAX_TIERS, "worker": self.workers.info()}
+                "max_tiers": MAX_TIERS, "worker": self.workers.info(), "cache": self.workers.cache_stats()}
 
     # ------------------------------------------------------------------ catalog and clips
     def catalog(self, category: str | None = None, name: str | None = None, min_s: float | None = None,

@@ -1,4 +1,5 @@
-"""The service's own settings (the config's ``app`` section): the bounds of its editing sessions.
+"""The service's own settings (the config's ``app`` section): its search cache and the bounds of its
+editing sessions.
 
 Defaults live here only (``configs/default.yaml`` lists them; a test holds the two equal). The
 session routes (:mod:`motionweb.flows.app.sessions`) and their worker
@@ -12,9 +13,13 @@ from pydantic import Field
 
 
 class AppParams(Params):
-    """Bounds of the retime sessions of ``motionweb app`` (design §8, §10; MPS06 §3: a clip's
-    polygons are prepared once per physics and reused for every timing)."""
+    """``motionweb app``'s memory bounds: its search workers' cache (design §5) and its retime
+    sessions (design §8, §10; MPS06 §3: a clip's polygons are prepared once per physics and reused
+    for every timing)."""
 
+    #: MiB of webs and packed walk graphs each search worker keeps, least recently used dropped
+    #: first (the primary and its standby each hold up to this; design §5)
+    cache_mb: float = Field(512.0, gt=0)
     #: prepared retime plans (one per clip × physics) the session worker keeps, at most
     session_plans: int = Field(8, ge=1, le=256)
     #: and their total size (bytes, numpy arrays counted), at most; the least recently used go first

@@ -3,8 +3,9 @@
 Startup: check the host (loopback unless a token is given), bind the socket (so ``--port 0``
 picks a free port and the discovery file names the real one), find or start the Prefect server
 (in the background: the API serves at once, records follow when Prefect answers), open the
-committed generation and warm its webs in the background (in the search worker processes,
-:mod:`motionweb.flows.app.worker`), write the discovery file (:mod:`motionweb.flows.app.client`).
+committed generation (its manifest only) and open its search scopes in the background (in the
+search worker processes, :mod:`motionweb.flows.app.worker`, which read webs as searches reach
+them), write the discovery file (:mod:`motionweb.flows.app.client`).
 Shutdown (Ctrl-C, SIGTERM): remove the discovery file, end the search workers, stop a Prefect
 server of our own.
 """

@@ -1,8 +1,11 @@
 """The service's search work in a child process, so a crash in it cannot take the service down.
 
-The searches' compiled kernels (numba) run in a **worker process** that holds the webs (read once
-per generation and scope, packed into walk graphs, as :class:`~motionweb.tasks.search.MatchSearch`
-keeps them). The service (the parent: HTTP, catalog, poses, downloads, drawing) sends it one
+The searches' compiled kernels (numba) run in a **worker process** that holds the webs the
+searches touch: a web is read from the store when a search first reaches a clip it touches, and
+each clip's webs are packed into its walk graph (as :class:`~motionweb.tasks.search.MatchSearch`
+packs them); webs and graphs are kept in one LRU bounded by bytes (``app.cache_mb``, shared by
+the worker's scopes and generations), so the worker's memory follows what queries touch, not the
+size of the library, and opening a generation reads no web (design §5). The service (the parent: HTTP, catalog, poses, downloads, drawing) sends it one
 :class:`SearchJob` at a time over a socket pair and gets back the match graph and ε; a result's
 registration (KG04 §4.1, compiled DTW kernels too) is computed there as well. One search
 at a time, as before (one :class:`MatchSearch` per scope shares its work buffers, and its kernels
@@ -14,18 +17,18 @@ the query and the signal), and :class:`SearchWorkers` puts the **standby** in it
 worker started in advance and warmed with the same generation, so the next request is answered at
 once; a new standby is then started and warmed in the background. Requests that arrive during the
 switch wait for it. Without a ready standby (two crashes in a row faster than a warm-up) the next
-request waits for a fresh worker's start (imports, ~1-2 s) and reads the webs it needs lazily.
+request waits for a fresh worker's start (imports, ~1-2 s) and reads the webs it needs.
 
-Memory: the primary and the standby each hold the webs of the current generation (twice the webs'
-memory); a new generation is warmed in a new worker while the old one keeps serving, then swapped
-in.
+Memory: the primary and the standby each hold at most ``app.cache_mb`` of webs and graphs (the
+standby those of the searches it rehearses); a new generation is opened in a new worker while
+the old one keeps serving, then swapped in.
 
 Test hook (off by default): with ``MOTIONWEB_TEST_CRASH_CLIP=NAME`` in the service's environment,
 a worker that gets a search of the clip ``NAME`` (corpus path or stem) sends itself SIGSEGV after
 the request's checks; ``NAME:abort`` calls :func:`os.abort` instead (SIGABRT); ``NAME:register``
 sends SIGSEGV when registering a result whose query is of ``NAME``; several are separated by commas.
 
-Run as ``python -m motionweb.flows.app.worker FD STORE_URL`` by :class:`Worker` only.
+Run as ``python -m motionweb.flows.app.worker FD STORE_URL CACHE_BYTES`` by :class:`Worker` only.
 """
 
 from __future__ import annotations
@@ -101,21 +104,30 @@ class _Scope:
 
 
 class _State:
-    """What a worker holds: per open generation, its scopes' webs and searches."""
+    """What a worker holds: per open generation, its scopes' webs and searches, and one cache of
+    webs and walk graphs bounded by ``cache_bytes`` (None: no bound) that they all share."""
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, cache_bytes: int | None = None):
+        from motionweb.store.cache import LRU
+
         self.url = url
-        self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope]]] = OrderedDict()
+        self.cache = LRU(max_bytes=cache_bytes)
+        #: per open generation: (generation, its indexed config, its scopes, its store)
+        self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope], Any]] = OrderedDict()
 
-    def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope]]:
-        """(generation, its indexed config, its scopes), opened once."""
+    def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope], Any]:
+        """(generation, its indexed config, its scopes, its store), opened once."""
         from motionweb.flows.query import indexed_config
         from motionweb.store.generations import load_generation
         from motionweb.store.zarr_store import MotionStore
 
         if gen_id not in self.gens:
-            gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
-            self.gens[gen_id] = (gen, indexed_config(gen), {})
+            # one store per generation, shared by its scopes and registrations: a store holds the
+            # index of every web's bytes once read (O(webs of the store)), so one per scope would
+            # hold it once per category searched
+            store = MotionStore(self.url, read_only=True)
+            gen = load_generation(store, gen_id)
+            self.gens[gen_id] = (gen, indexed_config(gen), {}, store)
             while len(self.gens) > KEEP_GENERATIONS:
                 self.gens.popitem(last=False)
         self.gens.move_to_end(gen_id)
@@ -123,23 +135,25 @@ class _State:
 
     def scope(self, gen_id: str, category: str | None) -> _Scope:
         from motionweb.store.webs import StoreWebs
-        from motionweb.store.zarr_store import MotionStore
         from motionweb.tasks.search import MatchSearch, SearchParams
 
-        gen, gen_cfg, scopes = self.generation(gen_id)
+        gen, gen_cfg, scopes, store = self.generation(gen_id)
         sc = scopes.get(category)
         if sc is None:
-            webs = StoreWebs(MotionStore(self.url, read_only=True), gen, category)
-            sc = scopes[category] = _Scope(webs, MatchSearch(webs, SearchParams(), gen_cfg.matchweb))
+            webs = StoreWebs(store, gen, category, self.cache)
+            sc = scopes[category] = _Scope(webs, MatchSearch(webs, SearchParams(), gen_cfg.matchweb,
+                                                             self.cache, (gen_id, category)))
         return sc
 
     def warm(self, gen_id: str, category: str | None) -> int:
-        """Read the scope's webs and pack every clip's walk graph; the number of clips."""
-        sc = self.scope(gen_id, category)
-        clips = list(sc.webs)
-        for clip in clips:
-            sc.search.graph(clip)
-        return len(clips)
+        """Open the scope: index its web records by clip (O(webs of the generation)), reading no
+        web; the number of clips. Searches read the webs they reach."""
+        return len(self.scope(gen_id, category).webs)
+
+    def stats(self) -> dict[str, Any]:
+        """The cache's entries, bytes and bound, and the webs read from the store so far."""
+        reads = sum(sc.webs.reads for _, _, scopes, _ in self.gens.values() for sc in scopes.values())
+        return {**self.cache.stats(), "webs_read": reads}
 
     def search(self, job: SearchJob) -> tuple[Any, float | None]:
         from motionweb.tasks.ranking import search_query
@@ -153,7 +167,7 @@ class _State:
 
         def quantile_value(q: float) -> float:  # a scope's quantiles, computed once
             if q not in sc.quantiles:
-                sc.quantiles[q] = epsilon_from_quantile(sc.webs.all_webs(), q)
+                sc.quantiles[q] = epsilon_from_quantile(sc.webs.iter_webs(), q)  # one pass, not kept
             return sc.quantiles[q]
 
         return search_query(sc.search, job.segment, job.threshold, job.quantile, quantile_value)
@@ -162,11 +176,10 @@ class _State:
     def register(self, gen_id: str, graph: Any) -> Any:
         """The registration of a search's match graph (KG04 §4.1)."""
         from motionweb.flows.query import register_graph
-        from motionweb.store.zarr_store import MotionStore
 
-        gen, gen_cfg, _ = self.generation(gen_id)
+        gen, gen_cfg, _, store = self.generation(gen_id)
         _test_crash(graph.nodes[0].segment.clip, "register")
-        return register_graph(MotionStore(self.url, read_only=True), gen, gen_cfg, graph,
+        return register_graph(store, gen, gen_cfg, graph,
                               {c["path"]: c for c in gen.clips})
 
 
@@ -217,19 +230,21 @@ def serve(fd: int, name: str, handlers: dict[str, Callable[[Any], Any]]) -> None
             return
 
 
-def child_main(fd: int, url: str) -> None:
+def child_main(fd: int, url: str, cache_bytes: int | None = None) -> None:
     """The search worker: ("search", job) / ("warm", (gen, category)) / ("register", (gen,
-    graph)) through :func:`serve`."""
+    graph)) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
+    graphs."""
     from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
 
-    state = _State(url)
+    state = _State(url, cache_bytes)
     serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
-                                "register": lambda p: state.register(*p)})
+                                "register": lambda p: state.register(*p), "stats": lambda _: state.stats()})
 
 
 # --------------------------------------------------------------------------------- the parent
 class Worker:
-    """One worker process and its end of the socket pair; :meth:`call` is one request at a time."""
+    """One worker process and its end of the socket pair; :meth:`call` is one request at a time.
+    ``cache_bytes``: the bound of its cache of webs and graphs (None: none)."""
 
     def __init__(self, *args: str, module: str = "motionweb.flows.app.worker"):
         """Start ``python -m module FD *args`` (this module's loop, given the store URL; or another
@@ -305,10 +320,12 @@ class SearchWorkers:
     """The supervised workers of one store (see the module docstring): :meth:`search` runs a job
     on the primary; :meth:`prepare` warms a generation; :meth:`close` ends them all.
 
-    ``standby``: keep a second warmed worker ready to take over after a crash."""
+    ``standby``: keep a second warmed worker ready to take over after a crash; ``cache_bytes``:
+    each worker's bound on the webs and graphs it keeps (None: none)."""
 
-    def __init__(self, url: str, standby: bool = True):
-        self.url, self.standby = url, standby
+    def __init__(self, url: str, standby: bool = True, cache_bytes: int | None = None):
+        self.url, self.standby, self.cache_bytes = url, standby, cache_bytes
+        self._stats: dict[str, Any] | None = None  # the primary's cache, as last asked
         self._call = threading.Lock()  # one job at a time on the primary
         self._state = threading.Lock()  # guards the fields below
         self._primary: Worker | None = None
@@ -323,7 +340,7 @@ class SearchWorkers:
 
     # -------------------------------------------------------------- workers
     def _new_worker(self) -> Worker:
-        return Worker(self.url)
+        return Worker(self.url, str(self.cache_bytes or 0))
 
     def _warm(self, w: Worker, gen_id: str, scopes: list[str | None]) -> None:
         for cat in scopes:
@@ -433,10 +450,11 @@ class SearchWorkers:
                 self._primary_worker()
 
     def prepare(self, gen_id: str, scopes: list[str | None]) -> None:
-        """Warm ``gen_id``'s ``scopes`` (category names; ``None`` for all categories) for searching.
-        The first generation is warmed in the primary, scope by scope between searches; a later
-        one in a new worker while the primary keeps serving, which then replaces it. The
-        standby is then replaced by one warmed for ``gen_id``."""
+        """Open ``gen_id``'s ``scopes`` (category names; ``None`` for all categories) for searching
+        (no web is read: searches read what they reach). The first generation is opened in the
+        primary, scope by scope between searches; a later one in a new worker while the primary
+        keeps serving (which also rehearses the searches seen so far), which then replaces it.
+        The standby is then replaced by one opened for ``gen_id``."""
         with self._state:
             first = self._scopes is None
             self._scopes = (gen_id, list(scopes))
@@ -475,6 +493,21 @@ class SearchWorkers:
                     "standby": s is not None and s.alive() and s.rehearsed and s.lessons.unfinished_tasks == 0
                     and (want is None or all((want[0], c) in s.warm for c in want[1]))}
 
+    def cache_stats(self, wait: float = 0.2) -> dict[str, Any] | None:
+        """The primary worker's cache (:meth:`_State.stats`), asked when it is free within
+        ``wait`` seconds, else as last asked (None: never)."""
+        if self._call.acquire(timeout=wait):
+            try:
+                with self._state:
+                    w = self._primary
+                if w is not None and w.ready and w.alive():
+                    self._stats = w.call("stats", None)
+            except (WorkerCrashed, RuntimeError, OSError):
+                pass
+            finally:
+                self._call.release()
+        return self._stats
+
     def pids(self) -> list[int]:
         with self._state:
             return [w.pid for w in (self._primary, self._spare) if w is not None and w.alive()]
@@ -490,4 +523,4 @@ class SearchWorkers:
 
 
 if __name__ == "__main__":
-    child_main(int(sys.argv[1]), sys.argv[2])
+    child_main(int(sys.argv[1]), sys.argv[2], int(sys.argv[3]) or None)

@@ -376,3 +376,43 @@ def test_a_query_that_matches_nothing_is_an_empty_result_with_a_message(client, 
     assert body["matches"] == [] and body["epsilon"] is None and body["message"] == NO_MATCH
     res = query(cfg, QueryRequest(clip=clip, start=start, end=end, out=str(tmp_path)))
     assert res["matches"] == [] and res["epsilon"] is None and res["message"] == NO_MATCH
+
+
+def test_opening_a_generation_reads_no_web(cfg) -> None:
+    """Issue 25: the service opens a generation whatever its size without reading its webs; a
+    search then reads only the webs it reaches (kept in the worker's cache) and answers as the
+    query flow does."""
+    engine = Engine(cfg)  # warm: the worker opens every category's scope before the generation serves
+    try:
+        snap = engine.current()
+        assert snap.warmed.wait(300)
+        stats = engine.workers.cache_stats(wait=60)
+        assert stats is not None and stats["webs_read"] == 0 and stats["entries"] == 0 and stats["bytes"] == 0
+        eps, rows, _ = expected_search(cfg, **QUERY)
+        res = engine.search({**{k: v for k, v in QUERY.items() if k != "quantile"}, "threshold": eps})
+        assert res.rows == rows and len(rows) > 2
+        stats = engine.workers.cache_stats(wait=60)
+        walk_webs = sum(1 for w in snap.gen.webs if "walk/" in w["a"] and "walk/" in w["b"])
+        assert 0 < stats["webs_read"] <= walk_webs and stats["entries"] > 0
+        assert stats["max_bytes"] == int(cfg.app.cache_mb * 2**20) and stats["bytes"] <= stats["max_bytes"]
+        assert engine.status()["cache"]["webs_read"] == stats["webs_read"]
+    finally:
+        engine.close()
+
+
+def test_a_cache_smaller_than_a_web_answers_the_same(cfg) -> None:
+    """With ``app.cache_mb`` below one web every search reads its webs again and answers as the
+    query flow does (quantile ε, tiers, clips of both categories)."""
+    tiny = cfg.model_copy(update={"app": cfg.app.model_copy(update={"cache_mb": 1e-3})})
+    engine = Engine(tiny, warm=False)
+    try:
+        for clip, start, end in (("walk_00", 1.0, 2.5), ("run_01", 0.5, 1.5), ("walk_00", 1.0, 2.5)):
+            for tiers in (None, 1):
+                eps, rows, _ = expected_search(cfg, clip, start, end, 0.8, tiers)
+                res = engine.search({"clip": clip, "start": start, "end": end, "quantile": 0.8, "tiers": tiers})
+                assert res.epsilon == pytest.approx(eps, rel=1e-12) and res.rows == rows
+        stats = engine.workers.cache_stats(wait=60)
+        assert stats["max_bytes"] == int(1e-3 * 2**20) and stats["evictions"] > 0
+        assert stats["bytes"] <= stats["max_bytes"] or stats["entries"] == 1
+    finally:
+        engine.close()

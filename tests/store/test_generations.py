@@ -16,6 +16,7 @@ from motionweb.store.generations import (
     gc,
     generation_ids,
     load_generation,
+    pointer_signature,
     repair_current,
 )
 from motionweb.store.keys import web_key
@@ -218,3 +219,26 @@ def test_verify_generation_names_clip_and_web(tmp_path):
     g.checksums[k] = "0" * 64
     (problem,) = verify_generation(store, g)
     assert problem.what == "web x0 x y0" and problem.key == k and "manifest" in problem.reason
+
+
+@pytest.mark.parametrize("kind", POINTER_DAMAGE + MANIFEST_DAMAGE)
+def test_pointer_signature_changes_with_any_damage_or_commit(tmp_path, kind):
+    """The service checks the pointer strictly only when this signature changes: it must change
+    with every commit and with every damage a strict check finds (none of them keeps it)."""
+    import os
+    import time
+
+    store, _, g2 = _two_generations(tmp_path)
+    before = pointer_signature(store)
+    assert before is not None and pointer_signature(store) == before
+    manifest = tmp_path / "s" / "generations" / f"{g2.id}.json"
+    stat = manifest.stat()
+    _damage(tmp_path, kind, g2)
+    if manifest.exists() and kind in MANIFEST_DAMAGE:  # even a rewrite within the same clock tick
+        os.utime(manifest, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert pointer_signature(store) != before
+    store, _, _ = _two_generations(tmp_path / "again")
+    before = pointer_signature(store)
+    time.sleep(0.01)
+    commit(store, _gen(store, []))
+    assert pointer_signature(store) != before

@@ -1,0 +1,221 @@
+"""Benchmark: the index workers' cost per pair on a category of the size of the issue 25 corpora,
+this checkout against a previous revision in the same run (issue 25, part 2).
+
+The issue's corpora (the demo grown to 60 and 180 clips per category) cost 3.9 ms and 6.9 ms
+per pair: the larger category pays more per pair. This measures where: one demo category grown to
+``--clips`` clips (60 Hz; 180 is a category of the 381,399-frame corpus, checked), its features
+computed in this process into a store, then the pair plan and batches the index flow makes for
+2 workers (``flows.index.plan_pairs``, ``balance_batches``, ``batch_count``), of which the first
+``--batches`` are computed by ``flows.workers.compute_web_batch`` (what a Dask worker runs) in one
+child process per code: the previous revision ``--base`` (default: where this branch left
+``main``; ``git archive`` of
+it put first on PYTHONPATH) and this checkout, each into its own copy of the store. Printed per
+code: seconds, ms per pair, and the clips' feature reads (a read and a preparation per miss of
+the worker's operand cache; the floor is one per clip of the batch), with the load average.
+Then every web computed is compared byte for byte between the two codes (arrays and
+attributes): the webs must be identical.
+
+With ``--commit-store STORE`` (an indexed store, e.g. bench/app_scale.py's 381k one) it measures
+the index flow's serial tail instead: the commit task called inside a Prefect flow with that
+store's generation (146,610 web records for the 381k corpus) as its argument, as the previous
+code passes it and quoted (``prefect.utilities.annotations.quote``) as this checkout does; the
+task's body is the same no-op in both, so the difference is Prefect's walk over the argument
+(resolving futures, recording task inputs: O(objects in the argument), in Python).
+
+    .venv/bin/python -m bench.index_scale [--clips 180] [--batches 1] [--keep DIR] [--base REV]
+    .venv/bin/python -m bench.index_scale --commit-store DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+
+import numpy as np
+from motionweb.flows.config import Config
+from motionweb.flows.index import Chunk, balance_batches, batch_count, plan_pairs, working_rate
+from motionweb.flows.workers import compute_features_batch
+from motionweb.store.catalog import scan_corpus
+from motionweb.store.demo.corpus import write_demo_corpus
+from motionweb.store.keys import web_digest
+from motionweb.store.zarr_store import MotionStore
+
+from bench.app_scale import base_code, previous_revision
+from bench.corpus import CorpusError, frames60
+
+CHILD = r"""
+import json, sys, time
+from motionweb.flows import workers as W
+from motionweb.flows.config import Config
+job = json.load(open(sys.argv[1]))
+cfg = Config.model_validate(job["cfg"])
+store = W.worker_store(job["store"])
+reads = [0]
+read = type(store).read_features
+def counted(self, *a, **k):
+    reads[0] += 1
+    return read(self, *a, **k)
+type(store).read_features = counted
+W.compute_web_batch([tuple(p) for p in job["warm"]], cfg, job["store"])  # compiled kernels loaded
+clear = getattr(W, "clear_operands", None) or W.clip_operands.cache_clear
+clear()
+reads[0] = 0
+t = time.perf_counter()
+n = 0
+for b in job["batches"]:
+    n += len(W.compute_web_batch([tuple(p) for p in b], cfg, job["store"]))
+print(json.dumps({"seconds": time.perf_counter() - t, "pairs": n, "reads": reads[0]}))
+"""
+
+
+def build(work: Path, clips: int, cfg: Config) -> tuple[Path, list]:
+    """A one-category demo corpus of ``clips`` walks at 60 Hz and a store with their features;
+    (store, catalog entries)."""
+    corpus, store = work / f"walks-{clips}", work / f"features-{clips}"
+    if not corpus.is_dir():
+        write_demo_corpus(corpus, seed=7, variants={c: (clips if c == "walk" else 0) for c in
+                                                    ("walk", "run", "jump", "kick", "punch", "reach", "hop", "sit", "idle")},
+                          fps=60.0)
+    cat = scan_corpus(corpus, cfg.corpus)
+    if cat.errors or len(cat.entries) != clips or list(cat.by_category()) != ["walk"]:
+        raise CorpusError(f"{corpus}: {len(cat.entries)} clips in {sorted(cat.by_category())}, "
+                          f"{len(cat.errors)} unreadable; {clips} walks were asked for")
+    if not store.is_dir():
+        recs = compute_features_batch(cat.entries, cfg, str(store))
+        bad = [r for r in recs if "error" in r]
+        if bad:
+            raise CorpusError(f"features failed: {bad[:3]}")
+    return store, cat.entries
+
+
+def run_child(pkg: Path | None, store: Path, cfg: Config, batches: list, warm: list, work: Path, name: str) -> dict:
+    job = work / f"job-{name}.json"
+    conf = cfg.model_dump(mode="json")
+    conf.pop("app", None)  # sections and keys the previous code may not know (defaults here)
+    conf["index"].pop("operand_cache_mb", None)
+    job.write_text(json.dumps({"cfg": conf, "store": str(store), "batches": batches,
+                               "warm": warm}))
+    env = {**os.environ}
+    env.pop("PYTHONPATH", None)
+    if pkg is not None:
+        env["PYTHONPATH"] = str(pkg)
+    load = os.getloadavg()[0]
+    r = subprocess.run([sys.executable, "-c", CHILD, str(job)], capture_output=True, text=True, env=env,
+                       cwd=str(work), check=False)
+    if r.returncode != 0:
+        raise RuntimeError(f"{name}: {r.stderr[-2000:]}")
+    return {**json.loads(r.stdout.strip().splitlines()[-1]), "load": load, "load_after": os.getloadavg()[0]}
+
+
+def same_webs(a: Path, b: Path, keys: list[str]) -> list[str]:
+    """Keys whose web differs between stores ``a`` and ``b`` (arrays byte for byte, attributes)."""
+    sa, sb = MotionStore(str(a), read_only=True), MotionStore(str(b), read_only=True)
+    bad = []
+    for k in keys:
+        (xa, ta), (xb, tb) = sa.read_web_arrays(k), sb.read_web_arrays(k)
+        if ta != tb or sorted(xa) != sorted(xb) or any(
+                xa[n].dtype != xb[n].dtype or xa[n].shape != xb[n].shape or xa[n].tobytes() != xb[n].tobytes()
+                for n in xa):
+            bad.append(k)
+    return bad
+
+
+def commit_tail(store_dir: str) -> None:
+    """The Prefect task call of the commit with a real generation, unquoted and quoted."""
+    from motionweb.store.generations import load_generation
+    from prefect import flow, task
+    from prefect.cache_policies import NO_CACHE
+    from prefect.utilities.annotations import quote
+
+    gen = load_generation(MotionStore(store_dir, read_only=True))
+    if gen is None:
+        raise CorpusError(f"{store_dir} was never indexed")
+
+    @task(name="commit", cache_policy=NO_CACHE)
+    def commit_like(g, store_url: str) -> int:
+        return len(g.webs)
+
+    @flow(name="commit-tail")
+    def tail() -> dict[str, float]:
+        out = {}
+        for name, arg in (("previous (unquoted)", gen), ("this (quoted)", quote(gen))):
+            t = time.perf_counter()
+            n = commit_like(arg, store_dir)
+            out[name] = time.perf_counter() - t
+            assert n == len(gen.webs)
+        return out
+
+    print(f"commit task on a generation of {len(gen.clips)} clips, {len(gen.webs)} webs, "
+          f"{len(gen.checksums)} checksums; load {os.getloadavg()[0]:.1f}")
+    for name, sec in tail().items():
+        print(f"  {name:20s} {sec:7.2f} s  (the task's body: a no-op)")
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--clips", type=int, default=180, help="clips of the category (180: the 381k corpus's)")
+    ap.add_argument("--batches", type=int, default=1, help="batches of the flow's plan computed per code")
+    ap.add_argument("--keep", help="work folder (corpus, features, base code), reused when present")
+    ap.add_argument("--commit-store", help="measure the commit task's Prefect overhead on this store instead")
+    ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
+                                                 "(default: where this branch left main)")
+    args = ap.parse_args()
+    if args.commit_store:
+        commit_tail(args.commit_store)
+        return
+    work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
+    work.mkdir(parents=True, exist_ok=True)
+    cfg = Config.model_validate({"corpus": {"path": str(work), "length_unit": "m"},
+                                 "features": {"rates": [10.0, 20.0, 30.0]}})
+    t = time.perf_counter()
+    store, entries = build(work, args.clips, cfg)
+    frames = sum(frames60(e.duration) for e in entries)
+    rate = working_rate(cfg)
+    jobs = plan_pairs(Chunk("walk", tuple(entries)), web_digest(cfg), rate)
+    batches = balance_batches(jobs, batch_count(jobs, 2))
+    todo = [[(j.key, j.a.sha256, j.b.sha256, j.self_pair) for j in b] for b in batches[:args.batches]]
+    # the warm-up (compiled kernels loaded): a self pair and another pair, outside the measured batches
+    rest = [j for b in batches[args.batches:] for j in b]
+    warm = [(j.key, j.a.sha256, j.b.sha256, j.self_pair) for flag in (True, False)
+            for j in [next(j for j in rest if j.self_pair == flag)]]
+    n = sum(len(b) for b in todo)
+    clips_used = len({s for b in todo for _, a, b_, _ in b for s in (a, b_)})
+    print(f"category: {len(entries)} walks, {frames} frames at 60 Hz (features in {time.perf_counter() - t:.0f} s); "
+          f"{len(jobs)} pairs in {len(batches)} batches for 2 workers; measured: {n} pairs of "
+          f"{len(todo)} batch(es) touching {clips_used} clips; {os.cpu_count()} cores")
+    print(f"{'code':>8} {'load':>5} {'seconds':>8} {'ms/pair':>8} {'feature reads':>13}  (floor: {clips_used})")
+    stores = {}
+    base = args.base or previous_revision()[:10]
+    for name, pkg in ((base[:10], base_code(work, base)), ("this", None)):
+        dst = work / f"store-{name.replace('/', '-')}"
+        shutil.rmtree(dst, ignore_errors=True)
+        shutil.copytree(store, dst)
+        r = run_child(pkg, dst, cfg, todo, warm, work, name.replace("/", "-"))
+        stores[name] = dst
+        print(f"{name:>8} {r['load']:5.1f} {r['seconds']:8.1f} {r['seconds'] / r['pairs'] * 1000:8.2f} {r['reads']:13d}",
+              flush=True)
+    keys = [k for b in todo for k, *_ in b]
+    bad = same_webs(*stores.values(), keys)
+    print(f"webs: {len(keys) - len(bad)} of {len(keys)} byte-identical between the two codes"
+          + (f"; DIFFERENT: {bad[:5]}" if bad else ""))
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
+    if not args.keep:
+        shutil.rmtree(work, ignore_errors=True)
+    if bad:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
