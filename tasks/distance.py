@@ -172,7 +172,7 @@ def prepare_pair(fa: np.ndarray, fb: np.ndarray, weights: np.ndarray,
     return prepare_operands_pair(oa, oa if fb is fa else ClipOperands.of(fb, weights, dtype))
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def _combine(aa: np.ndarray, bb: np.ndarray, yy: np.ndarray, na: np.ndarray, nb: np.ndarray,
              out: np.ndarray) -> None:
     """out = max(0, na_i + nb_j − 2 (sqrt(A² + B²) + Y)), one fused pass.
@@ -269,7 +269,7 @@ def rigid_align_2d(p: np.ndarray, q: np.ndarray, weights: np.ndarray) -> tuple[f
     return theta, t, d
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, nogil=True)
 def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
     """D at one cell: the same closed form as the GEMM path, as three dot products."""
     p = left_y.shape[1]
@@ -288,7 +288,7 @@ def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
     return max(0.0, d)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cells_kernel(left, left_y, na, right, right_y, nb, rows, cols, out) -> None:
     """Bounds: writes out[:len(rows)] (``out``, ``cols`` as long, checked by :func:`distance_cells`);
     reads rows < Fa, cols < Fb."""

@@ -9,7 +9,9 @@ web per compatible indexed clip (its coarse grid O(F·Fb·P / 9), then refinemen
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from motionweb.store.motion import Motion
@@ -42,17 +44,24 @@ def query_clip_webs(motion: Motion, mine: dict[float, ClipOperands], others: Map
     ``features_of(name)`` reads an indexed clip's stored features. Each web is built the way the
     index builds that pair (``flows/index.plan_pairs``: the clip with the smaller hash gives the
     rows), then oriented with ``motion`` as rows, so it is the web the index would store. Cost: one
-    web per clip of ``others``."""
+    web per clip of ``others``, built on every core (threads)."""
     sha = motion.content_hash
-    webs = {"": build_web_operands(mine, mine, wcfg, True)}
     for name, other_sha in others.items():
         if other_sha == sha:
             raise ValueError(f"the query clip is indexed as {name!r}: search that clip")
-        by_rate, weights = features_of(name)
+
+    stored = {name: features_of(name) for name in others}  # read here, in order
+
+    def web_with(name: str) -> MatchWeb:
+        by_rate, weights = stored[name]
         theirs = {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
-        webs[name] = (build_web_operands(mine, theirs, wcfg, False) if sha < other_sha
-                      else transpose(build_web_operands(theirs, mine, wcfg, False)))
-    return webs
+        return (build_web_operands(mine, theirs, wcfg, False) if sha < others[name]
+                else transpose(build_web_operands(theirs, mine, wcfg, False)))
+
+    # the web kernels release the GIL (nogil): one thread per core builds them, in the order given
+    with ThreadPoolExecutor(max_workers=min(len(others), os.cpu_count() or 1) or 1) as pool:
+        built = list(pool.map(web_with, list(others)))
+    return {"": build_web_operands(mine, mine, wcfg, True), **dict(zip(others, built, strict=True))}
 
 
 class WithQueryClip(Mapping[str, list[tuple[str, MatchWeb]]]):

@@ -13,7 +13,7 @@ from motionweb.tasks.matchweb.params import INF, max_run
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def band_index(lo: np.ndarray, hi: np.ndarray, off: np.ndarray, t: int, j: int) -> int:
     """Flat index of band cell (t, j), or −1 when it lies outside the band."""
     if t < 0 or t >= lo.shape[0] or j < lo[t] or j > hi[t]:
@@ -21,7 +21,7 @@ def band_index(lo: np.ndarray, hi: np.ndarray, off: np.ndarray, t: int, j: int) 
     return off[t] + j - lo[t]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     """Least-total-cost monotone paths under the slope rule, on a band.
 
@@ -95,7 +95,7 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                             ptr[k, c0 + nr] = s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def band_backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
     """Cells (n, 2) (absolute rows) of the path ending at band cell (t, j) in state s.
 
@@ -134,7 +134,7 @@ def band_backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def best_state_total(cost, k) -> int:
     """State of least total cost at flat cell ``k`` (``cost``: (cells, 2·mrun + 1))."""
     best = 0
@@ -144,7 +144,7 @@ def best_state_total(cost, k) -> int:
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def best_state_avg(cost, length, k) -> tuple[int, float]:
     """(state, average cost) of least average cost at flat cell ``k``; (−1, inf) when unreached."""
     best = -1

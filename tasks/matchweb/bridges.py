@@ -15,7 +15,7 @@ from motionweb.tasks.matchweb.params import INF, max_run
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags, src_a, src_b, row_v,
               row_f) -> tuple[int, int]:
     """Fill the band of a bridge search from (i0, j0): the cells (i0 + t, j0 + d), t + d < L,
@@ -103,7 +103,7 @@ def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, fl
     return nt, nterm
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
     """Bounds: each search's band (:func:`_triangle`) holds at most L·(L+1)/2 cells, the size of
     its DP buffers; at most one bridge per target chain and start chain (``touched``: nch)."""

@@ -32,7 +32,7 @@ def _same_shape(minima: np.ndarray, g: np.ndarray) -> np.ndarray:
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _local_minima(g: np.ndarray) -> np.ndarray:
     """Bounds: writes only the cells of its own (Fa, Fb) output, the grid's shape."""
     fa, fb = g.shape
@@ -63,7 +63,7 @@ def local_minima(grid: np.ndarray) -> np.ndarray:
     return _local_minima(as_grid(grid))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _valid_region(g: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
     """Bounds: writes only cells of its own (Fa, Fb) output; each extension stops at the grid's
     border (``minima`` has the grid's shape, checked by :func:`valid_region`)."""
@@ -107,7 +107,7 @@ def valid_region(grid: np.ndarray, minima: np.ndarray, a: float) -> np.ndarray:
     return _valid_region(g, _same_shape(minima, g), float(a))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find_chains(g: np.ndarray, minima: np.ndarray, mrun: int, min_extent: int):
     """Bounds: writes at most N chain cells and N + 1 offsets for the N minima counted first: each
     write takes a minimum not yet used, and a dropped chain releases exactly the cells it wrote."""

@@ -20,7 +20,7 @@ from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run, self_b
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def upsample_band(cells, s, h, fa, fb):
     """Band of fine cells covering each coarse cell dilated by ``h − 0.5`` coarse cells.
 
@@ -69,7 +69,7 @@ def upsample_band(cells, s, h, fa, fb):
 TILE = 32
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _mark_tiles(cells, offsets, s, h, fa, fb, index) -> None:
     """Mark (``index[ti, tj] = 0``) the TILE×TILE tiles that the bands of ragged paths touch.
 
@@ -84,7 +84,7 @@ def _mark_tiles(cells, offsets, s, h, fa, fb, index) -> None:
                 index[ti, tj] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _alloc_tiles(index):
     """Number the marked tiles; returns their value pool, NaN (not evaluated yet) everywhere."""
     n = 0
@@ -96,7 +96,7 @@ def _alloc_tiles(index):
     return np.full((n, TILE, TILE), np.nan)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, out) -> None:
     """Distance values on a band's cells (inf inside the ignored self band |i − j| ≤ band).
 
@@ -122,7 +122,7 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
             out[off[t] + j - lo[t]] = v
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _near_cells(row0, lo, hi, off, ci, cj, radius):
     """Flat indices of band cells within Chebyshev distance ``radius`` of (ci, cj).
 
@@ -145,7 +145,7 @@ def _near_cells(row0, lo, hi, off, ci, cj, radius):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
     """Best slope-ruled path in a band from any source to any target, by total or average cost.
 
@@ -183,7 +183,7 @@ def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
     return band_backtrack(row0, lo, hi, off, ptr, t, lo[t] + bk - off[t], bs, mrun)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _argmin_of(vals, idx):
     best = INF
     out = np.zeros(0, np.int64)
@@ -194,12 +194,12 @@ def _argmin_of(vals, idx):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _flat_index(row0, lo, hi, off, i, j) -> int:
     return band_index(lo, hi, off, i - row0, j)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left_y, na, right, right_y, nb, band,
                    mrun):
     """Refine every chain (KG04 Fig. 8); returns (cells, values, offsets, new id of each chain)."""
@@ -237,7 +237,7 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
     return _concat_cells(out_c), _concat_values(out_v), _offsets_of(out_c), new_id
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _concat_cells(parts):
     """Bounds: the output is sized to the parts' total length."""
     n = 0
@@ -251,7 +251,7 @@ def _concat_cells(parts):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _concat_values(parts):
     """Bounds: the output is sized to the parts' total length."""
     n = 0
@@ -265,7 +265,7 @@ def _concat_values(parts):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _offsets_of(parts):
     out = np.zeros(len(parts) + 1, np.int64)
     for q in range(len(parts)):
@@ -273,7 +273,7 @@ def _offsets_of(parts):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
     """Band indices of the cells of ``path`` within Chebyshev ``radius`` of (ci, cj).
 
@@ -290,7 +290,7 @@ def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
     return tmp[:n].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _position(path, i, j) -> int:
     for q in range(path.shape[0]):
         if path[q, 0] == i and path[q, 1] == j:
@@ -298,7 +298,7 @@ def _position(path, i, j) -> int:
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id, new_cells, new_offsets,
                     s, h, radius, fa, fb, index, pool, left, left_y, na, right, right_y, nb, band, mrun):
     """Refine every bridge whose chains survived; returns (junctions, cells, values, offsets)."""
