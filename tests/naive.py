@@ -671,3 +671,21 @@ def ref_upsample_band(cells: np.ndarray, s: float, h: float, fa: int, fb: int) -
             lo, hi = out.get(r, (c1, c2))
             out[r] = (min(lo, c1), max(hi, c2))
     return out
+
+
+def ref_timing_distances(polys, fps: float, p: np.ndarray, pd: np.ndarray, pdd: np.ndarray):
+    """The loop ``tasks.retime.polygons.timing_distances`` compiles: each output frame's (p̈, ṗ²)
+    against its nearest source frame's polygon through ``closest_point`` (the fan centre for an
+    empty polygon). Returns (frames, distances, inside)."""
+    from motionweb.tasks.retime.polygons import closest_point
+
+    n = len(polys.vertices)
+    frames = np.clip(np.rint(np.asarray(p) * fps).astype(int), 0, n - 1)
+    dist = np.empty(len(frames))
+    for k, i in enumerate(frames):
+        x = np.array([pdd[k], pd[k] ** 2])
+        cp = closest_point(polys.vertices[i], x) if len(polys.vertices[i]) else polys.center[i]
+        dx, dy = x - cp
+        dist[k] = np.sqrt(dx * dx + dy * dy)
+    scale = 1 + np.maximum(np.abs(pdd), np.asarray(pd) ** 2)
+    return frames, dist, dist <= 1e-3 * scale

@@ -30,6 +30,7 @@ import highspy
 import numpy as np
 from motionweb.tasks.retime.contacts import Contacts
 from motionweb.tasks.retime.simplex import INFEASIBLE, OPTIMAL, UNBOUNDED, DenseLP
+from numba import njit
 
 N_ROOT = 6
 INF = highspy.kHighsInf
@@ -463,17 +464,89 @@ def timing_distances(polys: FeasiblePolygons, fps: float, p: np.ndarray, pd: np.
 
     ``p`` (T,) source seconds, ``pd``, ``pdd`` (T,) ṗ and p̈: the frame is checked against its
     nearest source frame's polygon (against the fan centre where that polygon is empty) and is
-    inside within 1e-3 · (1 + max |(p̈, ṗ²)|). Returns (T,) source frames, distances, inside. O(T · K).
+    inside within 1e-3 · (1 + max |(p̈, ṗ²)|). Returns (T,) source frames, distances, inside.
+    O(T · K), one compiled pass (:func:`_frame_distances`; ``tests/naive.py`` holds the loop over
+    :func:`closest_point` it equals).
     """
     n = len(polys.vertices)
-    frames = np.clip(np.rint(np.asarray(p) * fps).astype(int), 0, n - 1)
-    dist = np.empty(len(frames))
-    for k, i in enumerate(frames):
-        x = np.array([pdd[k], pd[k] ** 2])
-        cp = closest_point(polys.vertices[i], x) if len(polys.vertices[i]) else polys.center[i]
-        dist[k] = np.linalg.norm(x - cp)
-    scale = 1 + np.maximum(np.abs(pdd), np.asarray(pd) ** 2)
+    frames = np.clip(np.rint(np.asarray(p) * fps).astype(np.int64), 0, n - 1)
+    sizes = np.fromiter((len(v) for v in polys.vertices), np.int64, n)
+    offsets = np.zeros(n + 1, np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    flat = (np.concatenate([np.asarray(v, np.float64).reshape(-1, 2) for v in polys.vertices])
+            if offsets[-1] else np.zeros((0, 2)))
+    pd = np.asarray(pd, np.float64)
+    pdd = np.asarray(pdd, np.float64)
+    dist = _frame_distances(flat, offsets, np.asarray(polys.center, np.float64), frames, pdd, pd)
+    scale = 1 + np.maximum(np.abs(pdd), pd ** 2)
     return frames, dist, dist <= 1e-3 * scale
+
+
+@njit(cache=True, nogil=True)
+def _frame_distances(flat: np.ndarray, offsets: np.ndarray, center: np.ndarray, frames: np.ndarray,
+                     pdd: np.ndarray, pd: np.ndarray) -> np.ndarray:
+    """(T,) distance of each (p̈_k, ṗ_k²) to the polygon of source frame ``frames[k]``: polygon i
+    is ``flat[offsets[i]:offsets[i + 1]]`` (K_i, 2), counter-clockwise; an empty one stands for
+    its fan centre ``center[i]`` (F, 2). The same arithmetic as :func:`closest_point`; the
+    distance is √(dx² + dy²) in plain arithmetic.
+
+    Bounds: reads flat rows offsets[i] .. offsets[i + 1] − 1 and center[i] for i = frames[k];
+    :func:`timing_distances` builds ``offsets`` (F + 1,) from the polygons and clips frames to
+    0 .. F − 1; writes out[k] for k < T only."""
+    out = np.empty(len(frames))
+    for k in range(len(frames)):
+        i = frames[k]
+        x0 = pdd[k]
+        x1 = pd[k] ** 2
+        a = offsets[i]
+        b = offsets[i + 1]
+        nk = b - a
+        if nk == 0:
+            c0, c1 = center[i, 0], center[i, 1]
+        elif nk == 1:
+            c0, c1 = flat[a, 0], flat[a, 1]
+        else:
+            inside = False
+            if nk >= 3:
+                s1 = 0.0
+                s2 = 0.0
+                for j in range(nk - 1):
+                    s1 += flat[a + j, 0] * flat[a + j + 1, 1]
+                    s2 += flat[a + j + 1, 0] * flat[a + j, 1]
+                area = 0.5 * (s1 - s2 + flat[b - 1, 0] * flat[a, 1] - flat[a, 0] * flat[b - 1, 1])
+                if area > 1e-12:
+                    inside = True
+                    for j in range(nk):
+                        jn = a + (j + 1) % nk
+                        e0 = flat[jn, 0] - flat[a + j, 0]
+                        e1 = flat[jn, 1] - flat[a + j, 1]
+                        if not (e0 * (x1 - flat[a + j, 1]) - e1 * (x0 - flat[a + j, 0]) >= 0):
+                            inside = False
+                            break
+            if inside:
+                c0, c1 = x0, x1
+            else:
+                best = np.inf
+                c0, c1 = flat[a, 0], flat[a, 1]
+                for j in range(nk):
+                    jn = a + (j + 1) % nk
+                    v0 = flat[a + j, 0]
+                    v1 = flat[a + j, 1]
+                    e0 = flat[jn, 0] - v0
+                    e1 = flat[jn, 1] - v1
+                    ee = max(e0 * e0 + e1 * e1, 1e-300)
+                    t = min(max(((x0 - v0) * e0 + (x1 - v1) * e1) / ee, 0.0), 1.0)
+                    q0 = v0 + t * e0
+                    q1 = v1 + t * e1
+                    d = (q0 - x0) ** 2 + (q1 - x1) ** 2
+                    if d < best:
+                        best = d
+                        c0, c1 = q0, q1
+        dx = x0 - c0
+        dy = x1 - c1
+        # plain arithmetic, not a BLAS dot (whose use of FMA differs between BLAS builds)
+        out[k] = np.sqrt(dx * dx + dy * dy)
+    return out
 
 
 def convex_hull(points: np.ndarray) -> np.ndarray:
