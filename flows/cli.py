@@ -48,7 +48,8 @@ def run_command(flow_name: str, parameters: dict[str, Any], work: Callable[[], T
     ``work`` in this process (an on-demand command calls its flow's ``.fn``: no Prefect,
     flows/lazy_prefect.py); an error it reports (``ERRORS``) is one line and exit 2 (quotes
     stripped with ``strip``); else ``show`` prints the answer. Either outcome is then recorded as
-    a Prefect flow run named ``flow_name`` when a server is there (flows/history.py)."""
+    a Prefect flow run named ``flow_name`` when a server is there (flows/history.py), unless
+    ``record`` is off (a command that runs as a Prefect flow, index, is its own record)."""
     if services:
         from motionweb.flows.reaper import start_reaper
 
