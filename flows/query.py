@@ -29,7 +29,7 @@ from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs, WebSource
 from motionweb.store.zarr_store import MotionStore, StoreError
 from motionweb.tasks.matchgraph import MatchGraph, Segment
-from motionweb.tasks.query_clip import WithQueryClip
+from motionweb.tasks.query_clip import WithQueryClip, clip_operands, query_clip_webs
 from motionweb.tasks.ranking import NO_MATCH, search_query
 from motionweb.tasks.register import Registration, register
 from motionweb.tasks.search import MatchSearch
@@ -154,8 +154,6 @@ def prepare_file_query(store: MotionStore, gen: Generation, gen_cfg: Config, rat
     every indexed clip with its skeleton, built on demand as the index would
     (``tasks/query_clip.py``), added to the webs of every category (the file has none). Cost: one
     web per compatible indexed clip."""
-    from motionweb.tasks.query_clip import clip_operands, query_clip_webs
-
     sig = motion.skeleton.signature()
     others = {c["path"]: c["sha256"] for c in gen.clips if c.get("skeleton") == sig}
     if not others:

@@ -25,7 +25,7 @@ from motionweb.store.catalog import ClipEntry, load_clip
 from motionweb.store.keys import feature_digest
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.distance import ClipOperands
-from motionweb.tasks.features import clip_features, point_weights
+from motionweb.tasks.features import feature_set
 from motionweb.tasks.matchweb.build import build_web_operands
 from threadpoolctl import threadpool_limits
 
@@ -82,7 +82,7 @@ def clip_operands(url: str, sha: str, fdigest: str) -> dict[float, ClipOperands]
     ops = _OPERANDS.get(key)
     if ops is None:
         by_rate, weights = worker_store(url).read_features(sha, fdigest)
-        ops = {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
+        ops = ClipOperands.by_rate(by_rate, weights)
         _OPERANDS.put(key, ops, sum(o.nbytes for o in ops.values()))
     return ops
 
@@ -115,9 +115,7 @@ def compute_features_batch(clips: list[ClipEntry], cfg: Config, store_url: str) 
         t = time.perf_counter()
         try:
             motion = load_clip(c, cfg.corpus)
-            by_rate = {float(r): clip_features(motion, float(r), cfg.features, up=cfg.corpus.up_axis)
-                       for r in cfg.features.rates}
-            weights = point_weights(motion.skeleton, cfg.features)
+            by_rate, weights = feature_set(motion, cfg.features, up=cfg.corpus.up_axis)
             store.write_features(c.sha256, fdig, by_rate, weights,
                                  {"path": c.path, "skeleton": c.skeleton, "fps": c.fps})
             out.append({"sha256": c.sha256, "seconds": time.perf_counter() - t})

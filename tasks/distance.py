@@ -108,6 +108,11 @@ class ClipOperands:
     dtype: np.dtype
 
     @classmethod
+    def by_rate(cls, features: dict[float, np.ndarray], weights: np.ndarray) -> dict[float, ClipOperands]:
+        """:meth:`of` at every rate of a clip's features ({rate: (F_r, P, 3)})."""
+        return {r: cls.of(f, weights) for r, f in features.items()}
+
+    @classmethod
     def of(cls, f: np.ndarray, weights: np.ndarray, dtype: DTypeLike = np.float32) -> ClipOperands:
         f, w = _check(f, weights)
         dt = np.dtype(dtype)

@@ -73,3 +73,11 @@ def point_weights(skeleton: Skeleton, cfg: FeatureParams) -> np.ndarray:
     if not total > 0:
         raise ValueError("joint weights are all zero")
     return np.tile(w, cfg.window) / total
+
+
+def feature_set(motion: Motion, cfg: FeatureParams, up: str = "y") -> tuple[dict[float, np.ndarray], np.ndarray]:
+    """A clip's features at every rate of ``cfg`` ({rate: (F_r, P, 3)}) and its point weights
+    (P,): what the index stores per clip (``flows/workers.compute_features_batch``) and what a
+    query clip from outside the index is compared with (``tasks/query_clip.py``). O(F·P) per rate."""
+    return ({float(r): clip_features(motion, float(r), cfg, up=up) for r in cfg.rates},
+            point_weights(motion.skeleton, cfg))

@@ -18,7 +18,7 @@ from motionweb.store.motion import Motion
 from motionweb.store.web import MatchWeb, transpose
 from motionweb.store.webs import WebSource
 from motionweb.tasks.distance import ClipOperands
-from motionweb.tasks.features import clip_features, point_weights
+from motionweb.tasks.features import feature_set
 from motionweb.tasks.matchweb.build import build_web_operands
 from motionweb.tasks.params.features import FeatureParams
 from motionweb.tasks.params.matchweb import MatchWebParams
@@ -30,10 +30,9 @@ Features = tuple[dict[float, np.ndarray], np.ndarray]
 def clip_operands(motion: Motion, fcfg: FeatureParams, up: str) -> tuple[dict[float, np.ndarray], np.ndarray,
                                                                          dict[float, ClipOperands]]:
     """The clip's features by rate ((F_r, P, 3) each), point weights (P,) and distance operands,
-    as the index computes them (``flows/workers.compute_features_batch``)."""
-    by_rate = {float(r): clip_features(motion, float(r), fcfg, up=up) for r in fcfg.rates}
-    weights = point_weights(motion.skeleton, fcfg)
-    return by_rate, weights, {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
+    as the index computes them (:func:`~motionweb.tasks.features.feature_set`)."""
+    by_rate, weights = feature_set(motion, fcfg, up)
+    return by_rate, weights, ClipOperands.by_rate(by_rate, weights)
 
 
 def query_clip_webs(motion: Motion, mine: dict[float, ClipOperands], others: Mapping[str, str],
@@ -53,8 +52,7 @@ def query_clip_webs(motion: Motion, mine: dict[float, ClipOperands], others: Map
     stored = {name: features_of(name) for name in others}  # read here, in order
 
     def web_with(name: str) -> MatchWeb:
-        by_rate, weights = stored[name]
-        theirs = {r: ClipOperands.of(f, weights) for r, f in by_rate.items()}
+        theirs = ClipOperands.by_rate(*stored[name])
         return (build_web_operands(mine, theirs, wcfg, False) if sha < others[name]
                 else transpose(build_web_operands(theirs, mine, wcfg, False)))
 
