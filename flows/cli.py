@@ -393,7 +393,7 @@ def run_query(cfg: Config, request: QueryRequest, query_file: Path | None = None
     def work() -> dict:
         motion = None
         if query_file is not None:
-            from motionweb.flows.warp import load_motion  # the config's unit for a BVH that declares none
+            from motionweb.flows.config import load_motion  # the config's unit for a BVH that declares none
 
             motion = load_motion(query_file, cfg)
         return query.fn(cfg, request, plan_query(cfg, request, motion))  # resolved once

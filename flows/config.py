@@ -15,7 +15,7 @@ import hashlib
 import json
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import yaml
 from motionweb.flows.app.params import AppParams
@@ -32,6 +32,9 @@ from motionweb.tasks.params.rootmotion import RootMotionParams
 from motionweb.tasks.params.search import SearchParams
 from motionweb.tasks.params.warp import WarpParams
 from pydantic import Field, ValidationError
+
+if TYPE_CHECKING:
+    from motionweb.store.motion import Motion
 
 
 class DemoConfig(Params):
@@ -152,3 +155,16 @@ def resolve_paths(cfg: Config, base: Path) -> Config:
     cfg.store.path = resolve_path(cfg.store.path, base)
     cfg.output = resolve_path(cfg.output, base)
     return cfg
+
+
+def load_motion(path: str | Path, config: Config) -> Motion:
+    """A user's clip (.bvh, .amc with its ASF, DeepMimic .txt) read with the config's units: a BVH
+    that declares no length unit takes ``corpus.length_unit`` / ``scale_to_m``. ValueError naming
+    a missing file; the readers' MotionFormatError otherwise. The readers load on use (this module
+    stays light)."""
+    from motionweb.store.formats import read_motion
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: no such file")
+    return read_motion(p, unit=config.corpus.length_unit, scale_to_m=config.corpus.scale_to_m)

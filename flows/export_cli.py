@@ -41,12 +41,9 @@ ConfigOpt = Annotated[Path | None, typer.Option(help="Config (corpus unit and up
 
 def _load(cfg: Config, request: ExportRequest) -> Motion:
     """The request's clip, read with the config's unit (ValueError naming a missing file)."""
-    from motionweb.store.formats import read_motion
+    from motionweb.flows.config import load_motion
 
-    path = Path(request.input)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such file")
-    return read_motion(path, unit=cfg.corpus.length_unit, scale_to_m=cfg.corpus.scale_to_m)
+    return load_motion(request.input, cfg)
 
 
 def _write(cfg: Config, motion: Motion, request: ExportRequest) -> str:

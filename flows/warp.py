@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from motionweb.flows.config import Config
+from motionweb.flows.config import Config, load_motion
 from motionweb.flows.lazy_prefect import call, flow, task
 from motionweb.flows.requests import WarpRequest
 from motionweb.store.motion import Motion
@@ -41,17 +41,6 @@ class WarpPlan:
     config: WarpParams
     up_axis: str
     contact_params: RetimeParams
-
-
-def load_motion(path: str | Path, config: Config) -> Motion:
-    """A clip from .bvh (store.bvh), .amc (store.asfamc) or DeepMimic .txt (store.deepmimic); a
-    BVH that declares no length unit takes the config's (``corpus.length_unit`` / ``scale_to_m``)."""
-    from motionweb.store.formats import read_motion
-
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"{p}: no such file")
-    return read_motion(p, unit=config.corpus.length_unit, scale_to_m=config.corpus.scale_to_m)
 
 
 def plan_warp(config: Config, request: WarpRequest) -> WarpPlan:
