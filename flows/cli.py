@@ -171,13 +171,22 @@ def demo(
     cfg_path.write_text("# written by `motionweb demo`; paths are relative to this file\n"
                         + yaml.safe_dump(data, sort_keys=False))
     cfg = config_or_fail(cfg_path)
+    from motionweb.flows import warmup
+
+    # the index and search kernels compile in parallel processes and Prefect's local server starts
+    # while the corpus is written (flows/warmup.py): the cold demo's compile time, overlapped
+    from motionweb.flows.reaper import start_reaper
+
+    start_reaper()  # the warm-up processes and the services end with this process
+    # (not the BVH reader: the corpus scan below calls it before any share is done)
+    ahead = [warmup.start(["index", "search"]), warmup.start_prefect()]
     files = write_demo_corpus(cfg.corpus.path, seed=cfg.demo.seed,
                               variants_per_category=cfg.demo.variants_per_category, fps=cfg.demo.fps,
                               variants=cfg.demo.variants)
     typer.echo(f"demo corpus: {len(files)} clips in {cfg.corpus.path}")
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
     typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")
-    run_index(cfg, progress=True)
+    run_index(cfg, progress=True, ahead=ahead)
     from motionweb.flows.requests import QueryRequest
 
     d = cfg.demo
@@ -314,10 +323,16 @@ def _quiet_services() -> None:
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
 
 
-def run_index(cfg: Config, progress: bool) -> dict:
+def run_index(cfg: Config, progress: bool, ahead: list | None = None) -> dict:
     """Run the index with an optional progress counter on stderr (:func:`run_command`, which
-    starts the reaper: the Prefect server and Dask workers die with this process)."""
+    starts the reaper: the Prefect server and Dask workers die with this process).
+
+    With work to do and Prefect's local server to start, the index kernels compile in parallel
+    processes meanwhile (flows/warmup.py :func:`~motionweb.flows.warmup.ahead_of_index`), and the
+    flow starts when both are done; ``ahead``: those already started by the caller (``demo``,
+    before it writes its corpus)."""
     import motionweb.flows.index as idx
+    from motionweb.flows import warmup
 
     seen: dict[str, tuple[int, int]] = {}
 
@@ -337,7 +352,11 @@ def run_index(cfg: Config, progress: bool) -> dict:
             # nothing to compute, commit or repair, and no Prefect server to record the run: said
             # without Prefect, its server or a Dask cluster (flows/index.py unchanged_summary)
             summary = idx.unchanged_summary(cfg) if server_url() is None else None
-            return summary if summary is not None else idx.index_library(cfg)
+            if summary is not None:
+                return summary
+            for started in ahead if ahead is not None else warmup.ahead_of_index(cfg.dask.address is None):
+                started.wait()
+            return idx.index_library(cfg)
         finally:
             idx.PROGRESS = None
             if seen:
@@ -499,17 +518,17 @@ def plot_web(
                f"{rep.minima} minima, {rep.chains} chains, {rep.bridges} bridges")
 
 
-from motionweb.flows import store_cli  # noqa: E402 - commands of their own module
+from motionweb.flows import store_cli
 
 app.command()(store_cli.verify)
 app.command()(store_cli.gc)
 
 
-from motionweb.flows.space_cli import add_commands  # noqa: E402  (parameterize, synthesize, blend)
+from motionweb.flows.space_cli import add_commands
 
 add_commands(app, fail, config_or_fail)
 
-from motionweb.flows.export_cli import register as add_exports  # noqa: E402  (export, mirror, cleanup)
+from motionweb.flows.export_cli import register as add_exports
 
 add_exports(app)
 
@@ -526,7 +545,7 @@ def main() -> None:
     protect(" ".join(["motionweb", *sys.argv[1:2]]))
     try:
         app()
-    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback at the CLI
+    except Exception as exc:
         if os.environ.get("MOTIONWEB_DEBUG"):
             raise
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""

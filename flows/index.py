@@ -358,6 +358,8 @@ def format_summary(s: IndexSummary | dict[str, Any]) -> str:
 def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     """Address of the scheduler to use: ``dask.address``, or a local cluster for this run.
 
+    The scheduler's HTTP endpoint (health and metrics; no dashboard) binds a free port on loopback,
+    never Dask's default 8787 on every interface: no "port in use" warning, nothing exposed.
     The local default is sized to the machine (one single-threaded worker per core, at most 2
     unless ``n_workers`` says otherwise); small runs use threads, which start in ~1 s. It closes
     client first, then the cluster; a worker whose last heartbeat meets the closing scheduler
@@ -377,7 +379,8 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     kwargs: dict[str, Any] = {"host": "127.0.0.1"} if processes else {}
     try:
         with LocalCluster(n_workers=n, threads_per_worker=dcfg.threads_per_worker, processes=processes,
-                          dashboard_address=None, **kwargs) as cluster, _client_for(cluster.scheduler_address) as client:
+                          dashboard_address=None, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                          **kwargs) as cluster, _client_for(cluster.scheduler_address) as client:
             try:
                 yield cluster.scheduler_address
             finally:
