@@ -329,6 +329,7 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         return await run(retime.report, sid)
 
     warps = WarpSessions(retime)  # HDP07, in the same session worker
+    engine.uploads = retime.uploads  # a search may name an upload (its webs kept with it)
 
     @app.post("/api/uploads")
     async def upload(body: UploadBody) -> JSONResponse:
