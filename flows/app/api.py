@@ -36,7 +36,14 @@ the service goes on with a standby worker, or a fresh session worker):
     POST /api/uploads                            {name, bvh | asf + amc, unit, scale_to_m, fps}: a clip of the
                                                  user's own, parsed by the hardened readers, kept in memory
                                                  (content-addressed, bounded); its id (up-...) names it in sessions
-    GET  /api/uploads/{uid}                      an upload's name, frames, fps, joints, unit
+                                                 and as a search's query clip
+    GET  /api/uploads/{uid}                      an upload's name, frames, fps, joints, unit, bytes kept
+    GET  /api/uploads/{uid}/pose?rate=           its joint positions for drawing (the player)
+
+A search (``/api/search``) may name an upload as its clip: its features and its webs against the
+indexed clips are built on demand by the search worker (``search --query-file``'s code path,
+``flows/query.prepare_file_query``) and kept with the upload (``app.upload_mb``); its matches
+answer as an indexed query's.
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
@@ -339,6 +346,10 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     @app.get("/api/uploads/{uid}")
     async def upload_info(uid: str) -> dict:
         return retime.uploads.summary(retime.uploads.get(uid))
+
+    @app.get("/api/uploads/{uid}/pose")
+    async def upload_pose(uid: str, rate: float = Query(30.0, gt=0, le=120)) -> dict:
+        return await run(engine.upload_pose, uid, rate)
 
     @app.post("/api/warp/sessions")
     async def warp_open(body: WarpSessionBody) -> dict:

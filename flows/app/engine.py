@@ -355,6 +355,16 @@ class Engine:
         frames = np.arange(0.0, rec["duration"] * rate + 1e-9)
         return {**snap.clip_row(rec), "generation": snap.gen.id, **pose_payload(snap, m, frames, rate)}
 
+    def upload_pose(self, uid: str, rate: float) -> dict[str, Any]:
+        """An uploaded clip's joint positions at ``rate`` Hz for drawing (the player shows it to
+        choose the query's segment), with the upload's summary."""
+        snap = self.current()
+        u = self.uploads_get(uid)
+        frames = np.arange(0.0, u.motion.duration * rate + 1e-9)
+        summary = {k: v for k, v in self.uploads.summary(u).items() if k != "joints"}
+        return {**summary, "category": "upload", "generation": snap.gen.id, "upload": True,
+                **pose_payload(snap, u.motion, frames, rate)}
+
     def clip_bvh(self, key: str) -> tuple[str, str]:
         """(file name, BVH text) of a clip as indexed."""
         snap = self.current()
