@@ -29,7 +29,8 @@ the service goes on with a standby worker, or a fresh session worker):
     GET  /api/retime/sessions/{sid}/bvh          the last retimed motion as a BVH download
     GET  /api/retime/sessions/{sid}/report       the last retiming's report (the CLI's JSON)
     POST /api/warp/sessions                      {clip, reference}: a guided-warp session (HDP07), the
-                                                 reference's scores kept; the original's poses
+                                                 reference's scores kept; the original's
+                                                 and the reference's poses
     POST /api/warp/sessions/{sid}/edit           {duration, keytimes, fast}: the warped poses, the warp curve,
                                                  each flight's ratio
     GET  /api/warp/sessions/{sid}/bvh            the last warp as a BVH download
