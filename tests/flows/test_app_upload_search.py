@@ -112,3 +112,31 @@ def test_a_bad_upload_id_or_window_answers_json_naming_the_field(client, cfg, bo
     assert "Traceback" not in r.text
     assert search(client, clip=up["id"])["matches"]  # the service goes on
     assert search(client, clip="walk_00")["matches"]
+
+
+def test_the_upload_cache_is_bounded_by_bytes() -> None:
+    """Webs kept with an upload count toward ``app.upload_mb``: over it, the least recently used
+    upload goes (the newest stays, even alone over the bound); another generation's webs replace
+    the kept ones."""
+    import numpy as np
+    from motionweb.flows.app.engine import NotFound
+    from motionweb.flows.app.params import AppParams
+    from motionweb.flows.app.uploads import UploadBody, Uploads
+    from motionweb.store.demo.corpus import generate_clip
+
+    walk, _ = generate_clip("walk", 0, 1234, 30.0)
+    ups = Uploads(AppParams(upload_mb=1.0), lambda job: walk)
+
+    def webs(mb: float):  # a build of ``mb`` MiB (float64)
+        return lambda u: ({"features": np.zeros(int(mb * 2**17))}, {})
+
+    a = ups.add(UploadBody(name="a", bvh="A", unit="m"), "m", None)["id"]
+    ups.query_webs(a, "g1", webs(0.6))
+    assert ups.stats()["bytes"] >= 0.6 * 2**20 and ups.get(a).webs.keys() == {"g1"}
+    assert ups.query_webs(a, "g1", lambda u: pytest.fail("kept webs are not rebuilt"))
+    b = ups.add(UploadBody(name="b", bvh="B", unit="m"), "m", None)["id"]
+    ups.query_webs(b, "g1", webs(0.6))  # a (least recently used) goes
+    with pytest.raises(NotFound, match="upload the clip again"):
+        ups.get(a)
+    ups.query_webs(b, "g2", webs(2.0))  # alone over the bound: kept, g1's dropped
+    assert ups.get(b).webs.keys() == {"g2"} and ups.stats()["uploads"] == 1
