@@ -85,12 +85,13 @@ def resolve_clip(gen: Generation, name: str) -> dict[str, Any]:
 
 
 def query_segment(rec: dict[str, Any], start: float, end: float, rate: float) -> Segment:
-    """Seconds to frames at the web rate, checked against the clip's duration."""
+    """Seconds to frames at the web rate, checked against the clip's duration (the error names the
+    field that is out of range: ``start`` or ``end``)."""
     a, b = round(start * rate), round(end * rate)
     last = int(np.floor(rec["duration"] * rate + 1e-9))
     if start < 0 or b > last:
-        raise ValueError(f"query {start:g} s .. {end:g} s is outside clip {rec['path']!r} "
-                         f"(0 .. {rec['duration']:.3f} s)")
+        raise ValueError(f"{'start' if start < 0 else 'end'}: query {start:g} s .. {end:g} s is outside clip "
+                         f"{rec['path']!r} (0 .. {rec['duration']:.3f} s)")
     return Segment(rec["path"], a, b)
 
 
@@ -138,14 +139,25 @@ def prepare_query(cfg: Config, request: QueryRequest, query_motion: Motion | Non
     rate = max(float(r) for r in gen_cfg.features.rates)
     all_cats = cfg.search.all_categories if request.all_categories is None else request.all_categories
     if query_motion is not None:
-        indexed = [c for c in gen.clips if c["sha256"] == query_motion.content_hash]
-        if not indexed:
+        rec = indexed_twin(gen, query_motion.content_hash)
+        if rec is None:
             return prepare_file_query(store, gen, gen_cfg, rate, request, query_motion)
-        rec = indexed[0]  # the same bytes are indexed: the query is that clip (content-addressed)
     else:
         rec = resolve_clip(gen, request.clip)
     seg = query_segment(rec, request.start, request.end, rate)
     return PreparedQuery(store, gen, gen_cfg, rec, seg, StoreWebs.for_query(store, seg.clip, all_cats, generation=gen))
+
+
+def indexed_twin(gen: Generation, sha256: str) -> dict[str, Any] | None:
+    """The record of the indexed clip whose file has the SHA-256 ``sha256`` (None: none): a query
+    file with the same bytes is that clip (content-addressed), searched as the index's."""
+    return next((c for c in gen.clips if c["sha256"] == sha256), None)
+
+
+def file_record(motion: Motion, key: str) -> dict[str, Any]:
+    """The clip record of a query clip from outside the index, under the web-source name ``key``."""
+    return {"path": key, "category": "", "sha256": motion.content_hash, "duration": motion.duration,
+            "frames": motion.n_frames, "fps": motion.fps, "skeleton": motion.skeleton.signature()}
 
 
 def prepare_file_query(store: MotionStore, gen: Generation, gen_cfg: Config, rate: float, request: QueryRequest,
@@ -154,14 +166,12 @@ def prepare_file_query(store: MotionStore, gen: Generation, gen_cfg: Config, rat
     every indexed clip with its skeleton, built on demand as the index would
     (``tasks/query_clip.py``), added to the webs of every category (the file has none). Cost: one
     web per compatible indexed clip."""
-    sig = motion.skeleton.signature()
-    others = {c["path"]: c["sha256"] for c in gen.clips if c.get("skeleton") == sig}
+    rec = file_record(motion, FILE_PREFIX + request.clip)
+    others = {c["path"]: c["sha256"] for c in gen.clips if c.get("skeleton") == rec["skeleton"]}
     if not others:
         raise ValueError(f"{request.clip}: no indexed clip has its skeleton ({motion.skeleton.n_joints} joints: "
                          f"{', '.join(motion.skeleton.names[:6])}, ...); its frames cannot be compared")
-    key = FILE_PREFIX + request.clip
-    rec = {"path": key, "category": "", "sha256": motion.content_hash, "duration": motion.duration,
-           "frames": motion.n_frames, "fps": motion.fps, "skeleton": sig}
+    key = rec["path"]
     seg = query_segment(rec, request.start, request.end, rate)
     fdig = gen.params["features"]
     by_rate, weights, mine = clip_operands(motion, gen_cfg.features, gen_cfg.corpus.up_axis)

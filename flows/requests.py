@@ -41,7 +41,8 @@ class Request(BaseModel):
 
 class QueryWindow(Request):
     """A query M1[a, b] (KG04 §3.3): ``clip`` is a corpus path, a unique file stem or (in the
-    service) an index id; ``start`` and ``end`` in seconds; at most one of ``threshold`` (absolute
+    service) an index id or an upload's id (``up-...``: a clip of the user's own, searched as
+    ``--query-file`` searches a file: its webs built on demand); ``start`` and ``end`` in seconds; at most one of ``threshold`` (absolute
     ε) and ``quantile`` (ε as that quantile of the searched webs' values); with neither, the
     default rule (``tasks.ranking.choose_epsilon``: a multiple of the query's nearest match)."""
 

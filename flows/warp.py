@@ -105,8 +105,8 @@ def plot_warp(result: WarpResult, fps: float, path: str | Path, linear: WarpResu
 
 def flight_phases(motion: Motion, result: WarpResult, opts: RetimeParams, up_axis: str) -> list[dict[str, float]]:
     """What the warp did to each flight phase of the input, no foot on the ground as the physics
-    retiming detects contacts (``opts``, MPS06 §3.2): source and output
-    seconds and their ratio (HDP07 §4.1's preservation measure; 1 keeps the flight's speed).
+    retiming detects contacts (``opts``, MPS06 §3.2): its start in the input (``start_s``), source and
+    output seconds and their ratio (HDP07 §4.1's preservation measure; 1 keeps the flight's speed).
     Empty for a clip of unknown length unit or one whose feet cannot be found."""
     if motion.scale_to_m is None:
         return []
@@ -117,7 +117,7 @@ def flight_phases(motion: Motion, result: WarpResult, opts: RetimeParams, up_axi
     out = []
     for a, b in inner_flights(contacts.active, motion.fps):
         ratio = 1.0 / playback_speed(result.times, a * motion.fps, b * motion.fps)
-        out.append({"source_s": b - a, "output_s": (b - a) * ratio, "ratio": ratio})
+        out.append({"start_s": a, "source_s": b - a, "output_s": (b - a) * ratio, "ratio": ratio})
     return out
 
 

@@ -29,14 +29,22 @@ the service goes on with a standby worker, or a fresh session worker):
     GET  /api/retime/sessions/{sid}/bvh          the last retimed motion as a BVH download
     GET  /api/retime/sessions/{sid}/report       the last retiming's report (the CLI's JSON)
     POST /api/warp/sessions                      {clip, reference}: a guided-warp session (HDP07), the
-                                                 reference's scores kept; the original's poses
+                                                 reference's scores kept; the original's
+                                                 and the reference's poses
     POST /api/warp/sessions/{sid}/edit           {duration, keytimes, fast}: the warped poses, the warp curve,
                                                  each flight's ratio
     GET  /api/warp/sessions/{sid}/bvh            the last warp as a BVH download
     POST /api/uploads                            {name, bvh | asf + amc, unit, scale_to_m, fps}: a clip of the
                                                  user's own, parsed by the hardened readers, kept in memory
                                                  (content-addressed, bounded); its id (up-...) names it in sessions
-    GET  /api/uploads/{uid}                      an upload's name, frames, fps, joints, unit
+                                                 and as a search's query clip
+    GET  /api/uploads/{uid}                      an upload's name, frames, fps, joints, unit, bytes kept
+    GET  /api/uploads/{uid}/pose?rate=           its joint positions for drawing (the player)
+
+A search (``/api/search``) may name an upload as its clip: its features and its webs against the
+indexed clips are built on demand by the search worker (``search --query-file``'s code path,
+``flows/query.prepare_file_query``) and kept with the upload (``app.upload_mb``); its matches
+answer as an indexed query's.
 
 Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
@@ -329,6 +337,7 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
         return await run(retime.report, sid)
 
     warps = WarpSessions(retime)  # HDP07, in the same session worker
+    engine.uploads = retime.uploads  # a search may name an upload (its webs kept with it)
 
     @app.post("/api/uploads")
     async def upload(body: UploadBody) -> JSONResponse:
@@ -338,6 +347,10 @@ def create_app(engine: Engine, token: str | None = None) -> Guard:
     @app.get("/api/uploads/{uid}")
     async def upload_info(uid: str) -> dict:
         return retime.uploads.summary(retime.uploads.get(uid))
+
+    @app.get("/api/uploads/{uid}/pose")
+    async def upload_pose(uid: str, rate: float = Query(30.0, gt=0, le=120)) -> dict:
+        return await run(engine.upload_pose, uid, rate)
 
     @app.post("/api/warp/sessions")
     async def warp_open(body: WarpSessionBody) -> dict:

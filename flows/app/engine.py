@@ -32,7 +32,7 @@ import uuid
 import weakref
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +41,10 @@ from motionweb.flows.app.worker import SearchJob, SearchWorkers, WorkerCrashed
 from motionweb.flows.config import Config
 from motionweb.flows.query import (
     PreparedQuery,
+    file_record,
     graph_dict,
     indexed_config,
+    indexed_twin,
     load_indexed_clip,
     match_rows,
     plot_graph,
@@ -72,6 +74,8 @@ MAX_TIERS = 20
 MAX_DRAW_FRAMES = 6000
 KEEP_RESULTS = 128
 KEEP_MOTIONS = 64
+#: an upload's id begins so (flows/app/uploads.py): a search of it builds its webs on demand
+UPLOAD_PREFIX = "up-"
 
 
 class NotFound(KeyError):
@@ -167,12 +171,29 @@ class Result:
     timings: dict[str, float]
     lock: threading.Lock = field(default_factory=threading.Lock)
     registration: Registration | None = None
+    #: a query clip from outside the index (an upload): its id, record (with its features) and motion
+    upload: tuple[str, dict[str, Any], Motion] | None = None
+
+    def clip(self, path: str) -> tuple[dict[str, Any], Motion]:
+        """(record, motion) of a node's clip: the query upload's, or the snapshot's."""
+        if self.upload is not None and path == self.upload[1]["path"]:
+            return self.upload[1], self.upload[2]
+        rec = self.snap.by_path[path]
+        return rec, self.snap.motion(rec)
+
+    def clip_row(self, rec: dict[str, Any]) -> dict[str, Any]:
+        row = self.snap.clip_row(rec)
+        if self.upload is not None and rec["path"] == self.upload[1]["path"]:
+            row["id"] = self.upload[0]
+        return row
 
     def summary(self) -> dict[str, Any]:
         g = graph_dict(self.graph)
         for e in g["edges"]:
             e.pop("cells")  # the page draws the graph, not the paths (they can be long)
-        rows = [{**r, "id": clip_id(r["clip"])} for r in self.rows]
+        up = self.upload
+        rows = [{**r, "id": up[0] if up is not None and r["clip"] == up[1]["path"] else clip_id(r["clip"])}
+                for r in self.rows]
         return {"result": self.id, "generation": self.snap.gen.id, "epsilon": self.epsilon,
                 "message": NO_MATCH if self.epsilon is None else "", "query": rows[0],
                 "matches": rows[1:], "graph": g, "timings": self.timings, "request": self.request.wire()}
@@ -227,6 +248,9 @@ class Engine:
         self._lock = threading.Lock()
         self._loading: threading.Thread | None = None
         self.results = LRU(max_items=KEEP_RESULTS)
+        #: the user's uploaded clips (:class:`~motionweb.flows.app.uploads.Uploads`, set by the API):
+        #: a search names one by its id, its webs are kept there
+        self.uploads: Any = None
         self._plot_lock = threading.Lock()  # one figure drawn at a time (they share font caches)
         self.switches = 0
         self.workers = SearchWorkers(self.url, standby=warm, cache_bytes=int(cfg.app.cache_mb * 2**20))
@@ -302,7 +326,8 @@ class Engine:
         return {"generation": snap.gen.id, "committed": snap.gen.completed, "clips": len(snap.gen.clips),
                 "webs": len(snap.gen.webs), "rate": snap.rate, "categories": cats,
                 "loading": self._loading is not None, "warm": snap.warmed.is_set(), "max_query_s": MAX_QUERY_S,
-                "max_tiers": MAX_TIERS, "worker": self.workers.info(), "cache": self.workers.cache_stats()}
+                "max_tiers": MAX_TIERS, "worker": self.workers.info(), "cache": self.workers.cache_stats(),
+                "uploads": self.uploads.stats() if self.uploads is not None else None}
 
     # ------------------------------------------------------------------ catalog and clips
     def catalog(self, category: str | None = None, name: str | None = None, min_s: float | None = None,
@@ -329,6 +354,16 @@ class Engine:
         m = snap.motion(rec)
         frames = np.arange(0.0, rec["duration"] * rate + 1e-9)
         return {**snap.clip_row(rec), "generation": snap.gen.id, **pose_payload(snap, m, frames, rate)}
+
+    def upload_pose(self, uid: str, rate: float) -> dict[str, Any]:
+        """An uploaded clip's joint positions at ``rate`` Hz for drawing (the player shows it to
+        choose the query's segment), with the upload's summary."""
+        snap = self.current()
+        u = self.uploads_get(uid)
+        frames = np.arange(0.0, u.motion.duration * rate + 1e-9)
+        summary = {k: v for k, v in self.uploads.summary(u).items() if k != "joints"}
+        return {**summary, "category": "upload", "generation": snap.gen.id, "upload": True,
+                **pose_payload(snap, u.motion, frames, rate)}
 
     def clip_bvh(self, key: str) -> tuple[str, str]:
         """(file name, BVH text) of a clip as indexed."""
@@ -371,33 +406,79 @@ class Engine:
         elif not isinstance(request, SearchQuery):
             request = parse(SearchQuery, **request)  # ValueError with the CLI's messages
         snap = self.current()
-        rec = snap.clip(request.clip)
+        upload, key = None, request.clip
+        if self.uploads is not None and request.clip.startswith(UPLOAD_PREFIX):
+            upload = self.uploads_get(request.clip)
+            twin = indexed_twin(snap.gen, upload.file_sha256)
+            if twin is not None:  # the upload is an indexed file: the query is that clip (content-addressed)
+                upload, key = None, twin["path"]
+        if upload is not None:
+            rec = file_record(upload.motion, upload.key())
+        else:
+            rec = snap.clip(key)
         seg = query_segment(rec, request.start, request.end, snap.rate)
         self.check_bounds(request)
         params = self.search_params(search)
         if request.tiers is not None:
             params = params.model_copy(update={"max_tiers": request.tiers})
         all_cats = params.all_categories if request.all_categories is None else request.all_categories
+        query = None
+        if upload is not None:
+            rec, webs = self.upload_webs(snap, upload, request)
+            query, all_cats = (rec["path"], webs), True  # a file has no category: every category's webs
         # ε: the threshold, the quantile of the scope's webs, or else the query flow's default
         # rule (a multiple of the query's nearest match); all computed in the worker
         job = SearchJob(snap.gen.id, None if all_cats else rec.get("category", ""), seg, params.model_dump(),
-                        request.threshold, request.quantile)
+                        request.threshold, request.quantile, query)
         try:
             graph, eps = self.workers.search(job)
         except WorkerCrashed as exc:
             raise QueryCrashed(query_fields(request), exc.how) from None
+        clips = snap.by_path if upload is None else {**snap.by_path, rec["path"]: rec}
         res = Result(uuid.uuid4().hex[:12], snap, request, params, graph, None if eps is None else float(eps),
-                     match_rows(graph, snap.by_path), {"search_s": time.perf_counter() - t0})
+                     match_rows(graph, clips), {"search_s": time.perf_counter() - t0},
+                     upload=None if upload is None else (upload.id, rec, upload.motion))
         self.results.put(res.id, res)
         if self.on_query:
             self.on_query("search", request.wire(), {"result": res.id, "generation": snap.gen.id, "epsilon": eps,
                                                       "matches": len(res.rows) - 1, **res.timings})
         return res
 
-    def registration(self, gen_id: str, graph: MatchGraph, request: SearchQuery) -> Registration:
-        """``graph``'s registration (KG04 §4.1), computed by the search worker."""
+    def uploads_get(self, uid: str) -> Any:
+        """An upload by id (:class:`NotFound` naming the field ``clip``)."""
         try:
-            return self.workers.register(gen_id, graph)
+            return self.uploads.get(uid)
+        except NotFound as exc:
+            raise NotFound(f"clip: {exc}") from None
+
+    def upload_webs(self, snap: Snapshot, upload: Any, request: SearchQuery) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The upload's query record (with its features) and its webs against the snapshot's
+        clips (KG04 §3.3): kept in the upload cache, else built by the search worker with
+        ``search --query-file``'s code path (``flows/query.prepare_file_query``)."""
+        def build(u: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+            t = time.perf_counter()
+            try:
+                # content-addressed by its file's SHA-256, as --query-file's clip (the hashes order
+                # each pair's rows as the index does: the same file gives the same webs)
+                motion = replace(u.motion, content_hash=u.file_sha256)
+                got = self.workers.query_webs(snap.gen.id, u.query_name(), motion)
+            except WorkerCrashed as exc:
+                raise QueryCrashed(query_fields(request), exc.how, "webs") from None
+            except ValueError as exc:  # e.g. no indexed clip has its skeleton
+                raise ValueError(f"clip: {exc}") from None
+            if self.on_query:
+                self.on_query("query-webs", {"upload": u.id, "generation": snap.gen.id},
+                              {"webs": len(got[1]), "webs_s": time.perf_counter() - t})
+            return got
+
+        return self.uploads.query_webs(upload.id, snap.gen.id, build)
+
+    def registration(self, gen_id: str, graph: MatchGraph, request: SearchQuery,
+                     extra: dict[str, Any] | None = None) -> Registration:
+        """``graph``'s registration (KG04 §4.1), computed by the search worker (``extra``: the
+        record of a query clip from outside the index)."""
+        try:
+            return self.workers.register(gen_id, graph, extra)
         except WorkerCrashed as exc:
             raise QueryCrashed(query_fields(request), exc.how, "registration") from None
 
@@ -415,7 +496,8 @@ class Engine:
             if res.registration is None and len(res.graph.nodes) > 1:
                 t = time.perf_counter()
                 snap = res.snap
-                res.registration = self.registration(snap.gen.id, res.graph, res.request)
+                extra = None if res.upload is None else {res.upload[1]["path"]: res.upload[1]}
+                res.registration = self.registration(snap.gen.id, res.graph, res.request, extra)
                 res.timings["register_s"] = time.perf_counter() - t
                 if self.on_query:
                     self.on_query("register", {"result": rid}, {"nodes": len(res.graph.nodes),
@@ -454,15 +536,15 @@ class Engine:
     def node_pose(self, rid: str, rank: int, registered: bool) -> dict[str, Any]:
         res, seg = self.node(rid, rank)
         frames = self.node_frames(rid, rank, registered)
-        rec = res.snap.by_path[seg.clip]
-        return {**res.snap.clip_row(rec), "rank": rank, "start_frame": seg.start, "end_frame": seg.end,
-                "registered": registered, **pose_payload(res.snap, res.snap.motion(rec), frames, res.graph.rate)}
+        rec, motion = res.clip(seg.clip)
+        return {**res.clip_row(rec), "rank": rank, "start_frame": seg.start, "end_frame": seg.end,
+                "registered": registered, **pose_payload(res.snap, motion, frames, res.graph.rate)}
 
     def node_bvh(self, rid: str, rank: int, registered: bool) -> tuple[str, str]:
         """(file name, BVH text) of a node's segment, as the query flow's export names it."""
         res, seg = self.node(rid, rank)
         frames = self.node_frames(rid, rank, registered)
-        m = segment_motion(res.snap.motion(res.snap.by_path[seg.clip]), frames, res.graph.rate)
+        m = segment_motion(res.clip(seg.clip)[1], frames, res.graph.rate)
         tag = "registered" if registered else f"{seg.start}-{seg.end}"
         return f"{rank:03d}_{Path(seg.clip).stem}_{tag}.bvh", format_bvh(m)
 
@@ -470,7 +552,7 @@ class Engine:
         """(file name, GLB bytes) of a node's segment: :meth:`node_bvh` as glTF binary."""
         res, seg = self.node(rid, rank)
         frames = self.node_frames(rid, rank, registered)
-        m = segment_motion(res.snap.motion(res.snap.by_path[seg.clip]), frames, res.graph.rate)
+        m = segment_motion(res.clip(seg.clip)[1], frames, res.graph.rate)
         tag = "registered" if registered else f"{seg.start}-{seg.end}"
         return f"{rank:03d}_{Path(seg.clip).stem}_{tag}.glb", glb_bytes(m, res.snap.gen_cfg.corpus.up_axis)
 
@@ -480,6 +562,9 @@ class Engine:
         flow's result, file names relative to the zip: ``out/...``, ``export/...``) and those
         files. They are written into a folder of the service's own, never one a request names."""
         t0 = time.perf_counter()
+        if request.clip.startswith(UPLOAD_PREFIX):
+            raise ValueError("clip: an upload is searched with POST /api/search (the CLI searches a file of "
+                             "its own with --query-file)")
         res = self.search(request, search)
         snap = res.snap
         export = request.export is not None

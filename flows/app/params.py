@@ -38,3 +38,7 @@ class AppParams(Params):
     upload_bytes: int = Field(16 * 1024 * 1024, ge=64 * 1024, le=1024 * 1024 * 1024)
     uploads: int = Field(32, ge=1, le=1024)
     upload_ttl_s: float = Field(3600.0, gt=0)
+    #: MiB the kept uploads may hold in all: their motions and, for one searched as a query (KG04
+    #: §3.3), its features and its webs against the indexed clips (built on demand, kept per
+    #: generation); the least recently used upload goes first (the newest is kept even alone over it)
+    upload_mb: float = Field(256.0, gt=0)

@@ -401,7 +401,9 @@ class WarpSessions:
         self.sessions.put(s.id, s)
         return {"session": s.id, **snap.clip_row(rec), "generation": snap.gen.id,
                 "reference": snap.clip_row(ref) if ref is not None else None, "nbytes": prepared["nbytes"],
-                "original": draw_pose(snap, motion)}
+                "original": draw_pose(snap, motion),
+                # the reference's poses, for the player beside the warped one (HDP07 §3: the warp follows it)
+                "reference_pose": draw_pose(snap, reference) if reference is not None else None}
 
     def session(self, sid: str) -> WarpSession:
         s = self.sessions.get(sid)

@@ -5,10 +5,16 @@ name the request gives (the name is a label, reduced to ``[A-Za-z0-9_.-]``) — 
 (the id is the SHA-256 of the texts, so the same upload twice is one clip) in a cache bounded by
 count and lifetime (``AppParams.uploads``, ``upload_ttl_s``); the request itself is bounded by
 ``AppParams.upload_bytes`` (the API's guard). An uploaded clip is named by its id (``up-`` and 16
-hex digits) wherever the retime and warp sessions take a clip of the index.
+hex digits) wherever the retime and warp sessions take a clip of the index, and as the query of a
+search (KG04 §3.3): its features and its webs against the indexed clips are built on demand by the
+search worker (``tasks/query_clip.py``, the code path of ``motionweb search --query-file``) and kept
+here with the clip, per generation (:meth:`Uploads.query_webs`).
 
+Memory: the cache is bounded by count (``app.uploads``), lifetime (``app.upload_ttl_s``) and bytes
+(``app.upload_mb``, every kept motion, features and web counted), least recently used out first.
 Cost: parsing is O(file size); a kept clip holds its motion, O(F · J) (about 40 kB per 100 frames
-of a 31-joint skeleton).
+of a 31-joint skeleton); a searched one also its webs, one per indexed clip of its skeleton (O(F ·
+Fb) cells each at most, usually a small fraction along the web's chains).
 """
 
 from __future__ import annotations
@@ -18,17 +24,19 @@ import re
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from motionweb.flows.app.engine import NotFound
+from motionweb.flows.app.engine import UPLOAD_PREFIX, NotFound
 from motionweb.flows.app.params import AppParams
-from motionweb.flows.app.session_worker import UploadJob
+from motionweb.flows.app.session_worker import UploadJob, nbytes
+from motionweb.flows.query import FILE_PREFIX
 from motionweb.store.motion import UNIT_SCALES
 from pydantic import BaseModel, ConfigDict, Field
 
-PREFIX = "up-"
+PREFIX = UPLOAD_PREFIX
 
 
 class UploadBody(BaseModel):
@@ -68,6 +76,20 @@ class Upload:
     motion: Any
     kind: str
     added: float
+    #: SHA-256 of the clip's file as uploaded (the BVH's, or the AMC's, UTF-8): the content address
+    #: an index gives the same file, so an upload of an indexed file is searched as that clip
+    file_sha256: str = ""
+    #: per generation id, the query record (with its features) and webs built for a search
+    webs: dict[str, tuple[dict[str, Any], dict[str, Any]]] = field(default_factory=dict)
+    nbytes: int = 0
+
+    def query_name(self) -> str:
+        """The clip's name as a query file (``--query-file``'s is the file name): id and label."""
+        return f"{self.id}/{self.name}.{self.kind}"
+
+    def key(self) -> str:
+        """The clip's web-source name as a query from outside the index (``flows/query.FILE_PREFIX``)."""
+        return FILE_PREFIX + self.query_name()
 
     def record(self) -> dict[str, Any]:
         """The clip record the sessions take (as a generation's, its path a label under upload/)."""
@@ -91,6 +113,17 @@ class Uploads:
         for k in [k for k, u in self.items.items() if now - u.added > self.params.upload_ttl_s]:
             del self.items[k]
 
+    def _bound(self) -> None:
+        """Drop the least recently used uploads over ``app.uploads`` or ``app.upload_mb`` (the
+        newest stays, even alone over the bytes)."""
+        limit = self.params.upload_mb * 2**20
+        while len(self.items) > self.params.uploads or (len(self.items) > 1 and self.total() > limit):
+            self.items.popitem(last=False)
+
+    def total(self) -> int:
+        """Bytes held by the kept uploads (motions, features, webs)."""
+        return sum(u.nbytes for u in self.items.values())
+
     def add(self, body: UploadBody, default_unit: str | None, default_scale: float | None) -> dict[str, Any]:
         body.check()
         texts = [body.bvh] if body.bvh is not None else [body.asf, body.amc]
@@ -111,13 +144,34 @@ class Uploads:
                 unit, scale = None, None  # the ASF declares its own (CMU: inches / 0.45)
             motion = self.parse(UploadJob(name, sha, body.bvh, body.asf, body.amc, unit, scale, body.fps))
             check_motion(motion, self.params)
-            known = Upload(uid, name, motion, "bvh" if body.bvh is not None else "amc", time.monotonic())
+            main = body.bvh if body.bvh is not None else body.amc
+            known = Upload(uid, name, motion, "bvh" if body.bvh is not None else "amc", time.monotonic(),
+                           hashlib.sha256(main.encode("utf-8", "surrogatepass")).hexdigest(), nbytes=nbytes(motion))
         with self.lock:
             self.items[uid] = known
             self.items.move_to_end(uid)
-            while len(self.items) > self.params.uploads:
-                self.items.popitem(last=False)
+            self._bound()
         return self.summary(known)
+
+    def query_webs(self, uid: str, gen_id: str, build: Callable[[Upload], tuple[dict[str, Any], dict[str, Any]]]
+                   ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The upload's query record (with its features) and webs on generation ``gen_id``: kept
+        ones, else ``build(upload)`` (the search worker's, ``tasks/query_clip.py``), then kept with
+        the upload within the cache's bounds. Two searches of a new upload may both build (the
+        second's copy is kept): the lock is not held while building."""
+        u = self.get(uid)
+        with self.lock:
+            got = u.webs.get(gen_id)
+        if got is not None:
+            return got
+        got = build(u)
+        with self.lock:
+            u.webs = {gen_id: got}  # an older generation's are of no more use
+            u.nbytes = nbytes(u.motion) + nbytes(list(got))
+            if uid in self.items:
+                self.items.move_to_end(uid)
+                self._bound()
+        return got
 
     def get(self, uid: str) -> Upload:
         with self.lock:
@@ -131,7 +185,14 @@ class Uploads:
     def summary(self, u: Upload) -> dict[str, Any]:
         m = u.motion
         return {"id": u.id, "name": u.name, "path": u.record()["path"], "frames": m.n_frames, "fps": m.fps,
-                "duration": m.duration, "joints": list(m.skeleton.names), "unit": m.unit, "scale_to_m": m.scale_to_m}
+                "duration": m.duration, "joints": list(m.skeleton.names), "unit": m.unit, "scale_to_m": m.scale_to_m,
+                "bytes": u.nbytes}
+
+    def stats(self) -> dict[str, Any]:
+        """The cache's uploads, their bytes and its bounds."""
+        with self.lock:
+            return {"uploads": len(self.items), "bytes": self.total(), "max_bytes": int(self.params.upload_mb * 2**20),
+                    "max_uploads": self.params.uploads}
 
 
 def check_motion(motion: Any, params: AppParams) -> None:

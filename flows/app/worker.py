@@ -69,6 +69,9 @@ class SearchJob:
     params: dict[str, Any]
     threshold: float | None = None
     quantile: float | None = None
+    #: a query clip from outside the index (an upload, KG04 §3.3): its web-source name and its webs
+    #: (``tasks/query_clip.query_clip_webs``), searched with every category's webs
+    query: tuple[str, dict[str, Any]] | None = None
 
     def kind(self) -> tuple:
         """What a standby rehearses once: the scope and the ε rule (a quantile per value)."""
@@ -159,6 +162,8 @@ class _State:
         from motionweb.tasks.ranking import search_query
         from motionweb.tasks.search import SearchParams, epsilon_from_quantile
 
+        if job.query is not None:
+            return self.search_file(job)
         sc = self.scope(job.generation, job.category)
         params = SearchParams.model_validate(job.params)
         sc.search.cfg = params
@@ -172,15 +177,47 @@ class _State:
 
         return search_query(sc.search, job.segment, job.threshold, job.quantile, quantile_value)
 
+    def search_file(self, job: SearchJob) -> tuple[Any, float | None]:
+        """A search whose query clip is from outside the index (``job.query``: its name and webs),
+        as the query flow runs ``search --query-file`` (``flows/query.search_task``): the index's
+        webs of every category (the shared cache's) plus the clip's, ε from them all. The walk
+        graphs of the clips it reaches are packed with its webs, kept under its own key."""
+        from motionweb.tasks.query_clip import WithQueryClip
+        from motionweb.tasks.ranking import search_query
+        from motionweb.tasks.search import MatchSearch, SearchParams
 
-    def register(self, gen_id: str, graph: Any) -> Any:
-        """The registration of a search's match graph (KG04 §4.1)."""
+        name, webs = job.query
+        _, gen_cfg, _, _ = self.generation(job.generation)
+        source = WithQueryClip(self.scope(job.generation, None).webs, name, webs)
+        ms = MatchSearch(source, SearchParams.model_validate(job.params), gen_cfg.matchweb, self.cache,
+                         (job.generation, "query", name))  # the name holds the content id
+        ms.check(job.segment)
+        _test_crash(job.segment.clip)
+        return search_query(ms, job.segment, job.threshold, job.quantile)
+
+    def query_webs(self, gen_id: str, name: str, motion: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The record (its features under ``flows/query.FILE_FEATURES``) and webs of ``motion``, a
+        clip from outside the index named ``name``, against generation ``gen_id``'s clips of its
+        skeleton: ``flows/query.prepare_file_query`` (``search --query-file``'s code path)."""
+        from motionweb.flows.query import prepare_file_query
+        from motionweb.flows.requests import QueryRequest
+
+        gen, gen_cfg, _, store = self.generation(gen_id)
+        rate = max(float(r) for r in gen_cfg.features.rates)
+        # the window is checked by the service; this one only names the clip (the webs span it all)
+        q = prepare_file_query(store, gen, gen_cfg, rate, QueryRequest(clip=name, start=0.0, end=motion.duration),
+                               motion)
+        return q.record, q.webs.webs
+
+    def register(self, gen_id: str, graph: Any, extra: dict[str, Any] | None = None) -> Any:
+        """The registration of a search's match graph (KG04 §4.1); ``extra``: records of clips
+        from outside the index (a query upload's, with its features)."""
         from motionweb.flows.query import register_graph
 
         gen, gen_cfg, _, store = self.generation(gen_id)
         _test_crash(graph.nodes[0].segment.clip, "register")
         return register_graph(store, gen, gen_cfg, graph,
-                              {c["path"]: c for c in gen.clips})
+                              {**{c["path"]: c for c in gen.clips}, **(extra or {})})
 
 
 def _test_crash(clip: str, stage: str = "search") -> None:
@@ -238,7 +275,8 @@ def child_main(fd: int, url: str, cache_bytes: int | None = None) -> None:
 
     state = _State(url, cache_bytes)
     serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
-                                "register": lambda p: state.register(*p), "stats": lambda _: state.stats()})
+                                "register": lambda p: state.register(*p), "query_webs": lambda p: state.query_webs(*p),
+                                "stats": lambda _: state.stats()})
 
 
 # --------------------------------------------------------------------------------- the parent
@@ -419,14 +457,22 @@ class SearchWorkers:
         request (the CLI's messages), :class:`WorkerCrashed` if the worker died running it (the
         next call gets the standby)."""
         out = self._run("search", job, f"a search of {job.segment.clip} [{job.segment.start}, {job.segment.end}]")
-        self._learn(job)
+        if job.query is None:  # an upload's search is not rehearsed (its webs are the request's)
+            self._learn(job)
         return out
 
-    def register(self, gen_id: str, graph: Any) -> Any:
+    def register(self, gen_id: str, graph: Any, extra: dict[str, Any] | None = None) -> Any:
         """The :class:`~motionweb.tasks.register.Registration` of ``graph`` (a search's answer on
-        generation ``gen_id``), computed by the primary worker; errors as :meth:`search`."""
+        generation ``gen_id``; ``extra``: records of clips from outside the index), computed by the
+        primary worker; errors as :meth:`search`."""
         q = graph.nodes[0].segment
-        return self._run("register", (gen_id, graph), f"a registration of {q.clip} [{q.start}, {q.end}]")
+        return self._run("register", (gen_id, graph, extra), f"a registration of {q.clip} [{q.start}, {q.end}]")
+
+    def query_webs(self, gen_id: str, name: str, motion: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+        """The record and webs of a clip from outside the index (:meth:`_State.query_webs`),
+        built by the primary worker (compiled kernels: a crash costs the request); errors as
+        :meth:`search`."""
+        return self._run("query_webs", (gen_id, name, motion), f"the webs of the query clip {name}")
 
     def _run(self, kind: str, payload: Any, what: str) -> Any:
         with self._call:

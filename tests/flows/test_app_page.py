@@ -290,6 +290,62 @@ def test_warp_panel_warps_the_clip_and_a_keytime_changes_it(browser, service) ->
     time.sleep(0.3)
     wait.until(lambda d: not d.execute_script("return gw.busy || gw.pending;"))
     wait.until(lambda d: d.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));") != before)
+    # the original plays beside the warped motion, and the curve marks each flight's ratio
+    first = canvas_data(drv, "gw-original")
+    time.sleep(0.4)
+    assert canvas_data(drv, "gw-original") != first
+    assert drv.execute_script("return gw.original.pose.frames;") == drv.execute_script("return gw.session.original.frames;")
+    # dragging the keytime changes the motion that plays
+    added = drv.execute_script("return JSON.stringify(gw.keytimes);")
+    before = drv.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));")
+    ActionChains(drv).move_to_element_with_offset(curve, 40, 20).click_and_hold().move_by_offset(-25, 30) \
+        .move_by_offset(-25, 30).release().perform()
+    wait.until(lambda d: d.execute_script("return JSON.stringify(gw.keytimes);") != added)
+    assert drv.execute_script("return gw.keytimes.length;") == 1
+    time.sleep(0.3)
+    wait.until(lambda d: not d.execute_script("return gw.busy || gw.pending;"))
+    wait.until(lambda d: d.execute_script("return JSON.stringify(gw.result.pose.positions.slice(0, 300));") != before)
+    errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    assert drv.find_element(By.ID, "message").text == ""
+
+
+def test_an_uploaded_clip_is_searched_from_the_page(browser, service, tmp_path: Path) -> None:
+    """A BVH of the user's own (a demo walk not in the index) uploaded through the search panel's
+    file input plays in the player, is picked as the query, and its segment is searched: the
+    service builds its webs on demand (KG04 §3.3) and the matches are listed, no console error."""
+    from motionweb.store.bvh import write_bvh
+    from motionweb.store.demo.corpus import generate_clip
+
+    walk, _ = generate_clip("walk", 0, 1234, 30.0)
+    write_bvh(walk, tmp_path / "my_walk.bvh")
+    drv = browser
+    wait = WebDriverWait(drv, 120)
+    drv.get(service.url + "/")
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#catalog tbody tr")) == 6)
+    drv.find_element(By.ID, "q-upload").send_keys(str(tmp_path / "my_walk.bvh"))
+    wait.until(lambda d: "upload/my_walk.bvh" in d.find_element(By.ID, "clip-title").text)
+    uid = drv.execute_script("return state.clip.id;")
+    assert uid.startswith("up-") and drv.find_element(By.ID, "q-pick").get_attribute("value") == uid
+    for fid, value in (("seg-start", "1"), ("seg-end", "2.5")):
+        el = drv.find_element(By.ID, fid)
+        el.clear()
+        el.send_keys(value)
+        drv.execute_script(f"document.getElementById('{fid}').dispatchEvent(new Event('change'));")
+    drv.find_element(By.ID, "search").click()
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#results tbody tr")) > 1)
+    rows = drv.find_elements(By.CSS_SELECTOR, "#results tbody tr")
+    assert f"file:{uid}/my_walk.bvh" in rows[0].text and any("walk/" in r.text for r in rows[1:])
+    wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#compare canvas")) > 1)  # registered, played
+    wait.until(lambda d: d.find_element(By.ID, "message").text == "")
+    # picking an indexed clip, then the upload again from the list
+    next(r for r in drv.find_elements(By.CSS_SELECTOR, "#catalog tbody tr") if "run_00" in r.text).click()
+    wait.until(lambda d: "run/run_00.bvh" in d.find_element(By.ID, "clip-title").text)
+    assert drv.find_element(By.ID, "q-pick").get_attribute("value") == ""
+    from selenium.webdriver.support.ui import Select
+
+    Select(drv.find_element(By.ID, "q-pick")).select_by_value(uid)
+    wait.until(lambda d: "upload/my_walk.bvh" in d.find_element(By.ID, "clip-title").text)
     errors = [e for e in drv.get_log("browser") if e["level"] == "SEVERE"]
     assert not errors, errors
     assert drv.find_element(By.ID, "message").text == ""

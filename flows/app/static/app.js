@@ -157,7 +157,47 @@ async function loadCatalog() {
 async function openClip(id) {
   say("loading clip…");
   const pose = await api(`/api/clips/${id}/pose?rate=30`);
-  state.clip = pose; state.pose = pose; state.time = 0;
+  showClip(pose, id);
+  $("q-pick").value = "";
+  $("clip-bvh").href = `/api/clips/${id}/bvh`; $("clip-bvh").classList.remove("hidden");
+  $("clip-glb").href = `/api/clips/${id}/glb`; $("clip-glb").classList.remove("hidden");
+}
+
+// an uploaded clip (POST /api/uploads) in the player: its segment is then searched as the query
+// (the service builds its webs against the index on demand, KG04 §3.3)
+async function openUpload(id) {
+  say("loading the uploaded clip…");
+  const pose = await api(`/api/uploads/${id}/pose?rate=30`);
+  showClip(pose, id);
+  $("q-pick").value = id;
+  $("clip-bvh").classList.add("hidden"); $("clip-glb").classList.add("hidden");
+}
+
+// a clip of the user's own: a BVH, or an ASF and its AMC, sent as text (POST /api/uploads), kept
+// by the service in memory only (content-addressed: the same file twice is one upload); listed
+// as a query of the search panel. unit: a BVH's length unit ("": the config's).
+async function uploadClip(files, unit) {
+  const byExt = {};
+  for (const f of files) byExt[f.name.split(".").pop().toLowerCase()] = f;
+  const body = { name: (byExt.bvh || byExt.amc || files[0]).name };
+  if (byExt.bvh) body.bvh = await byExt.bvh.text();
+  else if (byExt.asf && byExt.amc) { body.asf = await byExt.asf.text(); body.amc = await byExt.amc.text(); }
+  else throw new Error("choose a .bvh file, or an .asf and its .amc");
+  if (unit) body.unit = unit;
+  say("uploading…");
+  const up = await api("/api/uploads", {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+  });
+  say("");
+  const pick = $("q-pick");
+  if (![...pick.options].some((o) => o.value === up.id)) {
+    pick.add(new Option(`${up.name} · ${up.duration.toFixed(2)} s (${up.id})`, up.id));
+  }
+  return up;
+}
+
+function showClip(pose, id) {
+  state.clip = { ...pose, id }; state.pose = pose; state.time = 0;
   for (const tr of $("catalog").tBodies[0].rows) tr.classList.toggle("selected", tr.dataset.id === id);
   $("clip-title").textContent = `${pose.path} · ${pose.duration.toFixed(2)} s · ${pose.category}`;
   view.setPose(pose);
@@ -165,8 +205,6 @@ async function openClip(id) {
   state.sel = [Math.min(d * 0.25, Math.max(0, d - 1)), Math.min(d, Math.max(d * 0.25, 0) + Math.min(1.5, d))];
   syncSegmentInputs();
   $("play").disabled = false; $("search").disabled = false;
-  $("clip-bvh").href = `/api/clips/${id}/bvh`; $("clip-bvh").classList.remove("hidden");
-  $("clip-glb").href = `/api/clips/${id}/glb`; $("clip-glb").classList.remove("hidden");
   state.playing = true; $("play").textContent = "pause";
   drawTimeline();
   say("");
@@ -285,7 +323,7 @@ function showRows(res) {
       dl.append(a, " ");
     }
     tr.style.color = COLORS[r.rank % COLORS.length];
-    tr.addEventListener("click", () => openClip(r.id).then(() => {
+    tr.addEventListener("click", () => (r.id.startsWith("up-") ? openUpload : openClip)(r.id).then(() => {
       state.sel = [r.start_s, r.end_s]; state.time = r.start_s; syncSegmentInputs(); drawTimeline();
     }).catch((e) => say(e.message)));
   }
@@ -488,6 +526,9 @@ function setup() {
   $("eps").addEventListener("input", epsLabel);
   $("eps-mode").addEventListener("change", setEpsMode);
   $("search").addEventListener("click", () => runSearch().catch((e) => say(e.message)));
+  $("q-upload").addEventListener("change", (e) => uploadClip([...e.target.files], $("q-upload-unit").value)
+    .then((up) => openUpload(up.id)).catch((err) => say(err.message)));
+  $("q-pick").addEventListener("change", () => { if ($("q-pick").value) openUpload($("q-pick").value).catch((e) => say(e.message)); });
   $("open-glb").addEventListener("change", (e) => {
     const file = e.target.files[0];
     if (file) file.arrayBuffer().then((b) => playGlb(b, file.name)).catch((err) => say(err.message));

@@ -293,21 +293,9 @@ function rtTick(now) {
   requestAnimationFrame(rtTick);
 }
 
-// a clip of the user's own: a BVH, or an ASF and its AMC, sent as text (POST /api/uploads), kept
-// by the service in memory only; then retimed here
+// a clip of the user's own (uploadClip of app.js: also listed as a search query), retimed here
 async function rtUpload(files) {
-  const byExt = {};
-  for (const f of files) byExt[f.name.split(".").pop().toLowerCase()] = f;
-  const body = { name: (byExt.bvh || byExt.amc || files[0]).name };
-  if (byExt.bvh) body.bvh = await byExt.bvh.text();
-  else if (byExt.asf && byExt.amc) { body.asf = await byExt.asf.text(); body.amc = await byExt.amc.text(); }
-  else throw new Error("choose a .bvh file, or an .asf and its .amc");
-  if ($("rt-upload-unit").value) body.unit = $("rt-upload-unit").value;
-  say("uploading…");
-  const up = await api("/api/uploads", {
-    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
-  });
-  say("");
+  const up = await uploadClip(files, $("rt-upload-unit").value);
   rt.upload = up;
   await rtOpen(false, up.id);
 }

@@ -1,13 +1,15 @@
 // motionweb page: the guided time warp panel (HDP07), over the service's warp sessions
 // (flows/app/sessions.py). A session keeps the clip, its reference (or itself) and the local
 // scores of its triples; every edit (the duration, a keytime added or dragged on the warp curve)
-// asks for the warped motion, played here, with the warp curve and each flight's ratio.
+// asks for the warped motion, played here beside the original (or the reference it is warped
+// toward) on one clock, as the retime panel plays the retimed beside the original, with the warp
+// curve (a red mark: the frame playing now), each flight shaded on it with its ratio.
 // Plain JS and canvas; uses $, api, say, Figure, COLORS and state of app.js, rtAxes and
 // rtPolyline of retime.js.
 "use strict";
 
 const gw = { session: null, result: null, keytimes: [], duration: null, busy: false, pending: false, timer: null,
-  drag: null, time: 0, last: performance.now(), view: null, axes: null };
+  drag: null, time: 0, last: performance.now(), view: null, original: null, axes: null };
 
 async function gwOpen() {
   if (!state.clip) { say("open a clip in the player first"); return; }
@@ -18,6 +20,10 @@ async function gwOpen() {
     method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
   });
   gw.session = s; gw.keytimes = [];
+  // beside the warped motion: the reference it follows (HDP07 §3), else the original clip
+  gw.original.setPose(s.reference_pose || s.original);
+  $("gw-original-cap").textContent = s.reference_pose ? `reference: ${s.reference.path}` : `original: ${s.path}`;
+  gw.time = 0;
   gw.duration = Math.round(0.7 * s.duration * 100) / 100;
   $("gw-duration").value = gw.duration.toFixed(2);
   $("gw-info").textContent = `${s.path} toward ${s.reference ? s.reference.path : "itself"}`;
@@ -68,10 +74,22 @@ function gwCurve() {
   rtPolyline(ctx, t, r.times_s, a.X, a.Y);
   ctx.fillStyle = "#000";
   for (const [s, o] of gw.keytimes) { ctx.beginPath(); ctx.arc(a.X(o), a.Y(s), 5, 0, 2 * Math.PI); ctx.fill(); }
+  // each flight of the input (no foot down): its input span shaded, with the ratio the warp gave it
+  ctx.font = "10px sans-serif";
+  for (const f of r.flights) {
+    if (f.start_s === undefined) continue;
+    const y0 = a.Y(f.start_s), y1 = a.Y(f.start_s + f.source_s);
+    ctx.fillStyle = "rgba(255,152,0,0.18)"; ctx.fillRect(a.X(0), y1, a.X(r.output_s) - a.X(0), y0 - y1);
+    ctx.fillStyle = "#e65100"; ctx.fillText(`×${f.ratio.toFixed(2)}`, a.X(r.output_s) - 34, y1 + 10);
+  }
+  // the frame playing now
+  const k = Math.min(r.times_s.length - 1, Math.round(gw.time * r.fps));
+  ctx.fillStyle = "#c62828"; ctx.beginPath(); ctx.arc(a.X(k / r.fps), a.Y(r.times_s[k]), 3, 0, 2 * Math.PI); ctx.fill();
 }
 
 function gwSetup() {
   gw.view = new Figure($("gw-view"), COLORS[2]);
+  gw.original = new Figure($("gw-original"), COLORS[5]);
   const c = $("gw-curve");
   const at = (e) => {
     const b = c.getBoundingClientRect(), px = (e.clientX - b.left) * c.width / b.width, py = (e.clientY - b.top) * c.height / b.height;
@@ -115,8 +133,12 @@ function gwSetup() {
     const dt = Math.min(0.1, (now - gw.last) / 1000);
     gw.last = now;
     if (gw.result && gw.view.pose) {
-      gw.time = (gw.time + dt) % Math.max(gw.result.output_s, 0.1);
+      // one clock for both, over the longer of the two (as the retime panel's)
+      const o = gw.original.pose, span = Math.max(gw.result.output_s, o ? (o.frames - 1) / o.rate : 0, 0.1);
+      gw.time = (gw.time + dt) % span;
       gw.view.draw(Math.min(gw.view.pose.frames - 1, Math.round(gw.time * gw.view.pose.rate)));
+      if (o) gw.original.draw(Math.min(o.frames - 1, Math.round(gw.time * o.rate)));
+      if (gw.drag == null) gwCurve();
     }
     requestAnimationFrame(tick);
   };
