@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 import typer
 from motionweb.flows.history import record_run, server_url
 from motionweb.flows.reported import ERRORS
-from motionweb.store.errors import MotionFormatError
 
 if TYPE_CHECKING:  # the config imports every stage: loaded on use, so a forwarded search starts fast
     from motionweb.flows.config import Config
@@ -42,14 +41,17 @@ R = TypeVar("R")
 
 
 def run_command(flow_name: str, parameters: dict[str, Any], work: Callable[[], T], show: Callable[[T], None],
-                strip: bool = False, services: bool = False, record: bool = True) -> T:
+                strip: bool = False, services: bool = False, record: bool = True,
+                outcome: Callable[[T], Any] | None = None) -> T:
     """Every command's run, the same way (issue 23): with ``services`` (a command that may start a
     Prefect server or a Dask cluster) the reaper first, so they die with this process; then
     ``work`` in this process (an on-demand command calls its flow's ``.fn``: no Prefect,
     flows/lazy_prefect.py); an error it reports (``ERRORS``) is one line and exit 2 (quotes
     stripped with ``strip``); else ``show`` prints the answer. Either outcome is then recorded as
     a Prefect flow run named ``flow_name`` when a server is there (flows/history.py), unless
-    ``record`` is off (a command that runs as a Prefect flow, index, is its own record)."""
+    ``record`` is off (a command that runs as a Prefect flow, index, is its own record); the record
+    keeps ``outcome(result)`` (default: the result). An error with an ``exit_code``
+    (:class:`~motionweb.flows.reported.CommandError`) exits with that code."""
     if services:
         from motionweb.flows.reaper import start_reaper
 
@@ -60,10 +62,10 @@ def run_command(flow_name: str, parameters: dict[str, Any], work: Callable[[], T
         message = str(exc).strip("'\"") if strip else str(exc)
         if record:
             record_run(flow_name, parameters, {"error": message})
-        fail(message)
+        fail(message, getattr(exc, "exit_code", 2))
     show(result)
     if record:
-        record_run(flow_name, parameters, result)
+        record_run(flow_name, parameters, result if outcome is None else outcome(result))
     return result
 
 
@@ -116,34 +118,49 @@ def catalog(
     json_out: Annotated[bool, typer.Option("--json", help="Print the catalog as JSON.")] = False,
 ) -> None:
     """Scan a corpus folder: category, frames, fps, duration and hash of every clip."""
+    from motionweb.flows.requests import CatalogRequest
     from motionweb.store.catalog import scan_corpus
 
+    request = request_or_fail(CatalogRequest, corpus=str(corpus), as_json=json_out)
     cfg = config_or_fail(config)
-    try:
-        cat = scan_corpus(corpus, cfg.corpus)
-    except (FileNotFoundError, ValueError) as exc:
-        fail(str(exc))
-    typer.echo(cat.to_json() if json_out else catalog_table(cat))
+    run_command("catalog", {"config": str(config) if config else None, "request": request.wire()},
+                lambda: scan_corpus(request.corpus, cfg.corpus),
+                lambda cat: typer.echo(cat.to_json() if request.as_json else catalog_table(cat)),
+                outcome=lambda cat: {"clips": len(cat.entries), "frames": sum(e.frames for e in cat.entries),
+                                     "unreadable": len(cat.errors)})
+
+
+def _preview_default(name: str) -> Any:
+    from motionweb.flows.requests import PreviewRequest
+
+    return PreviewRequest.model_fields[name].default
 
 
 @app.command()
 def preview(
     motion: Annotated[Path, typer.Argument(help="A clip (.bvh, .amc, DeepMimic .txt).")],
     out: Annotated[Path, typer.Option(help="Output GIF.")],
-    max_frames: Annotated[int, typer.Option(help="Subsample to at most this many frames.")] = 120,
-    fps: Annotated[float, typer.Option(help="GIF frame rate.")] = 15.0,
-    up: Annotated[str, typer.Option(help="Vertical axis of the clip.")] = "y",
+    max_frames: Annotated[int | None, typer.Option(
+        help=f"Subsample to at most this many frames (default {_preview_default('max_frames')}).")] = None,
+    fps: Annotated[float | None, typer.Option(help=f"GIF frame rate (default {_preview_default('fps'):g}).")] = None,
+    up: Annotated[str | None, typer.Option(help=f"Vertical axis of the clip (default {_preview_default('up')}).")] = None,
 ) -> None:
     """Render a stick-figure animation of a clip to a GIF (headless)."""
-    from motionweb.flows.preview import render_gif
-    from motionweb.store.formats import read_motion
+    from motionweb.flows.requests import PreviewRequest
 
-    try:
-        m = read_motion(motion)
-    except (MotionFormatError, OSError) as exc:
-        fail(str(exc))
-    n = render_gif(m, out, max_frames=max_frames, fps=fps, up=up)
-    typer.echo(f"wrote {out} ({n} frames of {m.n_frames})")
+    given = {k: v for k, v in {"max_frames": max_frames, "fps": fps, "up": up}.items() if v is not None}
+    request = request_or_fail(PreviewRequest, motion=str(motion), out=str(out), **given)
+
+    def work() -> dict[str, Any]:
+        from motionweb.flows.preview import render_gif
+        from motionweb.store.formats import read_motion
+
+        m = read_motion(request.motion)
+        n = render_gif(m, request.out, max_frames=request.max_frames, fps=request.fps, up=request.up)
+        return {"out": request.out, "frames": n, "of": m.n_frames}
+
+    run_command("preview", {"request": request.wire()}, work,
+                lambda r: typer.echo(f"wrote {r['out']} ({r['frames']} frames of {r['of']})"))
 
 
 @app.command()
@@ -504,18 +521,25 @@ def plot_web(
     config: Annotated[Path, typer.Argument(help="Config file (corpus, features, matchweb).")],
     clip_a: Annotated[str, typer.Argument(help="Clip on the vertical axis (corpus path or stem).")],
     clip_b: Annotated[str, typer.Argument(help="Clip on the horizontal axis (corpus path or stem).")],
-    out: Annotated[Path, typer.Option(help="Output image (PNG, PDF, SVG).")] = Path("web.png"),
+    out: Annotated[Path | None, typer.Option(help="Output image (PNG, PDF, SVG; default web.png).")] = None,
 ) -> None:
     """Draw the distance grid of two clips with minima, valid region, chains and bridges (KG04 Fig. 4/7)."""
-    from motionweb.flows.plots import plot_web as draw
+    from motionweb.flows.requests import PlotWebRequest
 
+    request = request_or_fail(PlotWebRequest, clip_a=clip_a, clip_b=clip_b, **({"out": str(out)} if out else {}))
     cfg = config_or_fail(config)
-    try:
-        rep = draw(cfg, clip_a, clip_b, out)
-    except (KeyError, FileNotFoundError, MotionFormatError, ValueError) as exc:
-        fail(str(exc).strip("'\""))
-    typer.echo(f"wrote {rep.out}: {rep.clip_a} x {rep.clip_b} at {rep.rate:g} Hz, grid {rep.shape[0]}x{rep.shape[1]}, "
-               f"{rep.minima} minima, {rep.chains} chains, {rep.bridges} bridges")
+
+    def work() -> Any:
+        from motionweb.flows.plots import plot_web as draw
+
+        return draw(cfg, request.clip_a, request.clip_b, request.out)
+
+    run_command("plot-web", {"config": str(config), "request": request.wire()}, work,
+                lambda rep: typer.echo(f"wrote {rep.out}: {rep.clip_a} x {rep.clip_b} at {rep.rate:g} Hz, grid "
+                                       f"{rep.shape[0]}x{rep.shape[1]}, {rep.minima} minima, {rep.chains} chains, "
+                                       f"{rep.bridges} bridges"),
+                strip=True, outcome=lambda rep: {"out": str(rep.out), "grid": list(rep.shape), "chains": rep.chains,
+                                                 "bridges": rep.bridges})
 
 
 from motionweb.flows import store_cli

@@ -27,8 +27,9 @@ def stick_segments(motion: Motion, up: str = "y") -> tuple[np.ndarray, list[tupl
     return pts, bones
 
 
-def render_gif(motion: Motion, out: str | Path, max_frames: int = 120, fps: float = 15.0, up: str = "y") -> int:
-    """Write an animated GIF of the clip; frames are subsampled to at most ``max_frames``.
+def render_gif(motion: Motion, out: str | Path, *, max_frames: int, fps: float, up: str) -> int:
+    """Write an animated GIF of the clip; frames are subsampled to at most ``max_frames``
+    (the defaults: ``flows/requests.PreviewRequest``).
 
     Returns the number of frames written.
     """

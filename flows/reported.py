@@ -8,3 +8,12 @@ from motionweb.store.errors import MotionFormatError
 #: RuntimeError: e.g. Prefect's local API server not starting in time on a busy machine; OSError:
 #: a missing input or an output that cannot be written
 ERRORS = (ValueError, KeyError, OSError, MotionFormatError, RuntimeError)
+
+
+class CommandError(ValueError):
+    """A command's own failure with its exit code (``motionweb verify``: 1 for a damaged store,
+    as ``fsck`` and friends do; every other reported error exits 2)."""
+
+    def __init__(self, message: str, exit_code: int = 2):
+        super().__init__(message)
+        self.exit_code = exit_code

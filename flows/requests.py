@@ -211,6 +211,39 @@ class ExportRequest(Request):
     root_motion: Literal["keep", "in-place"] | None = None
 
 
+class CatalogRequest(Request):
+    """``motionweb catalog``: the corpus folder to scan; ``as_json``: print the catalog as JSON."""
+
+    corpus: str = Field(min_length=1)
+    as_json: bool = False
+
+
+class PreviewRequest(Request):
+    """``motionweb preview``: a stick-figure GIF of a clip, subsampled to at most ``max_frames``
+    frames, played at ``fps``, drawn with ``up`` as the clip's vertical axis."""
+
+    motion: str = Field(min_length=1)
+    out: str = Field(min_length=1)
+    max_frames: int = Field(120, ge=2, le=10_000)
+    fps: float = Field(15.0, gt=0, le=100)
+    up: Literal["x", "y", "z"] = "y"
+
+
+class PlotWebRequest(Request):
+    """``motionweb plot-web``: the distance grid of two clips with its web (KG04 Figs. 4, 7)."""
+
+    clip_a: str = Field(min_length=1, max_length=MAX_NAME)
+    clip_b: str = Field(min_length=1, max_length=MAX_NAME)
+    out: str = Field("web.png", min_length=1)
+
+
+class GcRequest(Request):
+    """``motionweb gc``: generations kept, the current one and those before it (None: the config's
+    ``index.keep_generations``, which the index's own clean-up keeps)."""
+
+    keep: int | None = Field(None, ge=1)
+
+
 M = TypeVar("M", bound=Request)
 
 

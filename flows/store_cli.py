@@ -3,19 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Any, Annotated
 
 import typer
-
-if TYPE_CHECKING:  # zarr and numpy load on use: the CLI starts fast for a forwarded query
-    from motionweb.store.zarr_store import MotionStore
-
-
-def _store(config: Path) -> MotionStore:
-    from motionweb.flows.cli import config_or_fail
-    from motionweb.store.zarr_store import MotionStore
-
-    return MotionStore(config_or_fail(config).store.path)
 
 
 def verify(
@@ -24,45 +14,67 @@ def verify(
     """Check the ``current`` pointer, the manifest it names and every object of that generation
     against their checksums; exit 1 when any is missing or damaged (``motionweb index`` repairs
     the pointer and recomputes the objects)."""
-    from motionweb.flows.cli import fail
+    from motionweb.flows.cli import config_or_fail, run_command
+    from motionweb.flows.reported import CommandError
     from motionweb.store.generations import PointerError, check_current, load_generation, verify_generation
-    from motionweb.store.zarr_store import StoreError
+    from motionweb.store.zarr_store import MotionStore, StoreError
 
-    store = _store(config)
-    try:
-        gen_id = check_current(store)
-        gen = load_generation(store, gen_id) if gen_id else None
-    except PointerError as exc:
-        fail(f"damaged: {exc}", code=1)
-    except StoreError as exc:
-        fail(str(exc), code=1)
-    if gen is None:
-        fail(f"store {store.url} was never indexed (no committed generation)")
-    problems = verify_generation(store, gen)
-    n = len(gen.webs) + sum(len(set(r.values())) for r in gen.features.values())
-    for p in problems:
-        typer.echo(f"damaged: {p}")
-    typer.echo(f"generation {gen.id}: {n} objects checked, {len(problems)} missing or damaged")
-    if problems:
+    cfg = config_or_fail(config)
+
+    def work() -> dict[str, Any]:
+        store = MotionStore(cfg.store.path)
+        try:
+            gen_id = check_current(store)
+            gen = load_generation(store, gen_id) if gen_id else None
+        except PointerError as exc:
+            raise CommandError(f"damaged: {exc}", exit_code=1) from None
+        except StoreError as exc:
+            raise CommandError(str(exc), exit_code=1) from None
+        if gen is None:
+            raise CommandError(f"store {store.url} was never indexed (no committed generation)")
+        problems = verify_generation(store, gen)
+        n = len(gen.webs) + sum(len(set(r.values())) for r in gen.features.values())
+        return {"generation": gen.id, "checked": n, "problems": problems}
+
+    def show(r: dict[str, Any]) -> None:
+        for p in r["problems"]:
+            typer.echo(f"damaged: {p}")
+        typer.echo(f"generation {r['generation']}: {r['checked']} objects checked, {len(r['problems'])} "
+                   "missing or damaged")
+
+    res = run_command("verify", {"config": str(config)}, work, show)
+    if res["problems"]:
         raise typer.Exit(1)
 
 
 def gc(
     config: Annotated[Path, typer.Argument(help="Config file whose store is cleaned.")],
-    keep: Annotated[int, typer.Option(min=1, help="Generations kept: the current one and those before it.")] = 3,
+    keep: Annotated[int | None, typer.Option(
+        help="Generations kept: the current one and those before it (default: the config's "
+             "index.keep_generations).")] = None,
 ) -> None:
     """Remove old generations, leftovers of killed runs and objects no kept generation lists.
     Do not run it while an index run writes to the same store; a store whose pointer is damaged
     is left alone (exit 1) until ``motionweb index`` repairs it."""
-    from motionweb.flows.cli import fail
+    from motionweb.flows.cli import config_or_fail, request_or_fail, run_command
+    from motionweb.flows.reported import CommandError
+    from motionweb.flows.requests import GcRequest
     from motionweb.store.generations import PointerError
     from motionweb.store.generations import gc as store_gc
+    from motionweb.store.zarr_store import MotionStore
 
-    store = _store(config)
-    before = store.size_bytes()
-    try:
-        removed = store_gc(store, keep)
-    except PointerError as exc:
-        fail(f"nothing removed: {exc}", code=1)
-    typer.echo(f"removed {len(removed)} objects and files; store {before / 1e6:.2f} MB -> "
-               f"{store.size_bytes() / 1e6:.2f} MB")
+    request = request_or_fail(GcRequest, keep=keep)
+    cfg = config_or_fail(config)
+
+    def work() -> dict[str, Any]:
+        store = MotionStore(cfg.store.path)
+        before = store.size_bytes()
+        try:
+            removed = store_gc(store, request.keep or cfg.index.keep_generations)
+        except PointerError as exc:
+            raise CommandError(f"nothing removed: {exc}", exit_code=1) from None
+        return {"removed": len(removed), "before_bytes": before, "after_bytes": store.size_bytes()}
+
+    run_command("gc", {"config": str(config), "request": request.wire()}, work,
+                lambda r: typer.echo(f"removed {r['removed']} objects and files; store {r['before_bytes'] / 1e6:.2f} MB "
+                                     f"-> {r['after_bytes'] / 1e6:.2f} MB"))

@@ -77,3 +77,30 @@ def test_the_cli_and_the_api_give_the_same_message(app_store) -> None:
         "/api/search", json={"clip": "walk_00", "start": 2, "end": 1, "quantile": 0.5})
     assert api.status_code == 400 and api.json()["error"] == cli, (cli, api.json())
     assert "must end after it starts" in cli
+
+
+@pytest.mark.parametrize("args, message", [
+    (["preview", "x.bvh", "--out", "x.gif", "--fps", "0"], "fps: Input should be greater than 0"),
+    (["preview", "x.bvh", "--out", "x.gif", "--up", "w"], "up: Input should be 'x', 'y' or 'z'"),
+    (["gc", "nope.yaml", "--keep", "0"], "keep: Input should be greater than or equal to 1"),
+    (["catalog", "no-such-corpus"], "no-such-corpus"),
+])
+def test_housekeeping_commands_check_their_request_first(args, message, tmp_path) -> None:
+    """catalog, preview and gc build their request model (flows/requests.py) before any work:
+    a bad option is one line naming its field, exit 2, nothing written."""
+    res = runner.invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert message in res.output
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "x.gif").exists()
+
+
+def test_verify_exits_1_on_a_store_never_indexed_and_2_on_a_bad_config(tmp_path) -> None:
+    """verify runs on run_command: a store with no generation is an error (exit 2, one line), a
+    damaged one exit 1 (tests/flows/test_store_integrity.py)."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"store:\n  path: {tmp_path / 'store'}\n")
+    res = runner.invoke(app, ["verify", str(cfg)])
+    assert res.exit_code == 2 and "was never indexed" in res.output, res.output
+    res = runner.invoke(app, ["verify", str(tmp_path / "missing.yaml")])
+    assert res.exit_code == 2 and "missing.yaml" in res.output, res.output
