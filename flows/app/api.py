@@ -46,7 +46,7 @@ indexed clips are built on demand by the search worker (``search --query-file``'
 ``flows/query.prepare_file_query``) and kept with the upload (``app.upload_mb``); its matches
 answer as an indexed query's.
 
-Security (design §10): with a token every request must carry it (``Authorization: Bearer``, or
+Security (design §12): with a token every request must carry it (``Authorization: Bearer``, or
 the cookie the page sets after ``/?token=``; compared in constant time); no request names a
 filesystem path (clips by index id or corpus name looked up in the generation, downloads built in
 memory); bodies are at most :data:`MAX_BODY` bytes (an upload ``app.upload_bytes``), query strings

@@ -68,7 +68,7 @@ from motionweb.tasks.register import Registration
 from motionweb.tasks.search import SearchParams
 from pydantic import ValidationError
 
-#: bounds on what one request may ask for (design §10: requests are bounded)
+#: bounds on what one request may ask for (design §12: requests are bounded)
 MAX_QUERY_S = 60.0
 MAX_TIERS = 20
 MAX_DRAW_FRAMES = 6000

@@ -40,7 +40,7 @@ def is_loopback(host: str) -> bool:
 
 
 def check_host(host: str, token: str | None) -> None:
-    """ValueError unless ``host`` is loopback or a token is given (design §10)."""
+    """ValueError unless ``host`` is loopback or a token is given (design §12)."""
     if not is_loopback(host) and not token:
         raise ValueError(f"--host {host} is reachable from other machines: give --token SECRET "
                          "(every request must then carry it)")

@@ -30,7 +30,7 @@ from motionweb.store.motion import Motion
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.features import joint_positions_m
 
-#: bounds (design §10): spaces kept loaded, samples sent for drawing, |target| in metres
+#: bounds (design §12): spaces kept loaded, samples sent for drawing, |target| in metres
 KEEP_SPACES = 8
 MAX_DRAW_SAMPLES = 4000
 MAX_TARGET_M = 100.0
