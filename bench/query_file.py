@@ -121,6 +121,7 @@ def main() -> None:
     cli = [timed_cli(["search", str(cfg_path), "--query-file", str(held), "--start", f"{a:.3f}", "--end", f"{b:.3f}",
                       "--out", str(work / "out-cli")], work) for _ in range(args.repeat)]
     rows.append(("query file, CLI cold (target ≤ 2 s)", statistics.median(cli)))
+    rows += app_rows(cfg, held, a, b, args.repeat)
     print(f"\n{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; index: {n} clips, {len(gen.webs)} webs; "
           f"held out {args.held} ({motion.duration:.1f} s, {motion.n_frames} frames); query {a:.2f}-{b:.2f} s; "
           f"webs built on demand: {len(same)}; median of {args.repeat}")
@@ -129,6 +130,41 @@ def main() -> None:
         print(f"| {label} | {s:.2f} |")
     top = res["matches"][:5]
     print("top matches of the query file:", ", ".join(f"{m['clip']} ({m['category']})" for m in top))
+
+
+def app_rows(cfg, held: Path, a: float, b: float, repeat: int) -> list[tuple[str, float]]:
+    """The same query in ``motionweb app`` (its API in this process, its search worker a child
+    process, warmed by one search of an indexed clip first): a new upload of the held-out trial
+    (each repeat's AMC differs by a comment line: a new content id, its webs built anew) and its
+    first search, then another window of the same upload (its webs kept)."""
+    from fastapi.testclient import TestClient
+    from motionweb.flows.app.api import create_app
+    from motionweb.flows.app.engine import Engine
+
+    asf = next(held.parent.glob("*.asf")).read_text()
+    amc = held.read_text()
+    first, upload, again = [], [], []
+    with TestClient(create_app(Engine(cfg))) as client:
+        warm = client.get("/api/catalog", params={"limit": 1}).json()["clips"][0]
+        r = client.post("/api/search", json={"clip": warm["path"], "start": 0.0, "end": 1.0})
+        if r.status_code != 200:
+            raise SystemExit(f"bench: the app's warm-up search failed: {r.text}")
+        for i in range(repeat):
+            t = time.perf_counter()
+            up = client.post("/api/uploads", json={"name": held.name, "asf": asf, "amc": amc + f"# bench {i}\n"})
+            t1 = time.perf_counter()
+            r = client.post("/api/search", json={"clip": up.json().get("id", "?"), "start": a, "end": b})
+            t2 = time.perf_counter()
+            r2 = client.post("/api/search", json={"clip": up.json().get("id", "?"), "start": a - 1.0, "end": b - 1.0})
+            t3 = time.perf_counter()
+            if up.status_code != 200 or r.status_code != 200 or r2.status_code != 200 or not r.json()["matches"]:
+                raise SystemExit(f"bench: the app's upload search failed: {up.text[:300]} {r.text[:300]}")
+            upload.append(t1 - t)
+            first.append(t2 - t)
+            again.append(t3 - t2)
+    return [("app: upload (parse in the session worker)", statistics.median(upload)),
+            ("app: upload + first search, webs built (target ≤ 2 s)", statistics.median(first)),
+            ("app: another window of the upload (webs kept)", statistics.median(again))]
 
 
 if __name__ == "__main__":

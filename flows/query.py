@@ -86,9 +86,13 @@ def resolve_clip(gen: Generation, name: str) -> dict[str, Any]:
 
 def query_segment(rec: dict[str, Any], start: float, end: float, rate: float) -> Segment:
     """Seconds to frames at the web rate, checked against the clip's duration (the error names the
-    field that is out of range: ``start`` or ``end``)."""
+    field that is out of range: ``start`` or ``end``). An end inside the clip that rounds past its
+    last frame at the web rate (a clip whose length is not a whole number of web frames) ends on
+    that last frame."""
     a, b = round(start * rate), round(end * rate)
     last = int(np.floor(rec["duration"] * rate + 1e-9))
+    if b > last and end <= rec["duration"] + 1e-9:
+        b = last
     if start < 0 or b > last:
         raise ValueError(f"{'start' if start < 0 else 'end'}: query {start:g} s .. {end:g} s is outside clip "
                          f"{rec['path']!r} (0 .. {rec['duration']:.3f} s)")

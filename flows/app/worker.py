@@ -204,8 +204,9 @@ class _State:
 
         gen, gen_cfg, _, store = self.generation(gen_id)
         rate = max(float(r) for r in gen_cfg.features.rates)
-        # the window is checked by the service; this one only names the clip (the webs span it all)
-        q = prepare_file_query(store, gen, gen_cfg, rate, QueryRequest(clip=name, start=0.0, end=motion.duration),
+        # the window is checked by the service; this one only names the clip (the webs span it
+        # all): its first frame at the web rate, inside any clip whatever its length
+        q = prepare_file_query(store, gen, gen_cfg, rate, QueryRequest(clip=name, start=0.0, end=1.0 / rate),
                                motion)
         return q.record, q.webs.webs
 

@@ -140,3 +140,21 @@ def test_the_upload_cache_is_bounded_by_bytes() -> None:
         ups.get(a)
     ups.query_webs(b, "g2", webs(2.0))  # alone over the bound: kept, g1's dropped
     assert ups.get(b).webs.keys() == {"g2"} and ups.stats()["uploads"] == 1
+
+
+def test_an_upload_whose_length_is_no_whole_number_of_web_frames_is_searched(client, cfg) -> None:
+    """A clip of 4k + 3 frames at 120 Hz lasts a fractional number of the index's 30 Hz frames: its
+    webs are built and searched (they once failed with "end: ... outside clip"), and a window
+    ending at its very end ends on its last web frame."""
+    text = (Path(cfg.corpus.path) / "walk" / "walk_01.bvh").read_text()
+    head, _, body = text.partition("MOTION\n")
+    lines = body.splitlines()
+    frames = [ln for ln in lines[2:] if ln.strip()]
+    n = len(frames) - (len(frames) - 3) % 4  # 4k + 3 frames: (n - 1) / 120 s = k + 0.5 web frames
+    text = head + f"MOTION\nFrames: {n}\nFrame Time: {1 / 120:.8f}\n" + "\n".join(frames[:n]) + "\n"
+    up = upload(client, "fast walk.bvh", text)
+    duration = up["duration"]
+    assert duration == pytest.approx((n - 1) / 120)
+    assert abs(duration * 30 - round(duration * 30)) > 0.2  # not a whole number of 30 Hz frames
+    res = search(client, clip=up["id"], start=0.0, end=duration, quantile=0.8)
+    assert res["query"]["end_frame"] == int(duration * 30)
