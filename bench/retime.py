@@ -69,7 +69,7 @@ def timed(fn: Callable[[], Any], repeat: int = 1) -> tuple[Any, float, float]:
     return out, best_w, best_c
 
 
-def linprog_ms_per_lp(plan: RetimePlan, frames: list[int], n_dir: int = 8) -> float:
+def linprog_ms_per_lp(plan: RetimePlan, frames: list[int], n_dir: int = OPTS.polygons.directions) -> float:
     """Baseline: ms (CPU) per direction LP with scipy ``linprog`` building each LP from scratch."""
     po = plan.polygons
     total, n = 0.0, 0

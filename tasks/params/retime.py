@@ -165,7 +165,8 @@ class RetimeParams(Params):
             if isinstance(section, BaseModel):
                 section = section.model_dump(exclude_unset=True)
             if not isinstance(section, dict):
-                continue  # the group's own validation names the wrong type
+                data.pop(old)  # the group itself is wrong: its own validation names it
+                continue
             if name in section:
                 raise ValueError(f"{old} and {group}.{name} both given: keep {group}.{name}")
             data[group] = {**section, name: data.pop(old)}
