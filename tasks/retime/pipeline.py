@@ -211,7 +211,7 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
     m = plan.motion
     path_ok = not keytimes and not free_length
     if sp.timing == "path" and not path_ok:
-        raise RetimeError("retime.timing 'path' takes no keytimes and no free length: use 'spline' or 'auto'")
+        raise RetimeError("retime.spline.timing 'path' takes no keytimes and no free length: use 'spline' or 'auto'")
     res = None
     if sp.timing != "path":
         res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes,
@@ -227,7 +227,7 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
                            frame_weights(plan.contacts.active.any(axis=1)))
         if path is None and res is None:
             raise RetimeError(f"no path timing of {duration:g} s stays inside the feasible polygons on half its "
-                              "frames or more: use retime.timing 'spline' or 'auto'")
+                              "frames or more: use retime.spline.timing 'spline' or 'auto'")
         if path is not None and (outside is None or outside_count(plan, path) < outside):
             res = path
     out = replace(sample_motion(m, res.p * m.fps), name=f"{m.name}_retimed", source=None, content_hash="")
