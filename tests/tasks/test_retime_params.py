@@ -93,3 +93,18 @@ def test_unknown_and_doubled_keys_fail_naming_the_field() -> None:
     with pytest.raises(ValidationError) as info:
         RetimeParams.model_validate({"contacts": "high", "friction": 0.8})
     assert [e["loc"][0] for e in info.value.errors()] == ["contacts"]
+
+
+def test_the_flat_default_section_of_before_the_groups_means_the_defaults() -> None:
+    """configs/default.yaml's ``retime`` section as it was written before the groups (every flat
+    key with its value then) loads as ``RetimeParams()``: no old key is lost or moved wrongly."""
+    old = {"body_model": "table", "total_mass": 70.0, "friction": 0.5, "contact_height_on": 0.04,
+           "contact_height_off": 0.07, "contact_speed_on": 0.6, "contact_speed_off": 1.2, "contact_min_s": 0.05,
+           "contact_gap_s": 0.05, "contact_height_ground": 0.01, "floor_height": None, "floor_heights": {},
+           "torque_limits_from": "table", "torque_limits": {}, "torque_margin": 1.5, "repair_glitches": True,
+           "smoothing_s": 0.08, "samples_per_frame": 4, "alpha": 1.0, "beta": 0.1, "objective": "match",
+           "contact_intervals": {}, "allow_flight_only": False, "speed_max": 6.0, "pdd_max": 40.0,
+           "root_tolerance": 0.03, "directions": 8, "max_lps": 16, "lp_solver": "simplex", "knots_per_second": 8.0,
+           "timing": "auto"}
+    assert RetimeParams.model_validate(old) == RetimeParams()
+    assert set(old) == (set(RetimeParams.model_fields) - set(GROUPS)) | set(FLAT_KEYS)
