@@ -4,7 +4,7 @@ Per clip (16_16 walk, the paper's Fig. 12 clip, and the 16_06 jump, 16_35 run): 
 dynamics coefficients (Fig. 12 "Force"), of the feasible polygons ("Feasible") and of one objective
 evaluation ("Obj"), each as CPU time of this process and wall time (the machine may be shared:
 the load average is printed), with baselines measured in the same run — the same polygons with
-HiGHS solving every LP (``lp_solver: highs``, the previous implementation), the same polygon sweep
+HiGHS solving every LP (``polygons.lp_solver: highs``, the previous implementation), the same polygon sweep
 with scipy ``linprog`` building every LP from scratch, and the same objective kernel run by the
 Python interpreter. Then a full retime of a 300-frame clip (and with HiGHS's LPs), and the paper's experiments (MPS06
 §4.1-4.2, Figs. 1, 8-11) with what the flight and contact phases did. ``--all-trials``: the share
@@ -30,7 +30,16 @@ import numpy as np
 from motionweb.store.datasets import mocap_root
 from motionweb.store.formats import read_motion
 from motionweb.store.motion import Motion
-from motionweb.tasks.retime import RetimeParams, RetimePlan, phase_times, prepare, report, retime_plan
+from motionweb.tasks.retime import (
+    PolygonParams,
+    RetimeParams,
+    RetimePlan,
+    SplineParams,
+    phase_times,
+    prepare,
+    report,
+    retime_plan,
+)
 from motionweb.tasks.retime.dynamics import dynamics_terms
 from motionweb.tasks.retime.objective import objective_kernel
 from motionweb.tasks.retime.polygons import N_ROOT
@@ -39,8 +48,8 @@ from motionweb.tasks.retime.spline import objective_function
 from scipy.optimize import linprog
 
 OPTS = RetimeParams()
-HIGHS = OPTS.model_copy(update={"lp_solver": "highs"})  # baseline: every polygon LP by HiGHS
-SPLINE = OPTS.model_copy(update={"timing": "spline"})  # MPS06's optimized spline alone
+HIGHS = RetimeParams(polygons=PolygonParams(lp_solver="highs"))  # baseline: every polygon LP by HiGHS
+SPLINE = RetimeParams(spline=SplineParams(timing="spline"))  # MPS06's optimized spline alone
 PAPER = {"dyn": 66.0, "poly": 12.0, "obj": 0.0014}  # MPS06 Fig. 12, 16_16 walk, ms/frame
 TARGET = {"dyn": 1.0, "poly": 5.0, "obj": 0.002}
 CMU16 = mocap_root() / "cmu" / "asf_amc" / "16"
@@ -60,7 +69,7 @@ def timed(fn: Callable[[], Any], repeat: int = 1) -> tuple[Any, float, float]:
     return out, best_w, best_c
 
 
-def linprog_ms_per_lp(plan: RetimePlan, frames: list[int], n_dir: int = 8) -> float:
+def linprog_ms_per_lp(plan: RetimePlan, frames: list[int], n_dir: int = OPTS.polygons.directions) -> float:
     """Baseline: ms (CPU) per direction LP with scipy ``linprog`` building each LP from scratch."""
     po = plan.polygons
     total, n = 0.0, 0
@@ -71,7 +80,7 @@ def linprog_ms_per_lp(plan: RetimePlan, frames: list[int], n_dir: int = 8) -> fl
         tol, lim, C = po.tolerance[i], plan.original.limits[N_ROOT:], plan.C[i]
         a_ub = np.vstack([G[:N_ROOT], -G[:N_ROOT], G[N_ROOT:], -G[N_ROOT:]])
         b_ub = np.concatenate([tol - C[:N_ROOT], tol + C[:N_ROOT], lim - C[N_ROOT:], lim + C[N_ROOT:]])
-        bounds = [(-OPTS.pdd_max, OPTS.pdd_max), (0, OPTS.speed_max**2)] + [(0, None)] * len(cols)
+        bounds = [(-OPTS.polygons.pdd_max, OPTS.polygons.pdd_max), (0, OPTS.polygons.speed_max**2)] + [(0, None)] * len(cols)
         for a in np.linspace(0, 2 * np.pi, n_dir, endpoint=False):
             cost = np.concatenate([[-np.cos(a), -np.sin(a)], np.zeros(len(cols))])
             c = time.process_time()
@@ -181,10 +190,10 @@ def experiments() -> None:
           f"{jump.duration / 2:.3f} s)")
     names = base.body.skeleton.names
     doubled = {n: 2 * float(base.original.limits[base.body.joint_dofs(j).start]) for j, n in enumerate(names) if j}
-    loose = [(f"{k} {v:g}" if k != "torque_limits" else "torque limits x2", {k: v})
-             for k, v in (("friction", 0.8), ("torque_limits", doubled), ("root_tolerance", 0.05), ("smoothing_s", 0.16))]
+    loose = [("friction 0.8", {"contacts": {"friction": 0.8}}), ("torque limits x2", {"torque_limits": doubled}),
+             ("root_tolerance 0.05", {"polygons": {"root_tolerance": 0.05}}), ("smoothing_s 0.16", {"smoothing_s": 0.16})]
     print("    the same bound with the model loosened: " + ", ".join(
-        f"{label} {shortest_duration(prepare(jump, OPTS.model_copy(update=upd)).polygons, jump.fps):.3f} s"
+        f"{label} {shortest_duration(prepare(jump, RetimeParams.model_validate(upd)).polygons, jump.fps):.3f} s"
         for label, upd in loose))
     for label, frac in (("Fig. 1: 16_06 in half the time", 0.5), ("16_06 in 0.6 of the time", 0.6)):
         _, res = retime_plan(base, frac * jump.duration, None, OPTS)

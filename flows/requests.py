@@ -7,7 +7,8 @@ model from its options (:func:`parse`), the API receives it as its JSON body, th
 ``model.wire()``. What needs the store (the clip exists, the window lies inside it) is each
 command's plan (``flows/query.plan_query``, ``flows/space.plan_space``, ``flows/warp``'s plan).
 
-Models import only pydantic: a forwarded command builds its request before anything heavy loads.
+Models import only pydantic (and the pydantic-only parameter types of ``tasks/params``): a forwarded
+command builds its request before anything heavy loads.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import math
 from typing import Any, Literal, Self, TypeVar
 
+from motionweb.tasks.params.retime import Objective
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 #: longest clip name or path a request may carry
@@ -176,7 +178,8 @@ class WarpRequest(Request):
 class RetimeRequest(Request):
     """``motionweb retime`` (MPS06): the clip, the output, a duration and/or keytimes (source
     seconds, output seconds), gravity (m/s², None: the config's up axis at 9.81), per-joint mass
-    and weight factors (MPS06 Fig. 11), the objective (None: the config's) and a plot folder."""
+    and weight factors (MPS06 Fig. 11), the objective (None: the config's ``retime.spline.objective``)
+    and a plot folder."""
 
     input_path: str
     out: str
@@ -185,7 +188,7 @@ class RetimeRequest(Request):
     gravity: list[float] | None = Field(default=None, min_length=3, max_length=3)
     mass: dict[str, float] = Field(default_factory=dict)
     weight_factors: dict[str, float] = Field(default_factory=dict)
-    objective: Literal["match", "minimize"] | None = None
+    objective: Objective | None = None
     plot_dir: str | None = None
 
     @model_validator(mode="after")

@@ -105,8 +105,9 @@ def retime_flow(input_path: str, cfg: Config, out: str, duration: float | None =
     MPS06 §3). ``mass`` and ``weight_factors`` (the CLI's ``--weight``): per joint name, a
     multiplier of the body's mass, or of its weight alone."""
     motion, humanoid = load_clip(input_path, cfg)
-    opts = cfg.retime if objective is None else cfg.retime.model_copy(update={"objective": objective})
-    intervals = cfg.retime.contact_intervals.get(motion.name) or None
+    opts = cfg.retime if objective is None else cfg.retime.model_copy(
+        update={"spline": cfg.retime.spline.model_copy(update={"objective": objective})})
+    intervals = cfg.retime.contacts.intervals.get(motion.name) or None
     plan = call(prepare_task, motion, opts, cfg.corpus.up_axis, None if gravity is None else np.asarray(gravity, float), mass or {},
                         humanoid, intervals, weight_factors or {})
     keytimes = list(keytimes or [])

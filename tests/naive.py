@@ -589,11 +589,14 @@ def box_polygon(amax: float, x0: float, x1: float) -> np.ndarray:
     return np.array([[-amax, x0], [amax, x0], [amax, x1], [-amax, x1]])
 
 
-def polygons_of(vertices: list[np.ndarray], box: tuple[float, float] = (40.0, 36.0)):
-    """``FeasiblePolygons`` of given per-frame vertices clipped to ``box`` (max |p̈|, max ṗ²), no
-    contact forces, the original timing inside."""
+def polygons_of(vertices: list[np.ndarray], box: tuple[float, float] | None = None):
+    """``FeasiblePolygons`` of given per-frame vertices clipped to ``box`` (max |p̈|, max ṗ²; None:
+    ``PolygonParams``' pdd_max and speed_max²), no contact forces, the original timing inside."""
+    from motionweb.tasks.params.retime import PolygonParams
     from motionweb.tasks.retime.polygons import FeasiblePolygons
 
+    if box is None:
+        box = (PolygonParams().pdd_max, PolygonParams().speed_max ** 2)
     f = len(vertices)
     return FeasiblePolygons(vertices=vertices, lambdas=[np.zeros((len(v), 1)) for v in vertices],
                             center=np.tile([0.0, 1.0], (f, 1)), center_lambda=np.zeros((f, 1)), residual=np.zeros(f),

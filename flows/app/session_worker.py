@@ -255,7 +255,7 @@ class _State:
         cpu = time.process_time()
         opts = RetimeParams.model_validate(job.opts)
         humanoid = clip_humanoid(job.deepmimic_path) if job.deepmimic_path else None
-        intervals = opts.contact_intervals.get(job.motion.name) or None
+        intervals = opts.contacts.intervals.get(job.motion.name) or None
         physics, tm = self.plans.physics.get(job.clip_key), {}
         if physics is None:  # what prepare() computes first, kept for the clip's other physics
             physics = clip_physics(job.motion, opts, up="xyz".index(job.up_axis), humanoid=humanoid,

@@ -5,7 +5,9 @@
 * :mod:`.polygons` — original forces, torque limits and feasible (p̈, ṗ²) polygons by LPs (MPS06 §3.3);
 * :mod:`.objective` — the fan-baked objective of MPS06 Eqn. 14 and its compiled kernels (§3.4, §3.6);
 * :mod:`.spline` — the monotone timing spline p(t) and its L-BFGS-B optimizer (MPS06 §3.5-3.6);
-* :mod:`.pipeline` — :class:`RetimeParams`, :func:`prepare` and :func:`retime_plan` end to end;
+* :mod:`.pipeline` — :func:`prepare` and :func:`retime_plan` end to end, under :class:`RetimeParams`
+  (``tasks/params/retime.py``: its groups :class:`ContactParams`, :class:`PolygonParams` and
+  :class:`SplineParams` are what the modules above take);
 * :mod:`.reachable` — the shortest timing inside every polygon (TOPP-RA reachability on the path);
 * :mod:`.path_timing` — a timing of a requested duration built on the source frames from those profiles;
 * :mod:`.report` — flights, contact phases, feasibility and the shortest reachable duration.
@@ -13,12 +15,11 @@
 The names below are the public API used by the flows and the benchmarks.
 """
 
+from motionweb.tasks.params.retime import ContactParams, PolygonParams, RetimeParams, SplineParams
 from motionweb.tasks.retime.errors import RetimeError
 from motionweb.tasks.retime.pipeline import (
-    RetimeParams,
     RetimePlan,
     clip_contacts,
-    polygon_options,
     prepare,
     retime_plan,
 )
@@ -31,5 +32,6 @@ from motionweb.tasks.retime.report import (
 )
 from motionweb.tasks.retime.spline import RetimeResult
 
-__all__ = ["RetimeError", "RetimeParams", "RetimePlan", "RetimeResult", "clip_contacts", "flight_intervals",
-           "inner_flights", "phase_times", "polygon_options", "prepare", "report", "retime_plan", "shortest_duration"]
+__all__ = ["ContactParams", "PolygonParams", "RetimeError", "RetimeParams", "RetimePlan", "RetimeResult", "SplineParams",
+           "clip_contacts", "flight_intervals", "inner_flights", "phase_times", "prepare", "report", "retime_plan",
+           "shortest_duration"]

@@ -6,7 +6,8 @@ magnitudes λ ≥ 0, mapped to generalized forces by the corners' Jacobians, f_q
 (MPS06 Eqn. 11). A foot with a toe segment has 2 more corners across the ball of the foot (the toe
 joint): a foot up on its toes then stands on the forefoot patch from the ball to the toe tips, not on
 the line of its tips (24 basis forces). Contacts are detected per foot end (toe, heel) from its height above the clip's
-own floor and its speed, with hysteresis and minimum durations (:class:`ContactRule`); a
+own floor and its speed, with hysteresis and minimum durations (the rule of
+:class:`~motionweb.tasks.params.retime.ContactParams`, which holds its defaults); a
 "flight" whose centre of mass does not fall at gravity is a stance the rule missed and gets its
 lowest slow foot (:func:`missed_stances`); intervals can be given per clip instead.
 
@@ -20,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Skeleton
+from motionweb.tasks.params.retime import ContactParams
 from motionweb.tasks.retime.dynamics import BodyModel, centre_of_mass
 
 EDGES_PER_CORNER = 4
@@ -206,35 +208,6 @@ def contact_bases(body: BodyModel, q: np.ndarray, feet: tuple[Foot, ...], mu: fl
     return basis, pos
 
 
-@dataclass(frozen=True)
-class ContactRule:
-    """How contacts are read from mocap (MPS06 §3.2 needs them; the paper does not say how).
-
-    A foot's two ends — toe (sole corners 0, 1) and heel (corners 2, 3) — are each in contact
-    while low and slow, with hysteresis: an end touches down when its lower corner is within
-    ``height_on`` of the floor and its midpoint slower than ``speed_on``, and stays down while
-    within ``height_off`` and slower than ``speed_off``. The foot is in contact when an end is;
-    then gaps shorter than ``min_gap_s`` are closed and contacts shorter than ``min_contact_s``
-    dropped. An end within ``height_ground`` of the floor is down at any speed: mocap feet skate
-    and pivot on the floor (a run's turn slides the toe at 2-4 m/s at floor height), and a foot
-    that is on the floor can push whether or not the markers say it is still (swinging feet of
-    subject 16 pass no lower than ~1.2 cm at > 2 m/s). ``floor``: the ground height, or None for
-    the clip's own floor (:func:`clip_floor`).
-
-    Every field is required: their defaults are ``RetimeParams``' ``contact_*`` and
-    ``floor_height`` (``pipeline.contact_rule`` builds the rule from them).
-    """
-
-    height_on: float
-    height_off: float
-    speed_on: float
-    speed_off: float
-    min_contact_s: float
-    min_gap_s: float
-    height_ground: float
-    floor: float | None
-
-
 def clip_floor(corner_positions: np.ndarray, up_axis: int = 1, quantile: float = 0.05) -> float:
     """The clip's floor: over the feet, the lowest ``quantile`` of each foot's per-frame lowest sole height.
 
@@ -276,25 +249,28 @@ def one_sided_speed(step: np.ndarray, n_frames: int) -> np.ndarray:
     return np.minimum(np.concatenate([[np.inf], v]), np.concatenate([v, [np.inf]]))
 
 
-def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactRule
-                    ) -> tuple[np.ndarray, np.ndarray, float]:
+def detect_contacts(corner_positions: np.ndarray, fps: float, *, up_axis: int = 1, rule: ContactParams,
+                    floor: float | None) -> tuple[np.ndarray, np.ndarray, float]:
     """Contact flags per foot (F, n_feet) and per sole corner (F, n_feet, K), and the floor used.
 
-    See :class:`ContactRule`; ``corner_positions`` (F, n_feet, K, 3). Speeds: the smaller one-sided
+    The rule is :class:`~motionweb.tasks.params.retime.ContactParams`' (MPS06 §3.2 needs contacts;
+    the paper does not say how they are read): per foot end (toe: sole corners 0, 1; heel: 2, 3)
+    its lower corner's height above ``floor`` (None: the clip's own floor, :func:`clip_floor`) and
+    its midpoint's speed. ``corner_positions`` (F, n_feet, K, 3). Speeds: the smaller one-sided
     speed (:func:`one_sided_speed`). The ball corners (K = 6) push with the toe end: a foot whose toe
     tips are down and heel up pivots on its ball, and a flat foot has all three down; a heel alone
     down (heel strike, toes up) pushes with the heel corners. In a frame where a foot is in contact
     by gap closing only, all its corners may push. O(F · n_feet).
     """
     f, nf = corner_positions.shape[:2]
-    floor = clip_floor(corner_positions, up_axis) if rule.floor is None else float(rule.floor)
+    floor = clip_floor(corner_positions, up_axis) if floor is None else float(floor)
     h = corner_positions[..., up_axis] - floor  # (F, nf, 4)
     step = np.diff(corner_positions, axis=0) * fps  # (F-1, nf, 4, 3): velocity between frames i and i+1
     act = np.zeros((f, nf), bool)
     nc = corner_positions.shape[2]
     corner = np.zeros((f, nf, nc), bool)
-    min_gap = int(round(rule.min_gap_s * fps))
-    min_contact = int(round(rule.min_contact_s * fps))
+    min_gap = int(round(rule.gap_s * fps))
+    min_contact = int(round(rule.min_s * fps))
     for k in range(nf):
         ends = []
         for pair in (TOE, HEEL):
@@ -328,7 +304,7 @@ def fall_rate(height: np.ndarray, fps: float) -> float:
 
 
 def missed_stances(body: BodyModel, q: np.ndarray, pos: np.ndarray, active: np.ndarray, corner: np.ndarray,
-                   floor: float, fps: float, rule: ContactRule) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+                   floor: float, fps: float, rule: ContactParams) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
     """Stances the rule missed: a "flight" (no foot down, between contacts, at least 4 frames)
     whose centre of mass does not fall at gravity (more than :data:`BALLISTIC_TOLERANCE` off)
     is carried by a foot. The foot that stays lowest is put down for it (all its corners) if it
@@ -372,18 +348,19 @@ def intervals_to_active(intervals: dict[str, list[tuple[float, float]]], feet: t
     return act
 
 
-def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, mu: float, rule: ContactRule,
+def contacts_for(body: BodyModel, q: np.ndarray, fps: float, *, rule: ContactParams, clip: str | None,
                  intervals: dict[str, list[tuple[float, float]]] | None = None,
                  foot_corners: dict[int, np.ndarray] | None = None) -> Contacts:
-    """Feet, their contact flags (detected by ``rule``, or from ``intervals``) and force bases (MPS06 §3.2).
-    ``mu`` (friction) and ``rule`` are required: ``RetimeParams`` holds their defaults."""
+    """Feet, their contact flags (detected by ``rule`` on clip ``clip``'s floor, or from ``intervals``)
+    and force bases with ``rule.friction`` (MPS06 §3.2). ``rule`` is required: ``ContactParams``
+    holds its defaults."""
     feet = find_feet(body.skeleton, body.scale, body.up_axis, foot_corners or body.foot_corners or None)
     if not feet:
         raise ValueError("no feet found in the skeleton (no low leaf joints); give foot corners")
-    basis, pos = contact_bases(body, q, feet, mu)
-    active, corner, floor = detect_contacts(pos, fps, up_axis=body.up_axis, rule=rule)
+    basis, pos = contact_bases(body, q, feet, rule.friction)
+    active, corner, floor = detect_contacts(pos, fps, up_axis=body.up_axis, rule=rule, floor=rule.floor_of(clip))
     active, corner, _ = missed_stances(body, q, pos, active, corner, floor, fps, rule)
     if intervals:
         active, corner = intervals_to_active(intervals, feet, q.shape[0], fps), None
     return Contacts(feet=feet, active=active, basis=basis, corner_positions=pos, ground=floor,
-                    friction=mu, detected=not intervals, corner_active=corner)
+                    friction=rule.friction, detected=not intervals, corner_active=corner)

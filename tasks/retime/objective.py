@@ -70,7 +70,7 @@ def bake(polys: FeasiblePolygons, A: np.ndarray, B: np.ndarray, C: np.ndarray, c
     weight is α σ_i² with σ_i = ‖[A_i, B_i]_root / tau_scale_root‖₂ (body weights per unit of
     (p̈, ṗ²)). A flight frame, whose whole weight rides on ṗ², pays ~1 per unit; a still frame
     (q' = q'' = 0) only the floor of 0.1 body weight per unit that keeps it inside the box
-    (``speed_max``, ``pdd_max``) — so the squared-distance penalty of MPS06 Eqn. 14 no longer
+    (``PolygonParams`` ``speed_max``, ``pdd_max``) — so the squared-distance penalty of MPS06 Eqn. 14 no longer
     trades a ballistic flight against a standing pose one to one. O(F · K · nv · nλ).
     """
     f = A.shape[0]

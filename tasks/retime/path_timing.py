@@ -147,7 +147,9 @@ def frame_weights(in_contact: np.ndarray) -> np.ndarray:
 def path_timing(polys: FeasiblePolygons, obj: BakedObjective, fps: float, duration: float,
                 samples_per_frame: int, weight: np.ndarray | None = None) -> RetimeResult | None:
     """The path timing of ``duration`` (:func:`profile_of_duration`, ``weight`` as there) sampled
-    at the output frames, with its MPS06 Eqn. 14 value; None where there is none."""
+    at the output frames, with its MPS06 Eqn. 14 value, its integral sampled at ``samples_per_frame``
+    per source frame at the fastest playback (required: ``SplineParams`` holds the default); None
+    where there is none."""
     t0 = time.perf_counter()
     prof = profile_of_duration(polys, fps, duration, weight=weight)
     if prof is None:

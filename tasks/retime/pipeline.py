@@ -18,7 +18,7 @@ import numpy as np
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion, Skeleton
 from motionweb.tasks.params.retime import RetimeParams
-from motionweb.tasks.retime.contacts import ContactRule, Contacts, contacts_for
+from motionweb.tasks.retime.contacts import Contacts, contacts_for
 from motionweb.tasks.retime.dynamics import (
     BodyModel,
     DynamicsTerms,
@@ -37,27 +37,11 @@ from motionweb.tasks.retime.polygons import (
     N_ROOT,
     FeasiblePolygons,
     OriginalForces,
-    PolygonOptions,
     feasible_polygons,
     original_forces,
     timing_distances,
 )
 from motionweb.tasks.retime.spline import RetimeResult, check_keytimes, optimize_timing
-
-
-def contact_rule(params: RetimeParams, clip: str | None = None) -> ContactRule:
-    """The contact detection rule of a retiming's parameters for clip ``clip`` (its floor override)."""
-    return ContactRule(height_on=params.contact_height_on, height_off=params.contact_height_off,
-                       speed_on=params.contact_speed_on, speed_off=params.contact_speed_off,
-                       min_contact_s=params.contact_min_s, min_gap_s=params.contact_gap_s,
-                       height_ground=params.contact_height_ground,
-                       floor=params.floor_heights.get(clip or "", params.floor_height))
-
-
-def polygon_options(params: RetimeParams) -> PolygonOptions:
-    """The polygon sweep's settings of a retiming's parameters."""
-    return PolygonOptions(pdd_max=params.pdd_max, speed_max=params.speed_max, directions=params.directions,
-                          max_lps=params.max_lps, abs_tol=params.root_tolerance, solver=params.lp_solver)
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,18 +105,18 @@ def clip_physics(motion: Motion, opts: RetimeParams, *, up: int = 1, humanoid: A
 def _detect(body: BodyModel, q: np.ndarray, motion: Motion, opts: RetimeParams, humanoid: Any | None,
             contact_intervals: dict[str, list[tuple[float, float]]] | None) -> Contacts:
     corners = humanoid_foot_corners(humanoid, motion.skeleton) if humanoid is not None else None
-    return contacts_for(body, q, motion.fps, mu=opts.friction, rule=contact_rule(opts, motion.name),
-                        intervals=contact_intervals, foot_corners=corners)
+    return contacts_for(body, q, motion.fps, rule=opts.contacts, clip=motion.name, intervals=contact_intervals,
+                        foot_corners=corners)
 
 
 def clip_contacts(motion: Motion, opts: RetimeParams, *, up: int = 1) -> Contacts:
     """A clip's foot contacts as :func:`clip_physics` detects them (MPS06 §3.2; the clip's own
-    ``opts.contact_intervals`` win), without its dynamics: what another stage (the guided warp's
+    ``opts.contacts.intervals`` win), without its dynamics: what another stage (the guided warp's
     summary) tells flight phases by. O(F · J)."""
     body = body_model_for(motion, kind=opts.body_model, total_mass=opts.total_mass, up_axis=up)
     path, _ = repair_glitches(motion) if opts.repair_glitches else (motion, [])
     return _detect(body, configurations(body, path), motion, opts, None,
-                   opts.contact_intervals.get(motion.name) or None)
+                   opts.contacts.intervals.get(motion.name) or None)
 
 
 def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray]:
@@ -142,7 +126,7 @@ def observed_torques(motion: Motion, opts: RetimeParams) -> dict[str, np.ndarray
     body, _, terms, contacts = clip_physics(motion, opts)
     weight = body.total_mass * float(np.linalg.norm(body.default_gravity()))
     orig = original_forces(*terms.combine(body.default_gravity()), contacts, opts.torque_margin, weight,
-                           polygon_options(opts))
+                           opts.polygons)
     return joint_torques(body, orig.tau)
 
 
@@ -180,17 +164,16 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
         low = contacts.corner_positions[..., up].min() - contacts.ground
         raise RetimeError(
             f"no ground contact detected in {motion.name or 'the clip'}: feet ({feet}) never come within "
-            f"{opts.contact_height_on} m of the floor at {up_axis}={contacts.ground:.3f} (lowest {low:.3f} m above) "
-            f"while slower than {opts.contact_speed_on} m/s. Give contact intervals (retime.contact_intervals in "
-            "the config), adjust contact_height_on / floor_height, or set retime.allow_flight_only: true to "
-            "retime it as pure flight (ballistic).")
+            f"{opts.contacts.height_on} m of the floor at {up_axis}={contacts.ground:.3f} (lowest {low:.3f} m above) "
+            f"while slower than {opts.contacts.speed_on} m/s. Give contact intervals (retime.contacts.intervals in "
+            "the config), adjust retime.contacts.height_on / floor_height, or set retime.allow_flight_only: true "
+            "to retime it as pure flight (ballistic).")
     g0 = body.default_gravity()
     g = g0 if gravity is None else np.asarray(gravity, dtype=float)
     body_weight = body.total_mass * float(np.linalg.norm(g0))
-    popts = polygon_options(opts)
     t = time.perf_counter()
     A0, B0, C0 = terms.combine(g0)
-    original = original_forces(A0, B0, C0, contacts, opts.torque_margin, body_weight, popts)
+    original = original_forces(A0, B0, C0, contacts, opts.torque_margin, body_weight, opts.polygons)
     sources = {n: "clip peak x torque_margin" for n in body.skeleton.names[1:]}
     if opts.torque_limits_from == "table":
         limits, sources = table_limits(body, opts.torque_limits)
@@ -198,14 +181,15 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
     tm["original_forces"] = time.perf_counter() - t
     A, B, C = terms.combine(g, factors, weight_factors)
     contacts = contacts.carrying(original.tau[:, :N_ROOT])
-    polys = feasible_polygons(A, B, C, contacts, original.limits, body_weight, popts)
+    polys = feasible_polygons(A, B, C, contacts, original.limits, body_weight, opts.polygons)
     tm["polygons"] = polys.seconds
     t = time.perf_counter()
-    target = original.tau if opts.objective == "match" else np.zeros_like(original.tau)
-    if opts.objective not in ("match", "minimize"):
-        raise ValueError(f"unknown objective {opts.objective!r} (match, minimize)")
+    sp = opts.spline
+    target = original.tau if sp.objective == "match" else np.zeros_like(original.tau)
+    if sp.objective not in ("match", "minimize"):
+        raise ValueError(f"unknown objective {sp.objective!r} (match, minimize)")
     tau_scale = np.where(np.arange(len(original.limits)) < N_ROOT, body_weight, original.limits)
-    baked = bake(polys, A, B, C, contacts, target, opts.alpha, opts.beta, tau_scale)
+    baked = bake(polys, A, B, C, contacts, target, sp.alpha, sp.beta, tau_scale)
     tm["bake"] = time.perf_counter() - t
     return RetimePlan(motion=motion, body=body, terms=terms, contacts=contacts, gravity=g, factors=factors,
                       weight_factors=weight_factors, A=A, B=B, C=C, original=original, polygons=polys, baked=baked,
@@ -214,7 +198,7 @@ def prepare(motion: Motion, opts: RetimeParams | None = None, *, up_axis: str = 
 
 def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, float]] | None = None,
                 opts: RetimeParams | None = None, free_length: bool = False) -> tuple[Motion, RetimeResult]:
-    """Time a prepared clip (``opts.timing``: the optimized spline, the path timing, or the spline
+    """Time a prepared clip (``opts.spline.timing``: the optimized spline, the path timing, or the spline
     unless it misses the target at another length than the clip's and the path timing leaves fewer
     frames outside) and sample the retimed motion at the source fps.
 
@@ -223,26 +207,27 @@ def retime_plan(plan: RetimePlan, duration: float, keytimes: list[tuple[float, f
     timing reaches.
     """
     opts = opts or RetimeParams()
+    sp, speed_max = opts.spline, opts.polygons.speed_max
     m = plan.motion
     path_ok = not keytimes and not free_length
-    if opts.timing == "path" and not path_ok:
-        raise RetimeError("retime.timing 'path' takes no keytimes and no free length: use 'spline' or 'auto'")
+    if sp.timing == "path" and not path_ok:
+        raise RetimeError("retime.spline.timing 'path' takes no keytimes and no free length: use 'spline' or 'auto'")
     res = None
-    if opts.timing != "path":
+    if sp.timing != "path":
         res = optimize_timing(plan.baked, m.fps, m.duration, duration, keytimes,
-                              samples_per_frame=opts.samples_per_frame, knots_per_second=opts.knots_per_second,
-                              speed_max=opts.speed_max, free_length=free_length)
+                              samples_per_frame=sp.samples_per_frame, knots_per_second=sp.knots_per_second,
+                              speed_max=speed_max, free_length=free_length)
     outside = None if res is None else outside_count(plan, res)
     own_length = abs(duration - m.duration) < 0.5 / m.fps  # the path timing would be the original one
-    if opts.timing != "spline" and path_ok and (outside is None or (
+    if sp.timing != "spline" and path_ok and (outside is None or (
             outside > MET_OUTSIDE_FRACTION * len(res.t) and not own_length)):
         if res is None:  # the spline's optimizer checks the request otherwise
-            check_keytimes(m.duration, duration, [], opts.speed_max)
-        path = path_timing(plan.polygons, plan.baked, m.fps, duration, opts.samples_per_frame,
+            check_keytimes(m.duration, duration, [], speed_max)
+        path = path_timing(plan.polygons, plan.baked, m.fps, duration, sp.samples_per_frame,
                            frame_weights(plan.contacts.active.any(axis=1)))
         if path is None and res is None:
             raise RetimeError(f"no path timing of {duration:g} s stays inside the feasible polygons on half its "
-                              "frames or more: use retime.timing 'spline' or 'auto'")
+                              "frames or more: use retime.spline.timing 'spline' or 'auto'")
         if path is not None and (outside is None or outside_count(plan, path) < outside):
             res = path
     out = replace(sample_motion(m, res.p * m.fps), name=f"{m.name}_retimed", source=None, content_hash="")

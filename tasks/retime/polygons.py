@@ -8,7 +8,7 @@
   Fig. 4), root rows bounded per row by the original timing's own residual. Only the
   objective changes between directions: the dense bounded simplex of :mod:`.simplex` re-solves
   from the previous direction's basis (a frame's first LP from the previous frame's), a few
-  pivots each, HiGHS taking over where it reports trouble (``PolygonOptions.solver = "highs"``:
+  pivots each, HiGHS taking over where it reports trouble (``PolygonParams.lp_solver = "highs"``:
   HiGHS throughout, the reference). Joint rows no contact force enters are 2-D bands in (p̈, ṗ²), cut from the swept polygon
   exactly (:class:`HalfPlanes`) rather than carried through every LP.
 
@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import highspy
 import numpy as np
+from motionweb.tasks.params.retime import PolygonParams
 from motionweb.tasks.retime.contacts import Contacts
 from motionweb.tasks.retime.simplex import INFEASIBLE, OPTIMAL, UNBOUNDED, DenseLP
 from numba import njit
@@ -41,21 +42,13 @@ TIE_TURN = 0.05
 _ROOT_TWICE = np.tile(np.arange(N_ROOT), 2)  # the root rows' two sides
 
 
-@dataclass(frozen=True)
-class PolygonOptions:
-    """Sweep settings (MPS06 §3.3-3.4): box of (p̈, ṗ²), initial directions, LP budget, root
-    tolerance and solver — required, their defaults live in ``RetimeParams`` only (see
-    ``polygon_options``) — and the sweep's own constants (refinement threshold, infeasibility)."""
-
-    pdd_max: float
-    speed_max: float
-    directions: int
-    max_lps: int
-    abs_tol: float  # root residual tolerance as a fraction of body weight (RetimeParams.root_tolerance)
-    solver: str  # "simplex" (tasks/retime/simplex.py, HiGHS as fallback) or "highs" (RetimeParams.lp_solver)
-    edge_tol: float = 0.5
-    infeasible_tol: float = 0.05  # residual (fraction of body weight) above which a frame is infeasible
-    carried_max: float = 2.0  # the clip's own unexplained root wrench may scale in [0, carried_max]
+#: the sweep's own constants (not parameters): an edge of the polygon longer than this (in the
+#: (p̈, ṗ²) plane) is probed along its normal; a frame whose smallest root residual is above
+#: INFEASIBLE_TOL of body weight is one the contact model cannot explain; the clip's own
+#: unexplained root wrench may scale in [0, CARRIED_MAX]
+EDGE_TOL = 0.5
+INFEASIBLE_TOL = 0.05
+CARRIED_MAX = 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,12 +79,12 @@ class FeasiblePolygons:
         center_lambda: (F, nλ) min-Σλ contact magnitudes at the centre.
         residual: (F,) smallest root residual (N or N·m) over the whole box; tolerance: (F, 6)
             the residual allowed on each root row in the polygon; infeasible: (F,) no timing has a residual
-            below ``infeasible_tol`` of body weight (the contact model cannot explain the frame);
+            below :data:`INFEASIBLE_TOL` of body weight (the contact model cannot explain the frame);
             original_inside: (F,) whether (0, 1) is in the polygon.
         n_lps: LPs solved; n_fallback: of them, simplex solves handed to HiGHS (iteration limit,
             numerical trouble); seconds, cpu_seconds: wall and CPU time of this process.
-        box: (max |p̈|, max ṗ²) of the box the polygons are clipped to (``PolygonOptions``
-            pdd_max, speed_max²; by default RetimeParams' defaults).
+        box: (max |p̈|, max ṗ²) of the box the polygons are clipped to (``PolygonParams``
+            pdd_max, speed_max²).
     """
 
     vertices: list[np.ndarray]
@@ -105,8 +98,8 @@ class FeasiblePolygons:
     n_lps: int
     seconds: float
     cpu_seconds: float
+    box: tuple[float, float]
     n_fallback: int = 0
-    box: tuple[float, float] = (40.0, 36.0)
 
 
 # --------------------------------------------------------------------------- LPs
@@ -118,12 +111,12 @@ class FrameLP:
     Rows: root rows −s ≤ A p̈ + B ṗ² − N λ + C ≤ s; joint rows |A p̈ + B ṗ² − N λ + C| ≤ limits
     (left out when ``limits`` is None: they would be free rows), only those of the mask ``rows``
     (nv − 6,) when given. Solved by the dense warm-started simplex of :mod:`.simplex`
-    (``opts.solver == "simplex"``, falling back to HiGHS on an iteration limit or numerical
+    (``opts.lp_solver == "simplex"``, falling back to HiGHS on an iteration limit or numerical
     trouble) or by HiGHS (``"highs"``, one instance ``highs`` reused across frames).
     """
 
     def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, N: np.ndarray, limits: np.ndarray | None,
-                 opts: PolygonOptions, highs: highspy.Highs | None = None, lam_upper: np.ndarray | None = None,
+                 opts: PolygonParams, highs: highspy.Highs | None = None, lam_upper: np.ndarray | None = None,
                  rows: np.ndarray | None = None):
         nv, nl = N.shape
         self.nl = nl
@@ -159,9 +152,9 @@ class FrameLP:
         self.n_solved = 0
         self.n_fallback = 0  # simplex solves handed to HiGHS
         self.highs = highs
-        if opts.solver not in ("simplex", "highs"):
-            raise ValueError(f"unknown LP solver {opts.solver!r} (simplex or highs)")
-        self.dense = DenseLP(M, self.col_lo, self.col_hi, lo, hi, maximize=True) if opts.solver == "simplex" else None
+        if opts.lp_solver not in ("simplex", "highs"):
+            raise ValueError(f"unknown LP solver {opts.lp_solver!r} (simplex or highs)")
+        self.dense = DenseLP(M, self.col_lo, self.col_hi, lo, hi, maximize=True) if opts.lp_solver == "simplex" else None
         if self.dense is None:
             self._pass_model()
         else:
@@ -327,7 +320,7 @@ def _lp_cost(nl: int, pdd: float = 0.0, pd2: float = 0.0, s: float = 0.0, lam: f
 
 
 def original_forces(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Contacts, margin: float,
-                    weight: float, opts: PolygonOptions) -> OriginalForces:
+                    weight: float, opts: PolygonParams) -> OriginalForces:
     """Contact forces and torques of the original timing, and torque limits (MPS06 §3.2, §4).
 
     Per frame one LP at (p̈, ṗ²) = (0, 1) without torque limits minimizing W·s + Σλ (W large:
@@ -378,12 +371,12 @@ def _points(xs: list[np.ndarray | None]) -> list[tuple[float, float, np.ndarray]
     return [(float(x[0]), float(x[1]), x[3:]) for x in xs if x is not None]
 
 
-def sweep_polygon(lp: FrameLP, opts: PolygonOptions) -> tuple[np.ndarray, np.ndarray]:
+def sweep_polygon(lp: FrameLP, opts: PolygonParams) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (K, 2) counter-clockwise and their λ (K, nλ) by direction sweep + refinement.
 
     Directions start straight down (−ṗ², turned by ``TIE_TURN``) and turn counter-clockwise (MPS06
     Fig. 4), solved in one :meth:`FrameLP.solve_many`; then in rounds, every edge longer than
-    ``edge_tol`` is probed along its outward normal (one ``solve_many`` per round), and the new
+    :data:`EDGE_TOL` is probed along its outward normal (one ``solve_many`` per round), and the new
     vertex is kept when it lies beyond the edge. The polygon found is inside the true projection.
     O(max_lps) LPs.
     """
@@ -405,7 +398,7 @@ def sweep_polygon(lp: FrameLP, opts: PolygonOptions) -> tuple[np.ndarray, np.nda
             x1, y1, _ = pts[(k + 1) % len(pts)]
             ex, ey = x1 - x0, y1 - y0
             length = math.hypot(ex, ey)
-            if length <= opts.edge_tol:
+            if length <= EDGE_TOL:
                 continue
             if len(probes) == budget:
                 break
@@ -646,19 +639,19 @@ def _cut(v: np.ndarray, lam: np.ndarray, a: np.ndarray, b: float, tol: float) ->
 
 
 def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Contacts, limits: np.ndarray,
-                      weight: float, opts: PolygonOptions) -> FeasiblePolygons:
+                      weight: float, opts: PolygonParams) -> FeasiblePolygons:
     """Feasible (p̈, ṗ²) polygons of every frame (MPS06 §3.3) with λ at vertices and centre (§3.4).
 
     Mocap is never exactly consistent with the body model: the original timing leaves a root
     wrench ρ ((F, 6), signed, under the original physics: ``OriginalForces.tau``'s root rows) that no contact
     explains (a flight whose momentum is not exactly ballistic, a centre of pressure just off the
     sole). Given ``contacts.carrying(ρ)`` it is carried along as one more contact column that may scale but not turn: the root
-    rows become |A p̈ + B ṗ² − N λ − μ ρ + C| ≤ ``abs_tol``·weight with 0 ≤ μ ≤ ``carried_max``
+    rows become |A p̈ + B ṗ² − N λ − μ ρ + C| ≤ ``root_tolerance``·weight with 0 ≤ μ ≤ :data:`CARRIED_MAX`
     (:meth:`Contacts.carrying`; the error of a mass model scales with the motion's accelerations
     and gravity, so a flight under half gravity at ṗ² = ½ has μ = ½). The original timing is
     feasible (μ = 1) while a retimed flight must still change its momentum as gravity does — a
     slack |ρ| + tol instead would let a flight play at any speed its error allows. Where no timing meets that bound
-    (changed physics), every row gets 1.05 s* + ``abs_tol``·weight with s* the smallest uniform
+    (changed physics), every row gets 1.05 s* + ``root_tolerance``·weight with s* the smallest uniform
     residual over the box (an LP). Then the
     direction sweep; when the original timing (0, 1) is feasible but outside the sweep's inner
     hull, it joins the vertices (a feasible point: the hull stays inside the feasible set). Then
@@ -683,7 +676,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
         N = contacts.basis[i][:, cols]
         upper = np.full(len(cols), INF)
         if contacts.carried:
-            upper[-1] = opts.carried_max
+            upper[-1] = CARRIED_MAX
         free = ~(N[N_ROOT:] != 0).any(axis=1)  # joint rows no contact force enters: bands, cut exactly
         bands = HalfPlanes.of(A[i], B[i], C[i], limits, free)
         lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper, rows=~free)
@@ -696,11 +689,11 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
             n_lps, n_fallback = n_lps + 1, n_fallback + whole.n_fallback
             lp = FrameLP(A[i], B[i], C[i], N, limits, opts, highs, upper, rows=~free)
         res[i] = x[2] if x is not None else np.inf
-        tol[i] = opts.abs_tol * weight
+        tol[i] = opts.root_tolerance * weight
         lp.set_residual_bound(tol[i])
         v, lv = bands.clip(*sweep_polygon(lp, opts))
         if not len(v):
-            tol[i] = 1.05 * res[i] + opts.abs_tol * weight
+            tol[i] = 1.05 * res[i] + opts.root_tolerance * weight
             lp.set_residual_bound(tol[i])
             v, lv = bands.clip(*sweep_polygon(lp, opts))
         o = np.array([0.0, 1.0])
@@ -731,7 +724,7 @@ def feasible_polygons(A: np.ndarray, B: np.ndarray, C: np.ndarray, contacts: Con
         lams.append(full)
         n_lps += lp.n_solved
         n_fallback += lp.n_fallback
-    infeasible = res > opts.infeasible_tol * weight
+    infeasible = res > INFEASIBLE_TOL * weight
     return FeasiblePolygons(vertices=verts, lambdas=lams, center=center, center_lambda=clam, residual=res,
                             tolerance=tol, infeasible=infeasible, original_inside=inside, n_lps=n_lps,
                             seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,

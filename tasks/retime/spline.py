@@ -221,7 +221,7 @@ def check_keytimes(src_duration: float, duration: float, keytimes: list[tuple[fl
     if ratio.max() > speed_max:
         k = int(np.argmax(ratio))
         raise RetimeError(f"output span {out[k]:g}-{out[k + 1]:g} s would need {ratio[k]:.2f}x speed; "
-                          f"more than the {speed_max:g}x allowed (speed_max)")
+                          f"more than the {speed_max:g}x allowed (retime.polygons.speed_max)")
     return out, src
 
 
@@ -238,6 +238,9 @@ def optimize_timing(obj: BakedObjective, fps: float, src_duration: float, durati
     ``free_length``: the output length is optimized too (MPS06 Fig. 9, "length free"), starting
     from ``duration``: p(t) = P(t / k) with P on [0, duration] and k = e^ζ, ζ ∈ [−ln 2, ln 2] an
     extra parameter (its derivative by central differences); no keytimes then.
+
+    ``samples_per_frame``, ``knots_per_second`` (``SplineParams``) and ``speed_max`` (``PolygonParams``)
+    are required: their defaults live in those models only.
     """
     t0 = time.perf_counter()
     if free_length and keytimes:

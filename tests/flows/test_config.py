@@ -89,3 +89,31 @@ def test_config_digest_ignores_where_things_are(tmp_path: Path) -> None:
     assert a.digest("matchweb") == b.digest("matchweb")
     (tmp_path / "a" / "c.yaml").write_text("corpus: {path: clips}\nmatchweb: {valid_a: 0.25}\n")
     assert load_config(tmp_path / "a" / "c.yaml").digest() != b.digest()
+
+
+def test_an_old_flat_retime_section_loads_into_the_groups(tmp_path: Path) -> None:
+    """A config written before ``retime``'s groups (flat keys) means what its nested twin means:
+    the same parameters and the same digest."""
+    (tmp_path / "flat.yaml").write_text(
+        "retime:\n  contact_height_on: 0.05\n  knots_per_second: 10\n  friction: 0.8\n  lp_solver: highs\n"
+        "  floor_heights: {jump_00: 0.0}\n  torque_margin: 2.0\n")
+    (tmp_path / "nested.yaml").write_text(
+        "retime:\n  torque_margin: 2.0\n  contacts: {height_on: 0.05, friction: 0.8, floor_heights: {jump_00: 0.0}}\n"
+        "  polygons: {lp_solver: highs}\n  spline: {knots_per_second: 10}\n")
+    flat, nested = load_config(tmp_path / "flat.yaml"), load_config(tmp_path / "nested.yaml")
+    assert flat.retime == nested.retime and flat.digest("retime") == nested.digest("retime")
+    assert flat.retime.contacts.height_on == 0.05 and flat.retime.spline.knots_per_second == 10.0
+    assert flat.retime.contacts.floor_of("jump_00") == 0.0 and flat.retime.contacts.floor_of("walk_00") is None
+
+
+@pytest.mark.parametrize(("text", "where"), [
+    ("retime:\n  contact_heigth_on: 0.05\n", "retime.contact_heigth_on"),
+    ("retime:\n  knots_per_second: 10\n  contacts: {heigth_on: 0.05}\n", "retime.contacts.heigth_on"),
+    ("retime:\n  contact_height_on: 0.05\n  contacts: {height_on: 0.06}\n", "contacts.height_on both given"),
+])
+def test_a_wrong_retime_key_names_it_and_the_file(tmp_path: Path, text: str, where: str) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert where in str(info.value) and "bad.yaml" in str(info.value)

@@ -130,3 +130,42 @@ def test_other_stages_with_their_defaults_write_what_the_cli_writes(demo_jump: P
         mine.parent.mkdir(exist_ok=True)
         write_bvh(own[name], mine)
         assert mine.read_bytes() == cli_out.read_bytes(), name
+
+
+def test_motionweb_retime_with_the_default_config_hands_the_models_defaults_down(demo_jump: Path, tmp_path: Path,
+                                                                                monkeypatch) -> None:
+    """Design §8: the run ``motionweb retime --duration 2.5`` makes with the packaged default config
+    gives the lower-level functions (contacts, polygons, objective, spline, path timing) the groups
+    of ``RetimeParams()`` and their values — the only place those defaults are written."""
+    import inspect
+
+    from motionweb.flows.config import load_config
+    from motionweb.flows.retime import retime_flow
+    from motionweb.tasks.retime import ContactParams, PolygonParams, pipeline
+
+    seen: dict[str, list[dict]] = {}
+    for name in ("contacts_for", "original_forces", "feasible_polygons", "bake", "optimize_timing", "path_timing"):
+        real = getattr(pipeline, name)
+
+        def spy(*args, _real=real, _name=name, **kwargs):
+            seen.setdefault(_name, []).append(inspect.signature(_real).bind(*args, **kwargs).arguments)
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(pipeline, name, spy)
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config()
+    assert cfg.retime == RetimeParams()
+    retime_flow.fn(str(demo_jump), cfg, str(tmp_path / "out.bvh"), duration=2.5)
+
+    d = RetimeParams()
+    (rule,) = [c["rule"] for c in seen["contacts_for"]]
+    assert type(rule) is ContactParams and rule == d.contacts
+    for name in ("original_forces", "feasible_polygons"):
+        assert [type(c["opts"]) for c in seen[name]] == [PolygonParams] and seen[name][0]["opts"] == d.polygons
+    assert seen["original_forces"][0]["margin"] == d.torque_margin
+    (bake,) = seen["bake"]
+    assert (bake["alpha"], bake["beta"]) == (d.spline.alpha, d.spline.beta)
+    (opt,) = seen["optimize_timing"]
+    assert (opt["samples_per_frame"], opt["knots_per_second"], opt["speed_max"]) == (
+        d.spline.samples_per_frame, d.spline.knots_per_second, d.polygons.speed_max)
+    assert all(c["samples_per_frame"] == d.spline.samples_per_frame for c in seen.get("path_timing", []))

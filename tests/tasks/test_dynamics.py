@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pinocchio as pin
 import pytest
 from fixtures import G, jumper_skeleton, synthetic_jump
 from motionweb.store.motion import Skeleton
+from motionweb.tasks.retime import ContactParams
 from motionweb.tasks.retime.contacts import (
     contacts_for,
     detect_contacts,
@@ -26,11 +25,10 @@ from motionweb.tasks.retime.dynamics import (
     path_derivatives,
     segments,
 )
-from motionweb.tasks.retime.pipeline import RetimeParams, contact_rule
 from naive import ref_dynamics_terms
 
-#: the contact rule of the stage's defaults (RetimeParams holds them; ContactRule has none of its own)
-RULE = contact_rule(RetimeParams())
+#: the contact rule of the stage's defaults (ContactParams holds them; the functions have none of their own)
+RULE = ContactParams()
 
 
 def test_coefficients_reproduce_rnea_with_contacts() -> None:
@@ -39,7 +37,7 @@ def test_coefficients_reproduce_rnea_with_contacts() -> None:
     terms = dynamics_terms(body, motion, smoothing_s=0.0)
     g = body.default_gravity()
     A, B, C = terms.combine(g)
-    cont = contacts_for(body, terms.q, motion.fps, mu=0.5, rule=RULE)
+    cont = contacts_for(body, terms.q, motion.fps, rule=RULE, clip=motion.name)
     m = body.model
     m.gravity = pin.Motion(np.concatenate([g, np.zeros(3)]))
     d = m.createData()
@@ -130,7 +128,7 @@ def test_flight_is_ballistic_and_stance_detected() -> None:
     root = (B + C)[flight, :6]  # at the original timing (p̈, ṗ²) = (0, 1)
     # a nearly frozen pose (slow chest sway) in exact free fall needs almost no root wrench
     assert np.abs(root).max() < 1e-3 * body.total_mass * G
-    cont = contacts_for(body, terms.q, motion.fps, mu=0.5, rule=RULE)
+    cont = contacts_for(body, terms.q, motion.fps, rule=RULE, clip=motion.name)
     assert [f.name for f in cont.feet] == ["l_ankle", "r_ankle"]
     assert not cont.active[flight].any()
     assert cont.active[t < t0 - 0.1].all() and cont.active[t > t1 + 0.15].all()
@@ -171,11 +169,11 @@ def test_feet_with_toes_stand_on_a_forefoot_patch_when_the_heel_is_up() -> None:
     track[..., 1] -= c[:, 1].min()
     up = track.copy()
     up[:, :, list(HEEL), 1] = 0.1  # heel raised: on the ball and the toes
-    act, corner, _ = detect_contacts(up, fps, rule=replace(RULE, floor=0.0))
+    act, corner, _ = detect_contacts(up, fps, rule=RULE, floor=0.0)
     assert act.all() and corner[:, 0, list(TOE) + list(BALL)].all() and not corner[:, 0, list(HEEL)].any()
     heel = track.copy()
     heel[:, :, list(TOE) + list(BALL), 1] = 0.1  # toes raised (heel strike): the heel only
-    act, corner, _ = detect_contacts(heel, fps, rule=replace(RULE, floor=0.0))
+    act, corner, _ = detect_contacts(heel, fps, rule=RULE, floor=0.0)
     assert act.all() and corner[:, 0, list(HEEL)].all() and not corner[:, 0, list(TOE) + list(BALL)].any()
     # the support of the forefoot: a patch as long as the toes, where the tips alone gave a line
     pts = c[list(TOE) + list(BALL)][:, [0, 2]]
@@ -338,27 +336,27 @@ def test_contacts_use_the_clips_floor_hysteresis_and_minimum_durations() -> None
     h[:100] = 0.0
     h[140:] = 0.0
     h[40:42] = 0.06  # a 2-frame marker glitch: between height_on and height_off, so held by hysteresis
-    h[70:72] = 0.2  # a 2-frame lift: a gap shorter than min_gap_s, closed
+    h[70:72] = 0.2  # a 2-frame lift: a gap shorter than gap_s, closed
     h[:140] += rng.normal(0, 0.004, 140).clip(-0.01, 0.01)
     h += 0.12  # the floor of this capture is 12 cm up
-    act, corner, floor = detect_contacts(_foot_track(h, fps), fps, rule=RULE)
+    act, corner, floor = detect_contacts(_foot_track(h, fps), fps, rule=RULE, floor=None)
     assert floor == pytest.approx(0.12, abs=0.012)
     a = act[:, 0]
     # 99 and 140 are the last / first frames on the floor: still on one side (one-sided speeds)
     assert a[:100].all() and not a[100:140].any() and a[140:].all()
     assert corner[a, 0].all()  # a flat foot: toe and heel
-    # a 3-frame touch is shorter than min_contact_s and is dropped; a fixed floor replaces the clip's
+    # a 3-frame touch is shorter than min_s and is dropped; a fixed floor replaces the clip's
     h2 = np.full(120, 0.5)
     h2[60:63] = 0.0
-    act2, _, floor2 = detect_contacts(_foot_track(h2, fps), fps, rule=replace(RULE, floor=0.0))
+    act2, _, floor2 = detect_contacts(_foot_track(h2, fps), fps, rule=RULE, floor=0.0)
     assert floor2 == 0.0 and not act2.any()
     # a foot sliding fast a few cm up is not in contact; on the floor it is (skating, pivoting)
-    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.025), fps, speed=3.0), fps, rule=replace(RULE, floor=0.0))
+    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.025), fps, speed=3.0), fps, rule=RULE, floor=0.0)
     assert not act3.any()
-    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.005), fps, speed=3.0), fps, rule=replace(RULE, floor=0.0))
+    act3, _, _ = detect_contacts(_foot_track(np.full(60, 0.005), fps, speed=3.0), fps, rule=RULE, floor=0.0)
     assert act3.all()
     # heel up: only the toe corners push
     tilt = _foot_track(np.zeros(60), fps)
     tilt[:, :, 2:, 1] = 0.1
-    act4, corner4, _ = detect_contacts(tilt, fps, rule=replace(RULE, floor=0.0))
+    act4, corner4, _ = detect_contacts(tilt, fps, rule=RULE, floor=0.0)
     assert act4.all() and corner4[:, 0, :2].all() and not corner4[:, 0, 2:].any()

@@ -9,15 +9,15 @@ import pytest
 from fixtures import G, synthetic_jump
 from motionweb.store.kinematics import hold_ends
 from motionweb.tasks.retime import (
+    ContactParams,
     RetimeError,
     RetimeParams,
-    polygon_options,
     prepare,
     retime_plan,
     shortest_duration,
 )
 from motionweb.tasks.retime.objective import evaluate
-from motionweb.tasks.retime.polygons import N_ROOT, FrameLP
+from motionweb.tasks.retime.polygons import EDGE_TOL, N_ROOT, FrameLP
 from motionweb.tasks.retime.report import free_fall, held_up, inner_flights
 from motionweb.tasks.retime.spline import TimingSpline, check_keytimes, objective_function
 from naive import evaluate_numpy
@@ -42,7 +42,7 @@ def _flight_speed(res, t0: float, t1: float) -> tuple[np.ndarray, float]:
 
 def test_lp_vertices_match_a_slow_reference(jump) -> None:
     _motion, _, plan = jump
-    opts = polygon_options(OPTS)
+    opts = OPTS.polygons
     for i in (10, 45, 60, 80):  # standing, crouch, flight, landing
         cols = plan.contacts.columns(i)
         N = plan.contacts.basis[i][:, cols]
@@ -64,7 +64,7 @@ def test_lp_vertices_match_a_slow_reference(jump) -> None:
             # every polygon vertex is feasible: none exceeds the true support value
             assert (verts @ d).max() <= best + 1e-6 * (1 + abs(best))
             # the sweep found the extreme in these directions (up to the refinement threshold)
-            assert (verts @ d).max() >= best - opts.edge_tol
+            assert (verts @ d).max() >= best - EDGE_TOL
         lp = FrameLP(A, B, C, N, plan.original.limits, opts)
         lp.set_residual_bound(tol)
         x = lp.solve(np.concatenate([[0.0, 1.0, 0.0], np.zeros(len(cols))]))
@@ -150,7 +150,7 @@ def test_no_contact_is_a_clear_error() -> None:
     # the clip's own floor follows it up; a floor given at 0 leaves it 2 m in the air
     assert prepare(lifted, OPTS).contacts.ground == pytest.approx(2.0, abs=0.06)
     with pytest.raises(RetimeError, match="flight"):
-        prepare(lifted, OPTS.model_copy(update={"floor_height": 0.0}))
+        prepare(lifted, OPTS.model_copy(update={"contacts": ContactParams(floor_height=0.0)}))
 
 
 def test_objective_gradient_and_compiled_kernel(jump) -> None:

@@ -12,7 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from motionweb.store.formats import read_motion
-from motionweb.tasks.retime import RetimeParams, flight_intervals, phase_times, prepare, report, retime_plan
+from motionweb.tasks.retime import (
+    RetimeParams,
+    SplineParams,
+    flight_intervals,
+    phase_times,
+    prepare,
+    report,
+    retime_plan,
+)
 from motionweb.tasks.retime.dynamics import body_model_for, segments
 from motionweb.tasks.retime.limits import (
     CMU_TORQUE_LIMITS,
@@ -227,7 +235,7 @@ def test_fig1_target_flight_at_normal_speed_and_inside(jump) -> None:
     assert len(rep["infeasible_output_frames"]) <= 0.1 * rep["frames_out"]
     assert rep["timing"] == "path" and rep["reachable"]["met"]
     assert rep["reachable"]["message"].startswith("met:") and "shorter than the shortest" in rep["reachable"]["message"]
-    spline = OPTS.model_copy(update={"timing": "spline"})
+    spline = OPTS.model_copy(update={"spline": SplineParams(timing="spline")})
     _, alone = retime_plan(plan, motion.duration / 2, None, spline)
     assert len(report(plan, alone)["infeasible_output_frames"]) > len(rep["infeasible_output_frames"])
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from fixtures import synthetic_jump
 from motionweb.store.formats import read_motion
-from motionweb.tasks.retime import RetimeParams, polygon_options, prepare
+from motionweb.tasks.retime import RetimeParams, prepare
 from motionweb.tasks.retime.polygons import FrameLP, feasible_polygons, polygon_area
 from motionweb.tasks.retime.simplex import INFEASIBLE, ITERATION_LIMIT, OPTIMAL, UNBOUNDED, DenseLP
 from scipy.optimize import linprog
@@ -186,7 +186,7 @@ def test_iteration_limit_reported_and_frame_lp_falls_back_to_highs(jump) -> None
     plan, i = jump, 10
     cols = plan.contacts.columns(i)
     N = plan.contacts.basis[i][:, cols]
-    opts = polygon_options(OPTS)
+    opts = OPTS.polygons
     args = (plan.A[i], plan.B[i], plan.C[i], N, plan.original.limits, opts)
     cost = np.concatenate([[0.3, 1.0, 0.0], np.zeros(len(cols))])
     ours = FrameLP(*args)
@@ -194,7 +194,7 @@ def test_iteration_limit_reported_and_frame_lp_falls_back_to_highs(jump) -> None
     ours.set_residual_bound(plan.polygons.tolerance[i])
     x = ours.solve(cost)
     assert ours.dense.status == ITERATION_LIMIT and ours.n_fallback == 1
-    highs = FrameLP(*args[:-1], replace(opts, solver="highs"))
+    highs = FrameLP(*args[:-1], opts.model_copy(update={"lp_solver": "highs"}))
     highs.set_residual_bound(plan.polygons.tolerance[i])
     xh = highs.solve(cost)
     np.testing.assert_allclose(x, xh)
@@ -212,11 +212,11 @@ def jump():
 
 def sweep_lps_agree(plan, frames, n_dir: int = 24) -> None:
     """Every frame's LP (root rows at the polygon's tolerance) in n_dir directions: ours = HiGHS."""
-    opts = polygon_options(OPTS)
+    opts = OPTS.polygons
     for i in frames:
         cols = plan.contacts.columns(i)
         N = plan.contacts.basis[i][:, cols]
-        lps = [FrameLP(plan.A[i], plan.B[i], plan.C[i], N, plan.original.limits, replace(opts, solver=s))
+        lps = [FrameLP(plan.A[i], plan.B[i], plan.C[i], N, plan.original.limits, opts.model_copy(update={"lp_solver": s}))
                for s in ("simplex", "highs")]
         for lp in lps:
             lp.set_residual_bound(plan.polygons.tolerance[i])
@@ -234,9 +234,9 @@ def polygons_agree(plan, weight: float, frames=None) -> None:
     sl = slice(None) if frames is None else frames
     contacts = replace(plan.contacts, active=plan.contacts.active[sl], basis=plan.contacts.basis[sl],
                        corner_active=None if plan.contacts.corner_active is None else plan.contacts.corner_active[sl])
-    opts = polygon_options(OPTS)
+    opts = OPTS.polygons
     out = [feasible_polygons(plan.A[sl], plan.B[sl], plan.C[sl], contacts, plan.original.limits, weight,
-                             replace(opts, solver=s)) for s in ("simplex", "highs")]
+                             opts.model_copy(update={"lp_solver": s})) for s in ("simplex", "highs")]
     ours, ref = out
     assert ours.n_fallback == 0
     scale = 1e-7 * (opts.pdd_max + opts.speed_max**2)
