@@ -222,7 +222,7 @@ def cli_with_service(cli_args: list[str], work: Path, env: dict, cold: float, ap
     print(f"CLI search with the service up: median {np.median(fwd):.2f} s, best {min(fwd):.2f} s of 5   "
           f"target: <= 1 s; cold was {cold:.1f} s")
     print(f"  {len(cold_files)} files, {n} matches; every file byte-identical to the cold run's: {all(same)}")
-    imp = subprocess.run([sys.executable, "-X", "importtime", "-c", "import motionweb.flows.cli"],
+    imp = subprocess.run([sys.executable, "-X", "importtime", "-c", "import motionweb.flows.commands.cli"],
                          capture_output=True, text=True)
     total_us = max(int(line.split("|")[1]) for line in imp.stderr.splitlines() if line.startswith("import time:")
                    and line.split("|")[1].strip().isdigit())

@@ -39,7 +39,7 @@ from pathlib import Path
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 
-MOTIONWEB = [sys.executable, "-c", "from motionweb.flows.cli import main; main()"]
+MOTIONWEB = [sys.executable, "-c", "from motionweb.flows.commands.cli import main; main()"]
 CLIP = "jump/jump_00.bvh"
 #: the query of the space synthesize and blend use (KG04 §4: a walk's final root position)
 SPACE_QUERY = ["--clip", "walk_00", "--start", "1.0", "--end", "2.5", "--param", "final_root", "--quantile", "0.8",
@@ -136,14 +136,14 @@ def work_functions(cfg_path: Path, work: Path) -> dict[str, Callable[[], object]
         return retime_flow.fn(clip, cfg, str(inproc / "retimed.bvh"), duration=2.5)
 
     def warp() -> object:
-        from motionweb.flows.requests import WarpRequest
+        from motionweb.flows.commands.requests import WarpRequest
         from motionweb.flows.warp import run_warp
 
         return run_warp(cfg, WarpRequest(input=clip, out=str(inproc / "warped.bvh"), duration=2.5))
 
     def search() -> object:
+        from motionweb.flows.commands.requests import QueryRequest
         from motionweb.flows.query import prepare_query, search_task, write_outputs
-        from motionweb.flows.requests import QueryRequest
 
         request = QueryRequest(clip="walk_00", start=1.0, end=2.5, out=str(inproc / "search"))
         t0 = time.perf_counter()

@@ -326,7 +326,7 @@ def serial_compute_s(store: Path, every: int) -> float:
     """Seconds to rebuild every ``every``-th web of the store's current generation in this
     process, scaled to all its pairs: the web computation alone (operands read and prepared
     beforehand, compiled kernels warmed up), the baseline the flow's wall time is compared with."""
-    from motionweb.flows.workers import clear_operands, clip_operands
+    from motionweb.flows.runtime.workers import clear_operands, clip_operands
     from motionweb.tasks.matchweb.build import build_web_operands
 
     gen = load_generation(MotionStore(str(store)))

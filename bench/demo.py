@@ -6,7 +6,7 @@ row says so:
 
 * ``fresh, warm-up``: an empty numba cache (``NUMBA_CACHE_DIR``) and a new Prefect home
   (``PREFECT_HOME``: no database yet, as after the install), the warm-up on (the default:
-  flows/warmup.py compiles the kernels in parallel processes and starts Prefect's local server
+  flows/runtime/warmup.py compiles the kernels in parallel processes and starts Prefect's local server
   while the corpus is written);
 * ``fresh, no warm-up``: the same with ``MOTIONWEB_WARMUP=0``, the previous code's behaviour
   (every kernel compiled on first use on one thread), measured in the same run as the baseline;
@@ -36,7 +36,7 @@ import tempfile
 import time
 from pathlib import Path
 
-MOTIONWEB = [sys.executable, "-c", "from motionweb.flows.cli import main; main()"]
+MOTIONWEB = [sys.executable, "-c", "from motionweb.flows.commands.cli import main; main()"]
 TARGET_S = 30.0
 
 

@@ -6,7 +6,7 @@ per pair: the larger category pays more per pair. This measures where: one demo 
 ``--clips`` clips (60 Hz; 180 is a category of the 381,399-frame corpus, checked), its features
 computed in this process into a store, then the pair plan and batches the index flow makes for
 2 workers (``flows.index.plan_pairs``, ``balance_batches``, ``batch_count``), of which the first
-``--batches`` are computed by ``flows.workers.compute_web_batch`` (what a Dask worker runs) in one
+``--batches`` are computed by ``flows.runtime.workers.compute_web_batch`` (what a Dask worker runs) in one
 child process per code: the previous revision ``--base`` (default: where this branch left
 ``main``; ``git archive`` of
 it put first on PYTHONPATH) and this checkout, each into its own copy of the store. Printed per
@@ -44,7 +44,7 @@ os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 import numpy as np
 from motionweb.flows.config import Config
 from motionweb.flows.index import Chunk, balance_batches, batch_count, plan_pairs, working_rate
-from motionweb.flows.workers import compute_features_batch
+from motionweb.flows.runtime.workers import compute_features_batch
 from motionweb.store.catalog import scan_corpus
 from motionweb.store.demo.corpus import write_demo_corpus
 from motionweb.store.keys import web_digest
@@ -55,7 +55,7 @@ from bench.corpus import CorpusError, frames60
 
 CHILD = r"""
 import json, sys, time
-from motionweb.flows import workers as W
+from motionweb.flows.runtime import workers as W
 from motionweb.flows.config import Config
 job = json.load(open(sys.argv[1]))
 cfg = Config.model_validate(job["cfg"])

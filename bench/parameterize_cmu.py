@@ -116,9 +116,9 @@ def main() -> None:
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "600")
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    from motionweb.flows.cli import app
+    from motionweb.flows.commands.cli import app
+    from motionweb.flows.commands.requests import SpaceRequest
     from motionweb.flows.config import load_config
-    from motionweb.flows.requests import SpaceRequest
 
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     with tempfile.TemporaryDirectory() as tmp:

@@ -57,7 +57,7 @@ def build_corpus(cmu: Path, work: Path, held: str) -> tuple[Path, int]:
 
 def timed_cli(args: list[str], cwd: Path) -> float:
     t = time.perf_counter()
-    r = subprocess.run([sys.executable, "-c", "from motionweb.flows.cli import main; main()", *args], cwd=cwd,
+    r = subprocess.run([sys.executable, "-c", "from motionweb.flows.commands.cli import main; main()", *args], cwd=cwd,
                        capture_output=True, text=True, check=False)
     if r.returncode != 0:
         raise SystemExit(f"bench: motionweb {' '.join(args)} failed:\n{r.stdout}\n{r.stderr}")
@@ -83,9 +83,9 @@ def main() -> None:
     timed_cli(["index", str(cfg_path), "--no-progress"], work)
     print(f"  indexed in {time.perf_counter() - t:.1f} s", flush=True)
 
+    from motionweb.flows.commands.requests import QueryRequest
     from motionweb.flows.config import load_config
     from motionweb.flows.query import committed_generation, plan_query, query
-    from motionweb.flows.requests import QueryRequest
     from motionweb.store.formats import read_motion
 
     cfg = load_config(cfg_path)

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from motionweb.flows.config import Config, DaskConfig
-from motionweb.flows.lazy_prefect import run_logger, task
+from motionweb.flows.runtime.lazy_prefect import run_logger, task
 from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
     Generation,
@@ -364,7 +364,7 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
     unless ``n_workers`` says otherwise); small runs use threads, which start in ~1 s. It closes
     client first, then the cluster; a worker whose last heartbeat meets the closing scheduler
     would still print a traceback, so its ``distributed.worker`` log drops that one message from
-    then on (:func:`~motionweb.flows.workers.quiet_heartbeat`, in the workers and in this process
+    then on (:func:`~motionweb.flows.runtime.workers.quiet_heartbeat`, in the workers and in this process
     until the cluster is gone).
     """
     if dcfg.address:
@@ -372,7 +372,9 @@ def dask_scheduler(dcfg: DaskConfig, small: bool) -> Iterator[str]:
             yield dcfg.address
         return
     from distributed import LocalCluster
-    from motionweb.flows.workers import quiet_heartbeat  # the stages' kernels: loaded when work is done
+    from motionweb.flows.runtime.workers import (
+        quiet_heartbeat,  # the stages' kernels: loaded when work is done
+    )
 
     n = dcfg.n_workers or max(1, min(2, os.cpu_count() or 1))
     processes = dcfg.processes if dcfg.processes is not None else not small
@@ -492,7 +494,7 @@ def features_task(plan: ChunkPlan, cfg: Config, address: str) -> list[dict[str, 
     if not plan.features_todo:
         return []
     batches = balance_clips(plan.features_todo, 4 * _workers(address))
-    from motionweb.flows.workers import compute_features_batch
+    from motionweb.flows.runtime.workers import compute_features_batch
 
     return _run_on_dask(address, compute_features_batch, batches, cfg, cfg.store.path,
                         f"features[{plan.chunk.name}]", run_logger())
@@ -506,7 +508,7 @@ def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> 
         return []
     batches = [[(j.key, j.a.sha256, j.b.sha256, j.self_pair) for j in b]
                for b in balance_batches(jobs, batch_count(jobs, _workers(address)))]
-    from motionweb.flows.workers import compute_web_batch
+    from motionweb.flows.runtime.workers import compute_web_batch
 
     return _run_on_dask(address, compute_web_batch, batches, cfg, cfg.store.path,
                         f"webs[{plan.chunk.name}]", run_logger())

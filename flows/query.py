@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.commands.requests import QueryRequest
 from motionweb.flows.config import Config, load_config
-from motionweb.flows.lazy_prefect import call, flow, run_logger, task
-from motionweb.flows.requests import QueryRequest
+from motionweb.flows.runtime.lazy_prefect import call, flow, run_logger, task
 from motionweb.store.formats import read_motion, write_motion
 from motionweb.store.generations import Generation, current_id, load_generation, package_versions
 from motionweb.store.kinematics import sample_motion

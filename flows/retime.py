@@ -1,5 +1,5 @@
 """Physics-based retiming flow (design §8): a thin Prefect wrapper over ``tasks.retime``;
-``retime_flow.fn(...)`` runs the same work without Prefect (flows/lazy_prefect.py)."""
+``retime_flow.fn(...)`` runs the same work without Prefect (flows/runtime/lazy_prefect.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 from motionweb.flows.config import Config
-from motionweb.flows.lazy_prefect import call, flow, task
+from motionweb.flows.runtime.lazy_prefect import call, flow, task
 from motionweb.store.formats import read_motion, write_motion
 from motionweb.store.motion import Motion
 from motionweb.tasks.retime import (

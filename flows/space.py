@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.commands.requests import SpaceRequest
 from motionweb.flows.config import Config, load_config
-from motionweb.flows.lazy_prefect import call, flow, run_logger, task
 from motionweb.flows.query import (
     PreparedQuery,
     committed_generation,
@@ -42,7 +42,7 @@ from motionweb.flows.query import (
     register_graph,
     search_task,
 )
-from motionweb.flows.requests import SpaceRequest
+from motionweb.flows.runtime.lazy_prefect import call, flow, run_logger, task
 from motionweb.store.generations import load_generation, package_versions
 from motionweb.store.motion import Motion
 from motionweb.store.zarr_store import MotionStore, now_iso

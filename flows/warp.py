@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.commands.requests import WarpRequest
 from motionweb.flows.config import Config, load_motion
-from motionweb.flows.lazy_prefect import call, flow, task
-from motionweb.flows.requests import WarpRequest
+from motionweb.flows.runtime.lazy_prefect import call, flow, task
 from motionweb.store.motion import Motion
 from motionweb.tasks.guided_warp import (
     WarpParams,

@@ -8,7 +8,7 @@ for the index and search kernels, while numba's compiler lock keeps the other co
 module names the kernels by what calls them (:data:`GROUPS`: the BVH reader, the index of KG04
 §3.1-3.2, the search and registration of KG04 §3.3-4) with the signatures a run with the default config uses
 (the features' ``float32``, int64 cells), and :func:`compile_share` compiles one share of them
-into the cache; ``motionweb.flows.warmup`` runs the shares in parallel processes. A later call
+into the cache; ``motionweb.flows.runtime.warmup`` runs the shares in parallel processes. A later call
 with these types loads the cached code (milliseconds) instead of compiling; a call with other
 types (a config with ``features.dtype: float64``) still compiles on first use, as before.
 

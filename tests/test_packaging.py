@@ -25,7 +25,7 @@ def test_old_top_level_names_are_not_importable(tmp_path: Path) -> None:
     for name in ("store", "tasks", "flows", "configs"):
         r = _run(f"import {name}", tmp_path)
         assert r.returncode != 0 and "ModuleNotFoundError" in r.stderr, name
-    r = _run("import motionweb.store.motion, motionweb.tasks.search, motionweb.flows.cli; print('ok')", tmp_path)
+    r = _run("import motionweb.store.motion, motionweb.tasks.search, motionweb.flows.commands.cli; print('ok')", tmp_path)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
 
 

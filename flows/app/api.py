@@ -76,7 +76,13 @@ from motionweb.flows.app.sessions import (
 )
 from motionweb.flows.app.spaces import Spaces
 from motionweb.flows.app.uploads import UploadBody
-from motionweb.flows.requests import BlendRequest, QueryRequest, SearchQuery, SynthesizeRequest, message
+from motionweb.flows.commands.requests import (
+    BlendRequest,
+    QueryRequest,
+    SearchQuery,
+    SynthesizeRequest,
+    message,
+)
 from pydantic import Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
@@ -93,7 +99,7 @@ def static_dir() -> str:
 
 
 class SearchBody(SearchQuery):
-    """A search: ``motionweb search``'s request model (``flows/requests.py``), the clip by id or
+    """A search: ``motionweb search``'s request model (``flows/commands/requests.py``), the clip by id or
     corpus name, and ``search``: overrides of the config's search section (the CLI sends its
     config's)."""
 

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 from motionweb.flows.paths import resolve_path
 
 if TYPE_CHECKING:
-    from motionweb.flows.requests import QueryRequest
+    from motionweb.flows.commands.requests import QueryRequest
 
 ENV_DIR = "MOTIONWEB_APP_DIR"
 

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 from motionweb.flows.app.worker import SearchJob, SearchWorkers, WorkerCrashed
+from motionweb.flows.commands.requests import QueryRequest, SearchQuery, parse
 from motionweb.flows.config import Config
 from motionweb.flows.query import (
     PreparedQuery,
@@ -53,7 +54,6 @@ from motionweb.flows.query import (
     segment_motion,
     write_outputs,
 )
-from motionweb.flows.requests import QueryRequest, SearchQuery, parse
 from motionweb.store.bvh import format_bvh
 from motionweb.store.cache import LRU
 from motionweb.store.generations import Generation, current_id, load_generation, pointer_signature

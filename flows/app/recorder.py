@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from motionweb.flows.history import answers as healthy
+from motionweb.flows.runtime.history import answers as healthy
 from prefect import flow, get_run_logger
 
 log = logging.getLogger("motionweb.app")

@@ -218,7 +218,7 @@ class _State:
     def warp_edit(self, job: WarpEditJob) -> tuple[Any, dict[str, Any]] | None:
         """(warped motion, summary) as ``motionweb warp`` computes them (flows/warp.py's
         ``plan_motions`` and ``solve``), the local scores reused; None when no longer kept."""
-        from motionweb.flows.requests import WarpRequest
+        from motionweb.flows.commands.requests import WarpRequest
         from motionweb.flows.warp import flight_phases, plan_motions, solve
         from motionweb.tasks.guided_warp import linear_warp
 

@@ -199,8 +199,8 @@ class _State:
         """The record (its features under ``flows/query.FILE_FEATURES``) and webs of ``motion``, a
         clip from outside the index named ``name``, against generation ``gen_id``'s clips of its
         skeleton: ``flows/query.prepare_file_query`` (``search --query-file``'s code path)."""
+        from motionweb.flows.commands.requests import QueryRequest
         from motionweb.flows.query import prepare_file_query
-        from motionweb.flows.requests import QueryRequest
 
         gen, gen_cfg, _, store = self.generation(gen_id)
         rate = max(float(r) for r in gen_cfg.features.rates)

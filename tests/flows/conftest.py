@@ -36,8 +36,8 @@ def app_store(prefect_harness, tmp_path_factory) -> Path:
 def app_space(app_store) -> str:
     """The id of a motion space stored in ``app_store``: the right hand's position 0.75 s into
     walk_00 1-2.5 s over that query's matches (KG04 §4, a 3-D parameter), 300 samples."""
+    from motionweb.flows.commands.requests import SpaceRequest
     from motionweb.flows.config import load_config
-    from motionweb.flows.requests import SpaceRequest
     from motionweb.flows.space import parameterize
 
     res = parameterize(load_config(app_store), SpaceRequest(clip="walk_00", start=1.0, end=2.5, quantile=0.8,

@@ -19,7 +19,7 @@ from motionweb.flows.app.api import MAX_BODY, create_app
 from motionweb.flows.app.client import discovery_file, find_service
 from motionweb.flows.app.engine import Engine, clip_id
 from motionweb.flows.app.server import check_host
-from motionweb.flows.cli import app as cli
+from motionweb.flows.commands.cli import app as cli
 from motionweb.flows.config import load_config
 from motionweb.flows.index import index_library
 from motionweb.flows.query import match_rows, register_graph, segment_motion
@@ -270,7 +270,7 @@ def test_forwarded_search_writes_the_bytes_of_a_local_run(running, app_store, tm
 
 def test_a_forwarded_search_imports_nothing_heavy(running, app_store, tmp_path: Path) -> None:
     """The forwarding path of the CLI loads none of numpy, Prefect, matplotlib, Dask, Zarr."""
-    code = ("import sys\nfrom motionweb.flows.cli import app\ntry:\n    app(sys.argv[1:])\nexcept SystemExit as e:\n"
+    code = ("import sys\nfrom motionweb.flows.commands.cli import app\ntry:\n    app(sys.argv[1:])\nexcept SystemExit as e:\n"
             "    assert not e.code, e.code\nheavy = ('numpy', 'prefect', 'matplotlib', 'dask', 'zarr', 'scipy', 'numba')\n"
             "print(sorted(m for m in heavy if m in sys.modules))")
     r = subprocess.run([sys.executable, "-c", code, "search", str(app_store), "--clip", "walk_00", "--start", "1",
@@ -348,8 +348,8 @@ def test_a_query_that_matches_nothing_is_an_empty_result_with_a_message(client, 
     """Issue 22: a window whose rows no path crosses (found here in-process: a window ending on a
     clip's last frame) is answered with the query alone and a message, by the service and the
     query flow alike, not with an error."""
+    from motionweb.flows.commands.requests import QueryRequest
     from motionweb.flows.query import query
-    from motionweb.flows.requests import QueryRequest
     from motionweb.tasks.ranking import NO_MATCH
 
     store = MotionStore(cfg.store.path, read_only=True)

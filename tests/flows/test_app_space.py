@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 from motionweb.flows.app.api import create_app
 from motionweb.flows.app.engine import Engine
-from motionweb.flows.cli import app as cli
+from motionweb.flows.commands.cli import app as cli
 from motionweb.flows.config import load_config
 from motionweb.flows.space import list_spaces, load_space
 from motionweb.store.bvh import format_bvh

@@ -12,9 +12,9 @@ import pytest
 from fastapi.testclient import TestClient
 from motionweb.flows.app.api import create_app
 from motionweb.flows.app.engine import Engine
+from motionweb.flows.commands.requests import QueryRequest
 from motionweb.flows.config import load_config
 from motionweb.flows.query import plan_query, query
-from motionweb.flows.requests import QueryRequest
 from motionweb.store.formats import read_motion
 
 WINDOW = {"start": 1.0, "end": 2.5, "quantile": 0.8}

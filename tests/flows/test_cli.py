@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from fixtures import tiny_motion
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
 from motionweb.store.bvh import write_bvh
 from typer.testing import CliRunner
 
@@ -66,7 +66,7 @@ def test_an_unforeseen_failure_is_one_line_not_a_traceback(tmp_path: Path) -> No
     import subprocess
     import sys
 
-    code = ("import motionweb.flows.cli as c\n"
+    code = ("import motionweb.flows.commands.cli as c\n"
             "def boom():\n    raise RuntimeError('Timed out while attempting to connect to the server.\\nmore')\n"
             "c.app = boom\nc.main()\n")
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
@@ -122,7 +122,7 @@ def test_a_request_refused_inside_the_flow_is_one_line(tmp_path: Path) -> None:
     write_bvh(tiny_motion(40, 30.0), tmp_path / "tiny.bvh")
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
     env["PREFECT_HOME"] = str(tmp_path / "prefect")
-    r = subprocess.run([sys.executable, "-m", "motionweb.flows.cli", "retime", "tiny.bvh", "--out", "r.bvh",
+    r = subprocess.run([sys.executable, "-m", "motionweb.flows.commands.cli", "retime", "tiny.bvh", "--out", "r.bvh",
                         "--duration", "1"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert "Traceback" not in r.stdout + r.stderr, r.stderr

@@ -1,6 +1,6 @@
 """Commands always exit (issue 22, parts 4 and 6): a script that runs ``motionweb index`` with
 ``capture_output=True`` gets the return code of a CLI killed by SIGSEGV or SIGKILL within 10 s, no process the command started is left, and a crash prints one line naming
-the fault and its report (flows/guard.py, flows/reaper.py).
+the fault and its report (flows/runtime/guard.py, flows/runtime/reaper.py).
 
 The CLI is killed from outside, once its Prefect server answers (and, with process workers, once
 a Dask worker process runs): a SIGSEGV sent with kill() meets the same faulthandler as a real one.
@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 import yaml
 from fixtures import tiny_index_config
-from motionweb.flows.history import answers
-from motionweb.flows.reaper import descendants
+from motionweb.flows.runtime.history import answers
+from motionweb.flows.runtime.reaper import descendants
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -73,7 +73,7 @@ def marked(marker: str) -> dict[int, str]:
 def cli_command() -> list[str]:
     """The console script beside this interpreter (what users run), else ``python -m``."""
     exe = Path(sys.executable).parent / "motionweb"
-    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "motionweb.flows.cli"]
+    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "motionweb.flows.commands.cli"]
 
 
 def clean_env(tmp_path: Path, marker: str) -> dict[str, str]:
@@ -150,7 +150,7 @@ def _ppid(pid: int) -> int | None:
 
 
 def short(cmdlines) -> list[str]:
-    """What each command line runs, in a word (``uvicorn``, ``motionweb.flows.reaper``, ...)."""
+    """What each command line runs, in a word (``uvicorn``, ``motionweb.flows.runtime.reaper``, ...)."""
     return sorted(next((a for a in c.split()[1:] if not a.startswith("-")), c.split()[0]).rsplit("/", 1)[-1]
                   for c in cmdlines)
 
@@ -209,7 +209,7 @@ def test_a_crashed_index_returns_at_once_and_leaves_no_worker(tmp_path: Path) ->
 
 def test_a_crash_is_one_line_naming_the_fault_and_its_report(tmp_path: Path) -> None:
     """A real segmentation fault in the console script: one line, the frame, the report."""
-    code = "import faulthandler, motionweb.flows.cli as c\nc.app = faulthandler._sigsegv\nc.main()\n"
+    code = "import faulthandler, motionweb.flows.commands.cli as c\nc.app = faulthandler._sigsegv\nc.main()\n"
     env = clean_env(tmp_path, uuid.uuid4().hex)
     t = time.monotonic()
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60,

@@ -1,4 +1,4 @@
-"""``motionweb export``, ``mirror`` and ``cleanup`` (flows/export_cli.py, issue 26): GLB or BVH by
+"""``motionweb export``, ``mirror`` and ``cleanup`` (flows/commands/export_cli.py, issue 26): GLB or BVH by
 suffix or --format, root motion in place, one-line errors; the GLB files pass the validator."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from gltf_check import glb_world_positions, validate
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
 from motionweb.store.bvh import write_bvh
 from motionweb.store.demo.corpus import generate_clip
 from motionweb.store.formats import read_motion

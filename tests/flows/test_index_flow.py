@@ -36,7 +36,7 @@ from motionweb.flows.index import (
     plan_pairs,
     skeleton_groups,
 )
-from motionweb.flows.workers import web_counts
+from motionweb.flows.runtime.workers import web_counts
 from motionweb.store.bvh import write_bvh
 from motionweb.store.catalog import Catalog, ClipEntry, ScanError
 from motionweb.store.generations import current_id, load_generation

@@ -1,6 +1,6 @@
 """On-demand commands run in the CLI's process without Prefect when no server is there, write the
 bytes the Prefect flow run writes, and are recorded as flow runs after the answer when a server is
-there (issue 23, flows/lazy_prefect.py, flows/history.py); ``index`` with nothing to do answers
+there (issue 23, flows/runtime/lazy_prefect.py, flows/runtime/history.py); ``index`` with nothing to do answers
 without Prefect, and still leaves a damaged store to the flow (flows/index.py unchanged_summary)."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from motionweb.flows.config import load_config
 #: runs the CLI in a new process with no server configured, then says whether Prefect was imported
 NO_PREFECT = """
 import sys
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
 try:
     app(sys.argv[1:], standalone_mode=False)
 finally:
@@ -57,8 +57,8 @@ def test_warp_and_search_run_without_prefect(local_cfg: Path, tmp_path: Path) ->
 
 def test_the_flow_run_and_the_plain_run_write_the_same_bytes(prefect_harness, local_cfg: Path,
                                                            tmp_path: Path) -> None:
+    from motionweb.flows.commands.requests import QueryRequest, WarpRequest
     from motionweb.flows.query import query
-    from motionweb.flows.requests import QueryRequest, WarpRequest
     from motionweb.flows.retime import retime_flow
     from motionweb.flows.warp import warp
 
@@ -85,7 +85,7 @@ def test_a_run_is_recorded_after_the_answer_when_a_server_is_there(prefect_harne
                                                                   tmp_path: Path) -> None:
     import asyncio
 
-    from motionweb.flows.cli import app
+    from motionweb.flows.commands.cli import app
     from prefect.client.orchestration import get_client
     from prefect.client.schemas.filters import FlowFilter, FlowFilterName
     from typer.testing import CliRunner
@@ -135,10 +135,10 @@ def test_index_with_nothing_to_do_answers_without_prefect_unless_the_store_is_da
 
 
 @pytest.mark.parametrize(("module", "absent"), [
-    ("motionweb.flows.cli", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio", "matplotlib")),
+    ("motionweb.flows.commands.cli", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio", "matplotlib")),
     ("motionweb.flows.config", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio")),
     ("motionweb.flows.index", ("numba", "prefect", "distributed", "pinocchio")),
-    ("motionweb.flows.requests", ("numpy", "numba", "zarr", "prefect")),
+    ("motionweb.flows.commands.requests", ("numpy", "numba", "zarr", "prefect")),
 ])
 def test_light_modules_stay_light(module, absent) -> None:
     """What every command imports before its work (the CLI, the run config with every stage's

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
+from motionweb.flows.commands.requests import QueryRequest
 from motionweb.flows.config import load_config
 from motionweb.flows.query import FILE_PREFIX, committed_generation, indexed_config, plan_query, query
-from motionweb.flows.requests import QueryRequest
 from motionweb.store.formats import read_motion
 from motionweb.store.webs import StoreWebs
 from motionweb.tasks.query_clip import clip_operands, query_clip_webs

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pytest
 from motionweb.flows import index as index_flow
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
+from motionweb.flows.commands.requests import QueryRequest
 from motionweb.flows.config import load_config
 from motionweb.flows.index import index_library
 from motionweb.flows.query import query
-from motionweb.flows.requests import QueryRequest
 from motionweb.store.bvh import read_bvh
 from motionweb.store.generations import commit, current_id, load_generation
 from motionweb.store.zarr_store import MotionStore
@@ -169,7 +169,7 @@ def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: 
     clip.write_text(clip.read_text() + "\n")  # new content: its pairs must be recomputed
     objects = Path(cfg.store.path) / "webs"
     seen = {p for p in objects.rglob("*") if p.is_file()}
-    proc = subprocess.Popen([sys.executable, "-m", "motionweb.flows.cli", "index", str(work / "config.yaml"), "--no-progress"],
+    proc = subprocess.Popen([sys.executable, "-m", "motionweb.flows.commands.cli", "index", str(work / "config.yaml"), "--no-progress"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         deadline = time.monotonic() + 240

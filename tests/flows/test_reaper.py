@@ -1,4 +1,4 @@
-"""Services die with the CLI: kill only the main process, its descendants follow (flows/reaper.py)."""
+"""Services die with the CLI: kill only the main process, its descendants follow (flows/runtime/reaper.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from fixtures import tiny_index_config
-from motionweb.flows.reaper import descendants
+from motionweb.flows.runtime.reaper import descendants
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the reaper reads /proc")
 
@@ -36,7 +36,7 @@ def _wait_gone(procs: set[tuple[int, str]], timeout: float) -> set[tuple[int, st
 
 
 #: a parent that starts the watchdog and one long-lived child, then sleeps
-PARENT = ("import subprocess, sys, time; from motionweb.flows.reaper import start_reaper; start_reaper(); "
+PARENT = ("import subprocess, sys, time; from motionweb.flows.runtime.reaper import start_reaper; start_reaper(); "
           "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); time.sleep(120)")
 
 
@@ -78,7 +78,7 @@ def test_killing_the_cli_ends_its_prefect_server_and_workers(tmp_path: Path) -> 
     tiny_index_config(tmp_path)
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
     env["PREFECT_HOME"] = str(tmp_path / "prefect")
-    cli = subprocess.Popen([sys.executable, "-m", "motionweb.flows.cli", "index", str(tmp_path / "c.yaml"),
+    cli = subprocess.Popen([sys.executable, "-m", "motionweb.flows.commands.cli", "index", str(tmp_path / "c.yaml"),
                             "--no-progress"], env=env, start_new_session=True,
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

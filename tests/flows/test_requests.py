@@ -1,12 +1,12 @@
-"""One request model per command (flows/requests.py, issue 23): the CLI, the forwarding client and
+"""One request model per command (flows/commands/requests.py, issue 23): the CLI, the forwarding client and
 the service's API take the same model, so a bad request gets the same message naming its field
 from each front door, and a request survives the wire unchanged."""
 
 from __future__ import annotations
 
 import pytest
-from motionweb.flows.cli import app
-from motionweb.flows.requests import (
+from motionweb.flows.commands.cli import app
+from motionweb.flows.commands.requests import (
     BlendRequest,
     QueryRequest,
     RetimeRequest,
@@ -86,7 +86,7 @@ def test_the_cli_and_the_api_give_the_same_message(app_store) -> None:
     (["catalog", "no-such-corpus"], "no-such-corpus"),
 ])
 def test_housekeeping_commands_check_their_request_first(args, message, tmp_path) -> None:
-    """catalog, preview and gc build their request model (flows/requests.py) before any work:
+    """catalog, preview and gc build their request model (flows/commands/requests.py) before any work:
     a bad option is one line naming its field, exit 2, nothing written."""
     res = runner.invoke(app, args)
     assert res.exit_code == 2, res.output

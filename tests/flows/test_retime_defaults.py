@@ -23,7 +23,7 @@ RUN_FIELDS = ("timings_s", "output")
 def motionweb_cli() -> list[str]:
     """The installed ``motionweb`` command (the module where no script sits beside this Python)."""
     script = Path(sys.executable).with_name("motionweb")
-    return [str(script)] if script.is_file() else [sys.executable, "-m", "motionweb.flows.cli"]
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "motionweb.flows.commands.cli"]
 
 
 def cli_env(tmp_path: Path) -> dict[str, str]:
@@ -78,7 +78,7 @@ def test_a_closing_local_cluster_s_heartbeat_traceback_is_dropped() -> None:
     closing scheduler is dropped while ``quiet_heartbeat`` is on, and only that message."""
     import logging
 
-    from motionweb.flows.workers import HEARTBEAT_LOST, quiet_heartbeat
+    from motionweb.flows.runtime.workers import HEARTBEAT_LOST, quiet_heartbeat
 
     log = logging.getLogger("distributed.worker")
     seen: list[str] = []

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
 from motionweb.flows.config import load_config
 from motionweb.flows.space import list_spaces, load_space
 from motionweb.store.bvh import read_bvh

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 from fixtures import wiggle
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
 from motionweb.flows.config import Config, load_config, resolve_paths
 from motionweb.flows.index import format_summary, index_library
 from motionweb.store.bvh import write_bvh
@@ -228,7 +228,7 @@ def test_repair_run_of_the_cli_prints_no_traceback(app_store, tmp_path: Path, ki
     cfg_path, store, gen_id = demo_copy(app_store, tmp_path)
     key = damage(Path(store.url), kind, gen_id)
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
-    r = subprocess.run([sys.executable, "-m", "motionweb.flows.cli", "index", str(cfg_path), "--no-progress"],
+    r = subprocess.run([sys.executable, "-m", "motionweb.flows.commands.cli", "index", str(cfg_path), "--no-progress"],
                        check=False, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr

@@ -1,4 +1,4 @@
-"""The demo's warm-up (flows/warmup.py, tasks/warm.py): on a fresh numba cache, ``motionweb demo``
+"""The demo's warm-up (flows/runtime/warmup.py, tasks/warm.py): on a fresh numba cache, ``motionweb demo``
 compiles its kernels in the warm-up processes, and its own process compiles none of them."""
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ class Compiles(event.Listener):
             found.append([f.__module__, f.__name__, " ".join(format_type(a) for a in ev.data["args"])])
 
 event.register("numba:compile", Compiles())
-from motionweb.flows.cli import app
+from motionweb.flows.commands.cli import app
 
 res = CliRunner().invoke(app, ["demo", "--workdir", sys.argv[1], "--config", sys.argv[2]])
 json.dump({"exit": res.exit_code, "output": res.output, "compiled": found}, open(sys.argv[3], "w"))

@@ -316,7 +316,7 @@ def test_cli_warp_end_to_end(walkjump, tmp_path):
                        "PREFECT_LOGGING_TO_API_WHEN_MISSING_FLOW": "ignore",
                        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90"}.items():
         os.environ.setdefault(key, value)
-    from motionweb.flows.cli import app
+    from motionweb.flows.commands.cli import app
     from motionweb.store.bvh import read_bvh, write_bvh
     from typer.testing import CliRunner
 

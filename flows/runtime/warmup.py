@@ -18,7 +18,7 @@ warm-up and the command's own work.
 
 Second and later runs find the cache and the processes return at once (a cached kernel is loaded,
 ~10 ms). ``MOTIONWEB_WARMUP=0`` turns the warm-up off (the previous behaviour, for comparison:
-``bench/demo.py``). The processes are children of the CLI: its reaper (flows/reaper.py) ends them
+``bench/demo.py``). The processes are children of the CLI: its reaper (flows/runtime/reaper.py) ends them
 with it.
 """
 
@@ -79,7 +79,7 @@ class PrefectStart:
 def start_prefect() -> PrefectStart:
     """Start Prefect's local API server in a background thread when a flow run would start one: no
     ``PREFECT_API_URL`` configured, warm-ups enabled. Call :meth:`PrefectStart.wait` before the flow."""
-    from motionweb.flows.history import configured_api_url
+    from motionweb.flows.runtime.history import configured_api_url
 
     if not enabled() or configured_api_url():
         return PrefectStart(None)
@@ -114,7 +114,7 @@ def start(groups: list[str], processes: int | None = None) -> Warmup:
         return Warmup([])
     kernels(groups)  # an unknown group fails here, in the caller
     n = processes or max(1, min(2, os.cpu_count() or 1))
-    procs = [subprocess.Popen([sys.executable, "-m", "motionweb.flows.warmup", str(i), str(n), *groups],
+    procs = [subprocess.Popen([sys.executable, "-m", "motionweb.flows.runtime.warmup", str(i), str(n), *groups],
                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
              for i in range(len(shares(groups, n)))]
     return Warmup(procs)
@@ -132,7 +132,7 @@ def ahead_of_index(local_cluster: bool) -> list[Warmup | PrefectStart]:
 
 
 def main(argv: list[str]) -> int:
-    """``python -m motionweb.flows.warmup SHARE N GROUP...``: compile share SHARE of N."""
+    """``python -m motionweb.flows.runtime.warmup SHARE N GROUP...``: compile share SHARE of N."""
     from motionweb.tasks.warm import compile_share, shares
 
     share, n, groups = int(argv[0]), int(argv[1]), argv[2:]

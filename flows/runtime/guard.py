@@ -1,6 +1,6 @@
 """A CLI run always exits, and a crash says so in one line: the console script's guard.
 
-:func:`protect` runs first in :func:`motionweb.flows.cli.main`:
+:func:`protect` runs first in :func:`motionweb.flows.commands.cli.main`:
 
 1. **Private stdio.** The CLI keeps the caller's stdin, stdout and stderr on descriptors of its own
    (``os.dup``: not inherited by children) and rebinds ``sys.stdin/stdout/stderr`` to them, then
@@ -16,13 +16,13 @@
    a fatal error before Python's handlers) lands in the log file too, not at the user.
 2. **Crash report.** Python's :mod:`faulthandler` writes the tracebacks of a fatal signal
    (SIGSEGV, SIGABRT, SIGBUS, SIGILL, SIGFPE) to a report file.
-3. **Watchdog.** :func:`motionweb.flows.reaper.start_reaper` starts the watchdog with the caller's
+3. **Watchdog.** :func:`motionweb.flows.runtime.reaper.start_reaper` starts the watchdog with the caller's
    stderr and a channel: when the CLI is gone it prints one line naming the crash and the report
    (only when the report is not empty), releases that stderr, ends the CLI's descendants, and
    removes the log and report files (and the folders made for them) that stayed empty.
 
 Where the files go: ``<output>/logs/`` once a command loads its config (:func:`report_into`, from
-:func:`motionweb.flows.cli.config_or_fail`), before that (and for commands without a config) the
+:func:`motionweb.flows.commands.cli.config_or_fail`), before that (and for commands without a config) the
 folder ``$MOTIONWEB_LOG_DIR``, else ``$XDG_STATE_HOME/motionweb/logs`` (``~/.local/state/...``).
 Files are named ``crash-<time>-<pid>.txt`` (the report) and ``stdio-<time>-<pid>.log`` (the
 services' and the CLI's low-level output).
@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 from typing import IO
 
-from motionweb.flows.reaper import start_reaper
+from motionweb.flows.runtime.reaper import start_reaper
 
 LOG_DIR_ENV = "MOTIONWEB_LOG_DIR"
 

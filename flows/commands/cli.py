@@ -8,12 +8,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
 
 import typer
-from motionweb.flows.history import record_run, server_url
-from motionweb.flows.reported import ERRORS
+from motionweb.flows.commands.reported import ERRORS
+from motionweb.flows.runtime.history import record_run, server_url
 
 if TYPE_CHECKING:  # the config imports every stage: loaded on use, so a forwarded search starts fast
+    from motionweb.flows.commands.requests import QueryRequest
     from motionweb.flows.config import Config
-    from motionweb.flows.requests import QueryRequest
 
 app = typer.Typer(
     name="motionweb",
@@ -46,14 +46,14 @@ def run_command(flow_name: str, parameters: dict[str, Any], work: Callable[[], T
     """Every command's run, the same way (issue 23): with ``services`` (a command that may start a
     Prefect server or a Dask cluster) the reaper first, so they die with this process; then
     ``work`` in this process (an on-demand command calls its flow's ``.fn``: no Prefect,
-    flows/lazy_prefect.py); an error it reports (``ERRORS``) is one line and exit 2 (quotes
+    flows/runtime/lazy_prefect.py); an error it reports (``ERRORS``) is one line and exit 2 (quotes
     stripped with ``strip``); else ``show`` prints the answer. Either outcome is then recorded as
-    a Prefect flow run named ``flow_name`` when a server is there (flows/history.py), unless
+    a Prefect flow run named ``flow_name`` when a server is there (flows/runtime/history.py), unless
     ``record`` is off (a command that runs as a Prefect flow, index, is its own record); the record
     keeps ``outcome(result)`` (default: the result). An error with an ``exit_code``
-    (:class:`~motionweb.flows.reported.CommandError`) exits with that code."""
+    (:class:`~motionweb.flows.commands.reported.CommandError`) exits with that code."""
     if services:
-        from motionweb.flows.reaper import start_reaper
+        from motionweb.flows.runtime.reaper import start_reaper
 
         start_reaper()
     try:
@@ -70,9 +70,9 @@ def run_command(flow_name: str, parameters: dict[str, Any], work: Callable[[], T
 
 
 def request_or_fail(model: type[R], **fields: Any) -> R:
-    """A command's request model (flows/requests.py) from its options; a bad one ends in ``fail``
+    """A command's request model (flows/commands/requests.py) from its options; a bad one ends in ``fail``
     with the field named."""
-    from motionweb.flows.requests import parse
+    from motionweb.flows.commands.requests import parse
 
     try:
         return parse(model, **fields)
@@ -83,14 +83,14 @@ def request_or_fail(model: type[R], **fields: Any) -> R:
 def config_or_fail(path: Path | None) -> Config:
     """Load a config (the default one when ``path`` is None), turning errors into ``fail``."""
     from motionweb.flows.config import ConfigError, load_config
-    from motionweb.flows.guard import report_into
+    from motionweb.flows.runtime.guard import report_into
 
     try:
         cfg = load_config(path)
     except ConfigError as exc:
         fail(str(exc))
         raise  # unreachable: fail() exits
-    report_into(cfg.output)  # a crash report (flows/guard.py) goes to the output folder
+    report_into(cfg.output)  # a crash report (flows/runtime/guard.py) goes to the output folder
     return cfg
 
 
@@ -118,7 +118,7 @@ def catalog(
     json_out: Annotated[bool, typer.Option("--json", help="Print the catalog as JSON.")] = False,
 ) -> None:
     """Scan a corpus folder: category, frames, fps, duration and hash of every clip."""
-    from motionweb.flows.requests import CatalogRequest
+    from motionweb.flows.commands.requests import CatalogRequest
     from motionweb.store.catalog import scan_corpus
 
     request = request_or_fail(CatalogRequest, corpus=str(corpus), as_json=json_out)
@@ -131,7 +131,7 @@ def catalog(
 
 
 def _preview_default(name: str) -> Any:
-    from motionweb.flows.requests import PreviewRequest
+    from motionweb.flows.commands.requests import PreviewRequest
 
     return PreviewRequest.model_fields[name].default
 
@@ -146,7 +146,7 @@ def preview(
     up: Annotated[str | None, typer.Option(help=f"Vertical axis of the clip (default {_preview_default('up')}).")] = None,
 ) -> None:
     """Render a stick-figure animation of a clip to a GIF (headless)."""
-    from motionweb.flows.requests import PreviewRequest
+    from motionweb.flows.commands.requests import PreviewRequest
 
     given = {k: v for k, v in {"max_frames": max_frames, "fps": fps, "up": up}.items() if v is not None}
     request = request_or_fail(PreviewRequest, motion=str(motion), out=str(out), **given)
@@ -188,11 +188,11 @@ def demo(
     cfg_path.write_text("# written by `motionweb demo`; paths are relative to this file\n"
                         + yaml.safe_dump(data, sort_keys=False))
     cfg = config_or_fail(cfg_path)
-    from motionweb.flows import warmup
+    from motionweb.flows.runtime import warmup
 
     # the index and search kernels compile in parallel processes and Prefect's local server starts
-    # while the corpus is written (flows/warmup.py): the cold demo's compile time, overlapped
-    from motionweb.flows.reaper import start_reaper
+    # while the corpus is written (flows/runtime/warmup.py): the cold demo's compile time, overlapped
+    from motionweb.flows.runtime.reaper import start_reaper
 
     start_reaper()  # the warm-up processes and the services end with this process
     # (not the BVH reader: the corpus scan below calls it before any share is done)
@@ -204,7 +204,7 @@ def demo(
     typer.echo(catalog_table(scan_corpus(cfg.corpus.path, cfg.corpus)))
     typer.echo(f"\nindexing (KG04 match webs) with {cfg_path} ...")
     run_index(cfg, progress=True, ahead=ahead)
-    from motionweb.flows.requests import QueryRequest
+    from motionweb.flows.commands.requests import QueryRequest
 
     d = cfg.demo
     typer.echo(f"\nsearching (KG04 §3.3) for {d.query_clip} {d.query_start:g}-{d.query_end:g} s, registering the matches ...")
@@ -231,7 +231,7 @@ def warp(
 ) -> None:
     """Guided time warp (HDP07): retime a clip to a duration and keytimes, mimicking a reference's timing."""
     keys = [parse_pair("--keytime", text, "IN_S:OUT_S (seconds), e.g. 1.5:1.0") for text in keytime or []]
-    from motionweb.flows.requests import WarpRequest
+    from motionweb.flows.commands.requests import WarpRequest
 
     request = request_or_fail(WarpRequest, input=str(input_path), out=str(out),
                               reference=str(reference) if reference else None, duration=duration, frames=frames,
@@ -293,7 +293,7 @@ def retime(
                 raise ValueError
         except ValueError:
             fail(f"--gravity {gravity!r}: expected X,Y,Z, e.g. 0,-4.9,0")
-    from motionweb.flows.requests import RetimeRequest
+    from motionweb.flows.commands.requests import RetimeRequest
 
     request = request_or_fail(RetimeRequest, input_path=str(input_path), out=str(out), duration=duration,
                               keytimes=keys, gravity=g, mass=body_factors("--mass", mass),
@@ -345,11 +345,11 @@ def run_index(cfg: Config, progress: bool, ahead: list | None = None) -> dict:
     starts the reaper: the Prefect server and Dask workers die with this process).
 
     With work to do and Prefect's local server to start, the index kernels compile in parallel
-    processes meanwhile (flows/warmup.py :func:`~motionweb.flows.warmup.ahead_of_index`), and the
+    processes meanwhile (flows/runtime/warmup.py :func:`~motionweb.flows.runtime.warmup.ahead_of_index`), and the
     flow starts when both are done; ``ahead``: those already started by the caller (``demo``,
     before it writes its corpus)."""
     import motionweb.flows.index as idx
-    from motionweb.flows import warmup
+    from motionweb.flows.runtime import warmup
 
     seen: dict[str, tuple[int, int]] = {}
 
@@ -474,7 +474,7 @@ def search(
 
     With a `motionweb app` running for the config's store, the service answers (same outputs)."""
     from motionweb.flows.app.client import ServiceError, forward_search
-    from motionweb.flows.requests import QueryRequest
+    from motionweb.flows.commands.requests import QueryRequest
 
     if (clip is None) == (query_file is None):
         fail("give exactly one of --clip NAME (an indexed clip) and --query-file FILE (a clip from outside the index)")
@@ -507,7 +507,7 @@ def app_command(
     """Serve the web page and JSON API for on-demand queries of the config's store (blocks)."""
     cfg = config_or_fail(config)
     from motionweb.flows.app.server import serve
-    from motionweb.flows.reaper import start_reaper
+    from motionweb.flows.runtime.reaper import start_reaper
 
     start_reaper()  # a Prefect server the service starts dies with it, even when it is killed
     try:
@@ -524,7 +524,7 @@ def plot_web(
     out: Annotated[Path | None, typer.Option(help="Output image (PNG, PDF, SVG; default web.png).")] = None,
 ) -> None:
     """Draw the distance grid of two clips with minima, valid region, chains and bridges (KG04 Fig. 4/7)."""
-    from motionweb.flows.requests import PlotWebRequest
+    from motionweb.flows.commands.requests import PlotWebRequest
 
     request = request_or_fail(PlotWebRequest, clip_a=clip_a, clip_b=clip_b, **({"out": str(out)} if out else {}))
     cfg = config_or_fail(config)
@@ -542,17 +542,17 @@ def plot_web(
                                                  "bridges": rep.bridges})
 
 
-from motionweb.flows import store_cli
+from motionweb.flows.commands import store_cli
 
 app.command()(store_cli.verify)
 app.command()(store_cli.gc)
 
 
-from motionweb.flows.space_cli import add_commands
+from motionweb.flows.commands.space_cli import add_commands
 
 add_commands(app, fail, config_or_fail)
 
-from motionweb.flows.export_cli import register as add_exports
+from motionweb.flows.commands.export_cli import register as add_exports
 
 add_exports(app)
 
@@ -560,11 +560,11 @@ add_exports(app)
 def main() -> None:
     """The console script: run the CLI, and turn anything a command did not foresee (a Prefect
     server that fails to start, a full disk) into one line on stderr, exit 1, instead of a
-    traceback. ``MOTIONWEB_DEBUG=1`` shows the traceback. :func:`motionweb.flows.guard.protect`
+    traceback. ``MOTIONWEB_DEBUG=1`` shows the traceback. :func:`motionweb.flows.runtime.guard.protect`
     first: the services it starts never hold the caller's stdio, and a crash prints one line."""
     import os
 
-    from motionweb.flows.guard import protect
+    from motionweb.flows.runtime.guard import protect
 
     protect(" ".join(["motionweb", *sys.argv[1:2]]))
     try:

@@ -12,7 +12,7 @@ Gone means no /proc entry with the CLI's start time, *or* a zombie (state ``Z``,
 of ``/proc/<pid>/stat``): a CLI that died but whose parent has not reaped it yet (a script blocked
 reading its pipes, say) still has its /proc entry and start time, and is just as dead.
 
-With a channel (``start_reaper(stderr=...)``, used by :mod:`motionweb.flows.guard`) the watchdog
+With a channel (``start_reaper(stderr=...)``, used by :mod:`motionweb.flows.runtime.guard`) the watchdog
 also reads lines from the CLI on its stdin, a pipe only the CLI holds, so the CLI's death is an
 end-of-file seen at once rather than at the next poll:
 
@@ -208,7 +208,7 @@ def start_reaper(stderr: int | None = None) -> int | None:
     pid = os.getpid()
     if pid in _started or not sys.platform.startswith("linux"):
         return _started.get(pid)
-    args = [sys.executable, "-m", "motionweb.flows.reaper", str(pid)]
+    args = [sys.executable, "-m", "motionweb.flows.runtime.reaper", str(pid)]
     if stderr is None:
         _started[pid] = None
         subprocess.Popen(args, start_new_session=True, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -14,8 +14,8 @@ def verify(
     """Check the ``current`` pointer, the manifest it names and every object of that generation
     against their checksums; exit 1 when any is missing or damaged (``motionweb index`` repairs
     the pointer and recomputes the objects)."""
-    from motionweb.flows.cli import config_or_fail, run_command
-    from motionweb.flows.reported import CommandError
+    from motionweb.flows.commands.cli import config_or_fail, run_command
+    from motionweb.flows.commands.reported import CommandError
     from motionweb.store.generations import PointerError, check_current, load_generation, verify_generation
     from motionweb.store.zarr_store import MotionStore, StoreError
 
@@ -56,9 +56,9 @@ def gc(
     """Remove old generations, leftovers of killed runs and objects no kept generation lists.
     Do not run it while an index run writes to the same store; a store whose pointer is damaged
     is left alone (exit 1) until ``motionweb index`` repairs it."""
-    from motionweb.flows.cli import config_or_fail, request_or_fail, run_command
-    from motionweb.flows.reported import CommandError
-    from motionweb.flows.requests import GcRequest
+    from motionweb.flows.commands.cli import config_or_fail, request_or_fail, run_command
+    from motionweb.flows.commands.reported import CommandError
+    from motionweb.flows.commands.requests import GcRequest
     from motionweb.store.generations import PointerError
     from motionweb.store.generations import gc as store_gc
     from motionweb.store.zarr_store import MotionStore

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from motionweb.flows.requests import ExportRequest
+from motionweb.flows.commands.requests import ExportRequest
 
 if TYPE_CHECKING:
     from motionweb.flows.config import Config
@@ -66,8 +66,8 @@ def _write(cfg: Config, motion: Motion, request: ExportRequest) -> str:
 def _run(name: str, input_path: Path, out: Path, format: Format | None, root_motion: RootMode | None,
          config: Path | None, work: Callable[[Config, Motion, ExportRequest], str]) -> None:
     """One export-like command through the command core: its request model, the config, then
-    ``work`` (the line to print) under :func:`motionweb.flows.cli.run_command`."""
-    from motionweb.flows.cli import config_or_fail, request_or_fail, run_command
+    ``work`` (the line to print) under :func:`motionweb.flows.commands.cli.run_command`."""
+    from motionweb.flows.commands.cli import config_or_fail, request_or_fail, run_command
 
     request = request_or_fail(ExportRequest, input=str(input_path), out=str(out),
                               format=format.value if format else None,

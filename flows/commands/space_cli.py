@@ -1,5 +1,5 @@
 """``motionweb parameterize`` / ``synthesize`` / ``blend``: thin commands over ``flows/space.py``
-(KG04 §4). Registered on the main app by ``flows/cli.py``; every input is checked before a flow
+(KG04 §4). Registered on the main app by ``flows/commands/cli.py``; every input is checked before a flow
 starts and a bad one ends in one line (exit 2)."""
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def ask_service(fail: Callable[[str], NoReturn], config: Path | None, space: str
     """The parsed request (``op``'s model: :class:`SynthesizeRequest` or :class:`BlendRequest`,
     the bodies the service's routes take) and, when a `motionweb app` serves the config's store,
     its answer (None otherwise); a bad option or the service's refusal ends in ``fail``."""
-    from motionweb.flows.requests import BlendRequest, SynthesizeRequest, parse
+    from motionweb.flows.commands.requests import BlendRequest, SynthesizeRequest, parse
 
     try:
         body = parse(SynthesizeRequest if op == "synthesize" else BlendRequest, **payload())
@@ -71,8 +71,8 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         out: Annotated[Path | None, typer.Option(help="Folder for the plot (default: the config's output).")] = None,
     ) -> None:
         """Build a parameterized motion space from the matches of a query (KG04 §4) and store it."""
-        from motionweb.flows.cli import request_or_fail, run_command
-        from motionweb.flows.requests import SpaceRequest
+        from motionweb.flows.commands.cli import request_or_fail, run_command
+        from motionweb.flows.commands.requests import SpaceRequest
         from motionweb.flows.space import parameterize as run
         from motionweb.flows.space import plan_space
 
@@ -82,7 +82,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
 
         def work() -> dict:
             plan_space(cfg, request)
-            return run.fn(cfg, request)  # in this process, without Prefect (flows/lazy_prefect.py)
+            return run.fn(cfg, request)  # in this process, without Prefect (flows/runtime/lazy_prefect.py)
 
         run_command("parameterize", {"store": cfg.store.path, "request": request.wire()}, work, lambda res: typer.echo(
             f"space {res['id']}: {len(res['examples'])} examples, {res['samples']} samples of {res['param']} "
@@ -104,7 +104,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
             typer.echo(synthesis_line(out, res["frames"], res["achieved"], res["error"], res["outside"], res["service"]))
             return
         import numpy as np
-        from motionweb.flows.cli import run_command
+        from motionweb.flows.commands.cli import run_command
         from motionweb.flows.space import load_space, space_info
         from motionweb.store.formats import write_motion
 
@@ -138,7 +138,7 @@ def add_commands(app: typer.Typer, fail: Callable[[str], None], config_or_fail: 
         if res is not None:
             typer.echo(f"wrote {out}: {res['frames']} frames at {res['fps']:g} fps (by the service at {res['service']})")
             return
-        from motionweb.flows.cli import run_command
+        from motionweb.flows.commands.cli import run_command
         from motionweb.flows.space import load_space, space_info, weight_vector
         from motionweb.store.formats import write_motion
 

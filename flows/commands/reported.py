@@ -1,5 +1,5 @@
 """Errors the CLI reports itself, in one line: which exceptions those are (the on-demand commands
-run their work in the CLI's own process, ``flows/lazy_prefect.py``, so no Prefect run logs them first)."""
+run their work in the CLI's own process, ``flows/runtime/lazy_prefect.py``, so no Prefect run logs them first)."""
 
 from __future__ import annotations
 

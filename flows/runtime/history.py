@@ -1,7 +1,7 @@
 """The on-demand commands' runs in Prefect's history, recorded after the answer (issue 23).
 
 ``motionweb warp``, ``retime``, ``search`` and ``parameterize`` do their work in the CLI's own
-process, without Prefect (flows/lazy_prefect.py), and print their answer. Then, only when a Prefect
+process, without Prefect (flows/runtime/lazy_prefect.py), and print their answer. Then, only when a Prefect
 server is configured or already running, :func:`record_run` records the run as a Prefect flow run
 of the same name as the command's flow (``guided-warp``, ``retime``, ``query``, ``parameterize``)
 with its parameters and outcome (or its error) in the run's log and result: the service's
@@ -11,7 +11,7 @@ configured ``PREFECT_API_URL``, else one answering at Prefect's default local ad
 server nothing is recorded and nothing is started; the outputs are the same bytes either way.
 
 Recording is synchronous, after the answer is printed and the outputs are written: a process
-detached from the CLI would be ended by the CLI's watchdog (flows/reaper.py) when the CLI exits,
+detached from the CLI would be ended by the CLI's watchdog (flows/runtime/reaper.py) when the CLI exits,
 and one flow run against a running server costs about a second. A server that is configured but
 does not answer, or a record that fails, costs one warning line on stderr, never the exit code.
 """
