@@ -51,6 +51,8 @@ COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
 CHUNK_ROWS = 4096
 #: bytes per chunk of a packed object (one chunk for most clips' features)
 PACKED_CHUNK = 1 << 24
+#: fsspec options of every remote store's filesystems (see :class:`MotionStore`)
+REMOTE_OPTIONS = {"use_listings_cache": False}
 #: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
 SHARD_CHUNK = 1 << 18
 
@@ -111,14 +113,20 @@ class MotionStore:
     def __init__(self, url: str, read_only: bool = False):
         self.url = str(url)
         self.read_only = read_only
-        self.fs, self.root = fsspec.core.url_to_fs(self.url)
         self._local = "://" not in self.url or self.url.startswith("file://")
         if self._local:
+            self.fs, self.root = fsspec.core.url_to_fs(self.url)
             if not read_only:
                 os.makedirs(self.root, exist_ok=True)
             self.zstore = LocalStore(self.root, read_only=read_only)
         else:
-            self.zstore = FsspecStore.from_url(self.url, read_only=read_only)
+            # No listing cache: objects are written through zarr's (async) filesystem instance and
+            # by other processes, so a cached listing of this one would hide new shards and
+            # manifests (s3fs caches every listing by default). Endpoint and credentials come from
+            # the filesystem's own configuration (for s3://, the AWS environment: README).
+            self.fs, self.root = fsspec.core.url_to_fs(self.url, **REMOTE_OPTIONS)
+            self.zstore = FsspecStore.from_url(self.url, storage_options=dict(REMOTE_OPTIONS),
+                                               read_only=read_only)
         # web key -> (shard key, its entry), from the attributes of the complete shards seen so far
         self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
         # complete shards seen so far, kept open: opening one parses its whole index of webs
