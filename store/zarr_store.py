@@ -107,7 +107,13 @@ class MotionStore:
     """A Zarr v3 store of features, webs and grids (design §9); manifests: ``store/generations.py``.
 
     ``url`` is a local folder or any fsspec URL (``memory://``, ``s3://``, ``file://`` ...).
-    Instances are cheap and picklable by URL, so Dask workers open their own.
+    Instances are cheap and picklable by URL, so Dask workers open their own. A remote URL's
+    filesystem takes its endpoint and credentials from its own configuration, never from here:
+    for ``s3://`` (s3fs) the AWS environment (``AWS_ENDPOINT_URL_S3``, ``AWS_ACCESS_KEY_ID`` ...),
+    which each process opening the store must have. On S3 nothing is renamed: every object, manifest
+    and pointer is written by PUTs of whole objects (``tests/flows/test_s3_store.py`` checks this
+    against moto's S3 emulator, which shows the API is used correctly, not S3's latency or
+    consistency under load).
     """
 
     def __init__(self, url: str, read_only: bool = False):
