@@ -30,6 +30,7 @@ instance and again when a key is not found.
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import json
 import os
@@ -55,6 +56,31 @@ PACKED_CHUNK = 1 << 24
 REMOTE_OPTIONS = {"use_listings_cache": False}
 #: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
 SHARD_CHUNK = 1 << 18
+
+
+#: the async filesystems zarr reads and writes remote stores through, kept until exit (fsspec
+#: caches them anyway: one per endpoint and options) so that :func:`_close_sessions` closes them
+_ASYNC_FS: set = set()
+
+
+def _close_sessions() -> None:
+    """At exit, close the HTTP sessions of the remote stores' async filesystems (s3fs closes
+    only those of its sync instances; an open one makes aiohttp log "Unclosed client session" at
+    shutdown). Runs on zarr's event loop, before zarr's own exit handler stops it (registered
+    after zarr's: exit handlers run last registered first). Never raises."""
+    from zarr.core.sync import sync
+
+    for fs in list(_ASYNC_FS):
+        client = getattr(fs, "_s3creator", None)  # s3fs; other filesystems: nothing to close
+        if client is None:
+            continue
+        try:
+            sync(client.__aexit__(None, None, None), timeout=1)
+        except Exception:  # noqa: BLE001, S110 - the process is ending: a session left open is only noise
+            pass
+
+
+atexit.register(_close_sessions)
 
 
 def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
@@ -133,6 +159,7 @@ class MotionStore:
             self.fs, self.root = fsspec.core.url_to_fs(self.url, **REMOTE_OPTIONS)
             self.zstore = FsspecStore.from_url(self.url, storage_options=dict(REMOTE_OPTIONS),
                                                read_only=read_only)
+            _ASYNC_FS.add(self.zstore.fs)
         # web key -> (shard key, its entry), from the attributes of the complete shards seen so far
         self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
         # complete shards seen so far, kept open: opening one parses its whole index of webs
