@@ -1,5 +1,5 @@
-"""The store on an S3-compatible endpoint (issue 25, part 6): the index flow, search, an unchanged
-re-index and an interrupted commit with ``store.path: s3://bucket/...``.
+"""The store on an S3-compatible endpoint (issue 25, part 6): the index flow, search (the query flow
+and the service), an unchanged re-index and an interrupted commit with ``store.path: s3://bucket/...``.
 
 The endpoint is **moto's server mode, an emulator** of the S3 API (``ThreadedMotoServer`` in this
 process, on loopback, with fake credentials): it proves that the store speaks S3 through s3fs and
@@ -173,6 +173,24 @@ def test_index_search_reindex_and_interrupted_commit_on_s3(prefect_harness, s3_e
     found = {name: search(cfg, f"q-{name}") for name, cfg in cfgs.items()}
     assert found["s3"]["generation"] == gens["s3"].id and found["s3"]["matches"]
     assert found["s3"]["matches"] == found["local"]["matches"]
+
+    # the service (`motionweb app`: its search workers are processes of their own, which open the
+    # store from the environment too) answers from the S3 store what it answers from the local one
+    from fastapi.testclient import TestClient
+    from motionweb.flows.app.api import create_app
+    from motionweb.flows.app.engine import Engine
+
+    answers = {}
+    for name, cfg in cfgs.items():
+        engine = Engine(cfg, warm=False)
+        try:
+            answers[name] = TestClient(create_app(engine)).post(
+                "/api/search", json={"clip": "walk_00", "start": 0.5, "end": 1.5, "quantile": 0.8}).json()
+        finally:
+            engine.close()
+    assert answers["s3"]["generation"] == gens["s3"].id and answers["s3"]["matches"], answers["s3"]
+    assert answers["s3"]["epsilon"] == answers["local"]["epsilon"]
+    assert answers["s3"]["matches"] == answers["local"]["matches"]
 
     # nothing changed: no new generation, nothing computed
     again = index_library(cfgs["s3"])
