@@ -174,8 +174,8 @@ class MotionStore:
     # ---------------------------------------------------------------- objects
     def _open(self, key: str) -> zarr.Group | zarr.Array | None:
         """The group (features, grids) or packed array (webs) stored at ``key``, None if absent or
-        its metadata is unreadable. Zarr v3 only (every object is): one read of ``zarr.json``,
-        where probing for v2 metadata too cost 5 requests per object on an object store."""
+        its metadata is unreadable. Zarr v3 only (every object is): on an object store, opening
+        without the format also probed for v2 metadata, 6 requests per object instead of 2."""
         try:
             return zarr.open(store=self.zstore, path=key, mode="r", zarr_format=3)
         except (FileNotFoundError, zarr.errors.NodeNotFoundError, KeyError, ValueError, TypeError):
