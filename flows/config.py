@@ -63,7 +63,8 @@ class DaskConfig(Params):
 
 
 class StoreConfig(Params):
-    #: local folder or any fsspec URL
+    #: local folder or any fsspec URL; for s3:// the endpoint and credentials come from the AWS
+    #: environment (AWS_ENDPOINT_URL_S3, AWS_ACCESS_KEY_ID, ...), never from the config (README)
     path: str = "motionweb-store"
 
 

@@ -9,7 +9,9 @@ A generation becomes visible only when its manifest is written and ``current`` i
 it (an atomic rename on local disks, a single-object put on object stores), so readers never see
 a half-written index and a crashed run leaves the previous one current. The pointer records the
 SHA-256 of the manifest's bytes, so a manifest damaged after its commit is found even when it
-still parses.
+still parses. On an object store the pointer's single PUT is what makes the commit atomic: S3
+replaces an object whole and reads its own writes, so a reader gets the old pointer or the new
+one, and the manifest it names was written (and the objects it lists) before it (README, "On S3").
 
 The pointer is part of the store (issue 22): :func:`check_current` tells a store that was never
 indexed (no pointer, no manifest: None) from one whose pointer is missing, truncated, garbage or

@@ -30,6 +30,7 @@ instance and again when a key is not found.
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import json
 import os
@@ -51,8 +52,35 @@ COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
 CHUNK_ROWS = 4096
 #: bytes per chunk of a packed object (one chunk for most clips' features)
 PACKED_CHUNK = 1 << 24
+#: fsspec options of every remote store's filesystems (see :class:`MotionStore`)
+REMOTE_OPTIONS = {"use_listings_cache": False}
 #: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
 SHARD_CHUNK = 1 << 18
+
+
+#: the async filesystems zarr reads and writes remote stores through, kept until exit (fsspec
+#: caches them anyway: one per endpoint and options) so that :func:`_close_sessions` closes them
+_ASYNC_FS: set = set()
+
+
+def _close_sessions() -> None:
+    """At exit, close the HTTP sessions of the remote stores' async filesystems (s3fs closes
+    only those of its sync instances; an open one makes aiohttp log "Unclosed client session" at
+    shutdown). Runs on zarr's event loop, before zarr's own exit handler stops it (registered
+    after zarr's: exit handlers run last registered first). Never raises."""
+    from zarr.core.sync import sync
+
+    for fs in list(_ASYNC_FS):
+        client = getattr(fs, "_s3creator", None)  # s3fs; other filesystems: nothing to close
+        if client is None:
+            continue
+        try:
+            sync(client.__aexit__(None, None, None), timeout=1)
+        except Exception:  # noqa: BLE001, S110 - the process is ending: a session left open is only noise
+            pass
+
+
+atexit.register(_close_sessions)
 
 
 def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
@@ -105,20 +133,33 @@ class MotionStore:
     """A Zarr v3 store of features, webs and grids (design §9); manifests: ``store/generations.py``.
 
     ``url`` is a local folder or any fsspec URL (``memory://``, ``s3://``, ``file://`` ...).
-    Instances are cheap and picklable by URL, so Dask workers open their own.
+    Instances are cheap and picklable by URL, so Dask workers open their own. A remote URL's
+    filesystem takes its endpoint and credentials from its own configuration, never from here:
+    for ``s3://`` (s3fs) the AWS environment (``AWS_ENDPOINT_URL_S3``, ``AWS_ACCESS_KEY_ID`` ...),
+    which each process opening the store must have. On S3 nothing is renamed: every object, manifest
+    and pointer is written by PUTs of whole objects (``tests/flows/test_s3_store.py`` checks this
+    against moto's S3 emulator, which shows the API is used correctly, not S3's latency or
+    consistency under load).
     """
 
     def __init__(self, url: str, read_only: bool = False):
         self.url = str(url)
         self.read_only = read_only
-        self.fs, self.root = fsspec.core.url_to_fs(self.url)
         self._local = "://" not in self.url or self.url.startswith("file://")
         if self._local:
+            self.fs, self.root = fsspec.core.url_to_fs(self.url)
             if not read_only:
                 os.makedirs(self.root, exist_ok=True)
             self.zstore = LocalStore(self.root, read_only=read_only)
         else:
-            self.zstore = FsspecStore.from_url(self.url, read_only=read_only)
+            # No listing cache: objects are written through zarr's (async) filesystem instance and
+            # by other processes, so a cached listing of this one would hide new shards and
+            # manifests (s3fs caches every listing by default). Endpoint and credentials come from
+            # the filesystem's own configuration (for s3://, the AWS environment: README).
+            self.fs, self.root = fsspec.core.url_to_fs(self.url, **REMOTE_OPTIONS)
+            self.zstore = FsspecStore.from_url(self.url, storage_options=dict(REMOTE_OPTIONS),
+                                               read_only=read_only)
+            _ASYNC_FS.add(self.zstore.fs)
         # web key -> (shard key, its entry), from the attributes of the complete shards seen so far
         self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
         # complete shards seen so far, kept open: opening one parses its whole index of webs
@@ -133,9 +174,10 @@ class MotionStore:
     # ---------------------------------------------------------------- objects
     def _open(self, key: str) -> zarr.Group | zarr.Array | None:
         """The group (features, grids) or packed array (webs) stored at ``key``, None if absent or
-        its metadata is unreadable."""
+        its metadata is unreadable. Zarr v3 only (every object is): on an object store, opening
+        without the format also probed for v2 metadata, 6 requests per object instead of 2."""
         try:
-            return zarr.open(store=self.zstore, path=key, mode="r")
+            return zarr.open(store=self.zstore, path=key, mode="r", zarr_format=3)
         except (FileNotFoundError, zarr.errors.NodeNotFoundError, KeyError, ValueError, TypeError):
             return None
 

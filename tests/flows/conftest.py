@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -68,3 +71,44 @@ def running(app_store, tmp_path_factory):
     t.join(10)
     assert not discovery_file(cfg.store.path).exists()
     del os.environ["MOTIONWEB_APP_DIR"]
+
+
+def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> dict:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if proc.poll() is not None:
+            raise RuntimeError(f"dask scheduler exited with {proc.returncode}")
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError):
+            time.sleep(0.2)
+    raise TimeoutError("the dask scheduler did not write its file")
+
+
+@pytest.fixture
+def external_cluster(tmp_path: Path):
+    """A scheduler and one worker (two processes of their own, loopback); the scheduler's address."""
+    sched_file = tmp_path / "scheduler.json"
+    dask = [sys.executable, "-m", "dask"]
+    procs = [subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sched_file)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        info = _wait_for(sched_file, procs[0])
+        procs.append(subprocess.Popen([*dask, "worker", info["address"], "--nthreads", "1", "--nworkers", "1",
+                                       "--no-dashboard", "--host", "127.0.0.1"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        from distributed import Client
+
+        with Client(info["address"], timeout=60) as c:
+            c.wait_for_workers(1, timeout=120)
+        yield info["address"]
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()

@@ -1,59 +1,14 @@
 """The index flow on a Dask cluster started separately (issue 25, part 6): ``dask scheduler`` and
 ``dask worker`` processes on loopback, the config's ``dask.address`` pointing at them. The webs
-are the same objects (same keys, same checksums) as those a local cluster computes."""
+are the same objects (same keys, same checksums) as those a local cluster computes. The cluster
+(``external_cluster``) is a fixture of ``conftest.py``: ``test_s3_store.py`` runs the index on it too."""
 
 from __future__ import annotations
 
-import json
 import shutil
-import subprocess
-import sys
-import time
 from pathlib import Path
 
-import pytest
 import yaml
-
-
-def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> dict:
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if proc.poll() is not None:
-            raise RuntimeError(f"dask scheduler exited with {proc.returncode}")
-        try:
-            return json.loads(path.read_text())
-        except (OSError, ValueError):
-            time.sleep(0.2)
-    raise TimeoutError("the dask scheduler did not write its file")
-
-
-@pytest.fixture
-def external_cluster(tmp_path: Path):
-    """A scheduler and one worker (two processes of their own, loopback); the scheduler's address."""
-    sched_file = tmp_path / "scheduler.json"
-    dask = [sys.executable, "-m", "dask"]
-    procs = [subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                               "--scheduler-file", str(sched_file)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
-    try:
-        info = _wait_for(sched_file, procs[0])
-        procs.append(subprocess.Popen([*dask, "worker", info["address"], "--nthreads", "1", "--nworkers", "1",
-                                       "--no-dashboard", "--host", "127.0.0.1"],
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        from distributed import Client
-
-        with Client(info["address"], timeout=60) as c:
-            c.wait_for_workers(1, timeout=120)
-        yield info["address"]
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
 
 
 def test_the_index_on_a_separately_started_cluster(prefect_harness, external_cluster: str, tmp_path: Path) -> None:
