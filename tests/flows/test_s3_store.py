@@ -138,10 +138,10 @@ def _config(tmp_path: Path, name: str, store: str, dask: dict, corpus: str = "co
 
 def test_index_search_reindex_and_interrupted_commit_on_s3(prefect_harness, s3_endpoint, tmp_path: Path,
                                                            monkeypatch) -> None:
+    from motionweb.flows.commands.requests import QueryRequest
     from motionweb.flows.config import load_config
     from motionweb.flows.index import index_library
     from motionweb.flows.query import query
-    from motionweb.flows.requests import QueryRequest
     from motionweb.store import generations as G
     from motionweb.store.zarr_store import MotionStore
 
