@@ -133,8 +133,8 @@ def main() -> None:
 
 
 def app_rows(cfg, held: Path, a: float, b: float, repeat: int) -> list[tuple[str, float]]:
-    """The same query in ``motionweb app`` (its API in this process, its search worker a child
-    process, warmed by one search of an indexed clip first): a new upload of the held-out trial
+    """The same query in ``motionweb app`` (its API in this process, its search and session workers
+    child processes, warmed first by one search of an indexed clip and one of an upload): a new upload of the held-out trial
     (each repeat's AMC differs by a comment line: a new content id, its webs built anew) and its
     first search, then another window of the same upload (its webs kept)."""
     from fastapi.testclient import TestClient
@@ -147,8 +147,10 @@ def app_rows(cfg, held: Path, a: float, b: float, repeat: int) -> list[tuple[str
     with TestClient(create_app(Engine(cfg))) as client:
         warm = client.get("/api/catalog", params={"limit": 1}).json()["clips"][0]
         r = client.post("/api/search", json={"clip": warm["path"], "start": 0.0, "end": 1.0})
-        if r.status_code != 200:
-            raise SystemExit(f"bench: the app's warm-up search failed: {r.text}")
+        up = client.post("/api/uploads", json={"name": held.name, "asf": asf, "amc": amc + "# bench warm-up\n"})
+        r2 = client.post("/api/search", json={"clip": up.json().get("id", "?"), "start": a, "end": b})
+        if r.status_code != 200 or r2.status_code != 200:  # the workers started, their kernels loaded
+            raise SystemExit(f"bench: the app's warm-up searches failed: {r.text[:300]} {r2.text[:300]}")
         for i in range(repeat):
             t = time.perf_counter()
             up = client.post("/api/uploads", json={"name": held.name, "asf": asf, "amc": amc + f"# bench {i}\n"})
