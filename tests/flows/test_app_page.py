@@ -71,6 +71,15 @@ def canvas_data(drv, cid: str) -> str:
     return drv.execute_script(f"return document.getElementById('{cid}').toDataURL();")
 
 
+def set_segment(drv, start: str, end: str) -> None:
+    """Type the query segment into the page's start and end fields, as a user does."""
+    for fid, value in (("seg-start", start), ("seg-end", end)):
+        el = drv.find_element(By.ID, fid)
+        el.clear()
+        el.send_keys(value)
+        drv.execute_script(f"document.getElementById('{fid}').dispatchEvent(new Event('change'));")
+
+
 def test_page_opens_a_clip_searches_and_animates(browser, service) -> None:
     drv = browser
     wait = WebDriverWait(drv, 60)
@@ -89,11 +98,7 @@ def test_page_opens_a_clip_searches_and_animates(browser, service) -> None:
     time.sleep(0.5)
     assert canvas_data(drv, "view") != first
     # a segment and a search
-    for fid, value in (("seg-start", "1"), ("seg-end", "2.5")):
-        el = drv.find_element(By.ID, fid)
-        el.clear()
-        el.send_keys(value)
-        drv.execute_script(f"document.getElementById('{fid}').dispatchEvent(new Event('change'));")
+    set_segment(drv, "1", "2.5")
     drv.find_element(By.ID, "search").click()
     wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#results tbody tr")) > 2)
     rows = drv.find_elements(By.CSS_SELECTOR, "#results tbody tr")
@@ -327,11 +332,7 @@ def test_an_uploaded_clip_is_searched_from_the_page(browser, service, tmp_path: 
     wait.until(lambda d: "upload/my_walk.bvh" in d.find_element(By.ID, "clip-title").text)
     uid = drv.execute_script("return state.clip.id;")
     assert uid.startswith("up-") and drv.find_element(By.ID, "q-pick").get_attribute("value") == uid
-    for fid, value in (("seg-start", "1"), ("seg-end", "2.5")):
-        el = drv.find_element(By.ID, fid)
-        el.clear()
-        el.send_keys(value)
-        drv.execute_script(f"document.getElementById('{fid}').dispatchEvent(new Event('change'));")
+    set_segment(drv, "1", "2.5")
     drv.find_element(By.ID, "search").click()
     wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#results tbody tr")) > 1)
     rows = drv.find_elements(By.CSS_SELECTOR, "#results tbody tr")
