@@ -105,17 +105,18 @@ def enabled() -> bool:
     return os.environ.get("MOTIONWEB_WARMUP", "1") != "0"
 
 
-def start(groups: list[str], processes: int | None = None) -> Warmup:
+def start(groups: list[str], processes: int | None = None, nice: int = 0) -> Warmup:
     """Start compiling ``groups``' kernels (``motionweb.tasks.warm.GROUPS``) in ``processes`` child
-    processes (default: one per core, at most 2); none when disabled (see :func:`enabled`)."""
+    processes (default: one per core, at most 2) at niceness ``nice`` (a positive one: they take
+    the cores only while nothing else wants them); none when disabled (see :func:`enabled`)."""
     from motionweb.tasks.warm import kernels, shares
 
     if not enabled():
         return Warmup([])
     kernels(groups)  # an unknown group fails here, in the caller
     n = processes or max(1, min(2, os.cpu_count() or 1))
-    procs = [subprocess.Popen([sys.executable, "-m", "motionweb.flows.runtime.warmup", str(i), str(n), *groups],
-                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    procs = [subprocess.Popen([sys.executable, "-m", "motionweb.flows.runtime.warmup", str(i), str(n), str(nice),
+                               *groups], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
              for i in range(len(shares(groups, n)))]
     return Warmup(procs)
 
@@ -132,10 +133,13 @@ def ahead_of_index(local_cluster: bool) -> list[Warmup | PrefectStart]:
 
 
 def main(argv: list[str]) -> int:
-    """``python -m motionweb.flows.runtime.warmup SHARE N GROUP...``: compile share SHARE of N."""
+    """``python -m motionweb.flows.runtime.warmup SHARE N NICE GROUP...``: compile share SHARE of N
+    at niceness NICE."""
     from motionweb.tasks.warm import compile_share, shares
 
-    share, n, groups = int(argv[0]), int(argv[1]), argv[2:]
+    share, n, nice, groups = int(argv[0]), int(argv[1]), int(argv[2]), argv[3:]
+    if nice > 0:
+        os.nice(nice)
     compile_share(shares(groups, n)[share])
     return 0
 
