@@ -450,8 +450,11 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
     for u in range(k):
         off[u + 1] = off[u] + o_cells[u].shape[0]
     flat = np.empty((off[k], 2), np.int32)
-    for u in range(k):
-        flat[off[u]:off[u + 1]] = o_cells[u]
+    for u in range(k):  # element by element: no slice assignment's message formatting compiled
+        cu = o_cells[u]
+        for i in range(cu.shape[0]):
+            flat[off[u] + i, 0] = cu[i, 0]
+            flat[off[u] + i, 1] = cu[i, 1]
     webs = np.empty(k, np.int64)
     cs = np.empty(k, np.int64)
     ds = np.empty(k, np.int64)

@@ -3,8 +3,8 @@ compiled ahead of their first call and in parallel (issue 23: ``motionweb demo``
 
 numba compiles a kernel on its first call and keeps the machine code in its on-disk cache
 (``cache=True``, beside the module or in ``NUMBA_CACHE_DIR``). A fresh install has no cache, and a
-run pays every compilation on the thread that first calls the kernel: ~30 s of LLVM on one core
-for the index and search kernels, while numba's compiler lock keeps the other core idle. This
+run pays every compilation on the thread that first calls the kernel: ~20 s of LLVM on one core
+for the BVH reader, the index and the search kernels, while numba's compiler lock keeps the other core idle. This
 module names the kernels by what calls them (:data:`GROUPS`: the BVH reader, the index of KG04
 §3.1-3.2, the search and registration of KG04 §3.3-4) with the signatures a run with the default config uses
 (the features' ``float32``, int64 cells), and :func:`compile_share` compiles one share of them
@@ -22,7 +22,9 @@ of that many dimensions (``r`` after it: read-only), ``list(T)`` for a reflected
 
 Cost: each kernel compiles once per machine (numba keys its cache on the CPU and its own
 version); a share costs the sum of its kernels' compile times plus numba's per-process compile of
-the built-ins they use (array creation, ~3 s), hence shares by module, see :func:`shares`.
+the built-ins they use (array creation, ~1 s), hence shares by module, see :func:`shares`. The
+kernels copy arrays element by element rather than by slice assignment, whose shape-mismatch
+message brought numba's string formatting into each of them (it had doubled the compile time).
 """
 
 from __future__ import annotations
@@ -34,32 +36,32 @@ from typing import Any
 #: (module, kernel, signature, rough compile seconds on this 2-core machine), per group
 GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
     # reading BVH clips (a command that scans its corpus first calls it before any warm-up is done)
-    "read": (("motionweb.store.bvh", "_parse_frames", "u1[:]r i8 i8 f8[:,:] f8[:]", 1.4),),
+    "read": (("motionweb.store.bvh", "_parse_frames", "u1[:]r i8 i8 f8[:,:] f8[:]", 0.8),),
     # KG04 §3.1-3.2: frame distances, local minima, chains, bridges, refinement
     "index": (
-        ("motionweb.tasks.distance", "_combine", "f4[:,:] f4[:,:] f4[:,:] f4[:] f4[:] f4[:,:]", 0.4),
-        ("motionweb.tasks.matchweb.minima", "_local_minima", "f4[:,:]", 0.6),
+        ("motionweb.tasks.distance", "_combine", "f4[:,:] f4[:,:] f4[:,:] f4[:] f4[:] f4[:,:]", 0.2),
+        ("motionweb.tasks.matchweb.minima", "_local_minima", "f4[:,:]", 0.45),
         ("motionweb.tasks.matchweb.minima", "_valid_region", "f4[:,:] u1[:,:] f8", 0.5),
-        ("motionweb.tasks.matchweb.minima", "_find_chains", "f4[:,:] u1[:,:] i8 i8", 5.0),
+        ("motionweb.tasks.matchweb.minima", "_find_chains", "f4[:,:] u1[:,:] i8 i8", 0.9),
         ("motionweb.tasks.matchweb.bridges", "_find_bridges", "f4[:,:] b1[:,:] i8[:,:] i8[:] i8[:,:] i8[:] i8 i8",
          7.3),
-        ("motionweb.tasks.matchweb.refine", "_mark_tiles", "i8[:,:] i8[:] f8 f8 i8 i8 i8[:,:]", 1.7),
+        ("motionweb.tasks.matchweb.refine", "_mark_tiles", "i8[:,:] i8[:] f8 f8 i8 i8 i8[:,:]", 1.1),
         ("motionweb.tasks.matchweb.refine", "_alloc_tiles", "i8[:,:]", 0.3),
         ("motionweb.tasks.matchweb.refine", "_refine_chains",
-         "i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] i8 i8", 11.6),
+         "i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] i8 i8", 5.3),
         ("motionweb.tasks.matchweb.refine", "_refine_bridges",
          ("i8[:,:] i8[:] i8[:,:] i8[:,:] i8[:] i8[:] i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] "
-          "f4[:] f4[:,:] f4[:,:] f4[:] i8 i8"), 3.9),
+          "f4[:] f4[:,:] f4[:,:] f4[:] i8 i8"), 2.2),
     ),
     # KG04 §3.3-3.4: the match walk, redundancy removal, the match graph; §4 registration
     "search": (
         ("motionweb.tasks.search", "_walk",
-         "i4[:] i4[:] f8[:] i8[:] i8[:] i8[:] i8[:] i8[:] i8 i8 i8 i8 f8 i8[:] i8[:] i8[:] f8[:] f8[:] i8[:] i8[:]", 4.6),
-        ("motionweb.tasks.search", "_greedy_disjoint", "i8[:] i8[:] i8[:] f8", 0.4),
-        ("motionweb.tasks.search", "place_matches", "i8[:] i8[:] i8[:] i8[:,:] i8 f8 f8", 0.8),
-        ("motionweb.tasks.distance", "_combine", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8[:] f8[:,:]", 0.4),
-        ("motionweb.tasks.register", "_band_valid", "i8[:] i8[:] i8[:] f8[:] f8", 0.8),
-        ("motionweb.tasks.matchweb.band", "best_state_total", "f8[:,:] i8", 0.2),
+         "i4[:] i4[:] f8[:] i8[:] i8[:] i8[:] i8[:] i8[:] i8 i8 i8 i8 f8 i8[:] i8[:] i8[:] f8[:] f8[:] i8[:] i8[:]", 2.1),
+        ("motionweb.tasks.search", "_greedy_disjoint", "i8[:] i8[:] i8[:] f8", 0.2),
+        ("motionweb.tasks.search", "place_matches", "i8[:] i8[:] i8[:] i8[:,:] i8 f8 f8", 0.6),
+        ("motionweb.tasks.distance", "_combine", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8[:] f8[:,:]", 0.2),
+        ("motionweb.tasks.register", "_band_valid", "i8[:] i8[:] i8[:] f8[:] f8", 0.5),
+        ("motionweb.tasks.matchweb.band", "best_state_total", "f8[:,:] i8", 0.1),
     ),
 }
 

@@ -169,8 +169,9 @@ def _find_chains(g: np.ndarray, minima: np.ndarray, mrun: int, min_extent: int):
                     used[ci[t], cj[t]] = False
                 w = start
     cells = np.empty((w, 2), dtype=np.int32)
-    cells[:, 0] = ci[:w]
-    cells[:, 1] = cj[:w]
+    for t in range(w):  # element by element: no slice assignment's message formatting compiled
+        cells[t, 0] = ci[t]
+        cells[t, 1] = cj[t]
     return cells, offsets[: n_chains + 1].copy()
 
 

@@ -239,14 +239,18 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
 
 @njit(cache=True, nogil=True)
 def _concat_cells(parts):
-    """Bounds: the output is sized to the parts' total length."""
+    """Bounds: the output is sized to the parts' total length. Copied element by element: numba's
+    slice assignment brings its shape-mismatch message's string formatting into the compiled code
+    (seconds of compilation per process, tasks/warm.py)."""
     n = 0
     for x in parts:
         n += x.shape[0]
     out = np.empty((n, 2), np.int32)
     n = 0
     for x in parts:
-        out[n:n + x.shape[0]] = x
+        for i in range(x.shape[0]):
+            out[n + i, 0] = x[i, 0]
+            out[n + i, 1] = x[i, 1]
         n += x.shape[0]
     return out
 
@@ -260,7 +264,8 @@ def _concat_values(parts):
     out = np.empty(n, np.float32)
     n = 0
     for x in parts:
-        out[n:n + x.shape[0]] = x
+        for i in range(x.shape[0]):
+            out[n + i] = x[i]
         n += x.shape[0]
     return out
 
