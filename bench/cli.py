@@ -13,6 +13,9 @@ once by ``motionweb index`` before anything is timed), one table, one row per co
 * ``work, new process``: the same work function run once in a new Python process (``bench.cli
   --only NAME``): Python's start, the imports and compiled-kernel loads the work needs, and the
   work; the floor any cold command pays;
+* ``CLI, Prefect server running``: the same CLI runs with a Prefect server of the run's own
+  configured (``PREFECT_API_URL``): each run is recorded as a flow run after its answer (the
+  benchmark checks the server holds them all);
 * ``overhead``: CLI (repeat median) minus work; ``over the floor``: CLI minus the new-process work,
   what the CLI itself adds (its option parsing, config, plan, record check, guard and watchdog).
 
@@ -24,6 +27,7 @@ A command that exits non-zero stops the benchmark with its output (exit 1).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -220,6 +224,30 @@ def cli_rows(cfg_path: Path, work: Path) -> dict[str, tuple[str, list[str]]]:
     }
 
 
+@contextlib.contextmanager
+def prefect_server():
+    """A Prefect API server of this run's own (Prefect's local server process, in a temporary
+    ``PREFECT_HOME``): its API URL."""
+    home = tempfile.mkdtemp(prefix="bench-cli-prefect-")
+    os.environ["PREFECT_HOME"] = home
+    from prefect.server.api.server import SubprocessASGIServer
+
+    server = SubprocessASGIServer()
+    server.start()
+    try:
+        yield server.api_url
+    finally:
+        server.stop()
+        shutil.rmtree(home, ignore_errors=True)
+
+
+def flow_runs(url: str) -> int:
+    """How many flow runs the server at ``url`` holds."""
+    req = urllib.request.Request(url + "/flow_runs/count", data=b"{}", headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(req, timeout=10) as r:
+        return int(json.loads(r.read()))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--keep", type=Path, help="Work folder kept between runs (default: a temporary one).")
@@ -255,19 +283,28 @@ def main() -> None:
                                env=env, capture_output=True)
                 fresh.append(time.perf_counter() - t)
             first, rep, w, f = walls[0], statistics.median(walls[1:]), statistics.median(times), statistics.median(fresh)
-            rows.append((label, first, rep, w, f, rep - w, rep - f))
+            rows.append([label, first, rep, w, f, rep - w, rep - f, float("nan")])
             print(f"  {label}: CLI {first:.2f} s first, {rep:.2f} s repeat; work {w:.3f} s, "
                   f"in a new process {f:.2f} s", flush=True)
+        with prefect_server() as url:  # the same commands, each run recorded in Prefect after its answer
+            served = {**env, "PREFECT_API_URL": url}
+            for row, (_, argv) in zip(rows, cli_rows(cfg_path, work).values(), strict=True):
+                row[7] = statistics.median(run_cli(argv, served, work) for _ in range(args.repeat))
+                print(f"  {row[0]}: CLI with a Prefect server {row[7]:.2f} s", flush=True)
+            recorded = flow_runs(url)
+        if recorded < len(rows) * args.repeat:
+            sys.exit(f"bench: the Prefect server holds {recorded} flow runs, fewer than the "
+                     f"{len(rows) * args.repeat} commands run against it")
     finally:
         shutil.rmtree(app_dir, ignore_errors=True)
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
     head = ("command", "CLI cold, first (s)", "CLI cold, repeat (s)", "work in-process (s)",
-            "work, new process (s)", "overhead (s)", "over the floor (s)")
-    body = [(r[0], f"{r[1]:.2f}", f"{r[2]:.2f}", f"{r[3]:.3f}", f"{r[4]:.2f}", f"{r[5]:.2f}", f"{r[6]:.2f}")
-            for r in rows]
-    print(f"\n{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; no Prefect server, no app; "
-          f"median of {args.repeat}")
+            "work, new process (s)", "overhead (s)", "over the floor (s)", "CLI, Prefect server running (s)")
+    body = [(r[0], f"{r[1]:.2f}", f"{r[2]:.2f}", f"{r[3]:.3f}", f"{r[4]:.2f}", f"{r[5]:.2f}", f"{r[6]:.2f}",
+             f"{r[7]:.2f}") for r in rows]
+    print(f"\n{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; no app; cold: no Prefect server; "
+          f"last column: a Prefect server running, each run recorded ({recorded} flow runs); median of {args.repeat}")
     print("| " + " | ".join(head) + " |")
     print("|" + "|".join("---" for _ in head) + "|")
     for r in body:
