@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 from motionweb.tasks.distance import distance_grid
 from motionweb.tasks.features import FeatureParams, clip_features, point_weights
-from motionweb.tasks.shortlist import ShortlistParams, rotate_about_vertical, shortlist_pairs, window_descriptors
+from motionweb.tasks.shortlist import (
+    ShortlistParams,
+    rotate_about_vertical,
+    shortlist_pairs,
+    window_descriptors,
+)
 from naive import ref_shortlist
 from planted import planted_corpus
 
@@ -86,7 +91,7 @@ def test_one_clip_and_mixed_skeletons(planted):
     _, clips = planted
     one = {"kick/query": clips["kick/query"]}
     assert shortlist_pairs(one).pairs == [("kick/query", "kick/query")]
-    f, w = clips["walk/walk_00"]
+    f, _ = clips["walk/walk_00"]
     bad = {**one, "other": (f[:, :-5], np.full(f.shape[1] - 5, 1 / (f.shape[1] - 5)))}
     with pytest.raises(ValueError, match="same points"):
         shortlist_pairs(bad)
