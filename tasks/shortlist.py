@@ -135,21 +135,21 @@ def _knn(db: np.ndarray, owner_ranges: list[tuple[int, int]], queries: list[np.n
     return dist, ids
 
 
-def _nearest_k(dist: np.ndarray, ids: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per row, the ``k`` distinct ids of least distance over the headings: (rows, ids) flat."""
+def _nearest_clips(dist: np.ndarray, ids: np.ndarray, owner: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per row (window), the ``k`` other clips whose nearest window over the headings is nearest:
+    (rows, clips) flat, ties broken by window id (deterministic)."""
     rows = np.repeat(np.arange(len(ids)), ids.shape[1])
     d, i = dist.ravel(), ids.ravel()
     ok = i >= 0
     rows, d, i = rows[ok], d[ok], i[ok]
-    order = np.lexsort((i, d, rows))  # by row, then distance (ties by id: deterministic)
-    rows, i = rows[order], i[order]
-    _, first = np.unique(rows * np.int64(max(1, int(ids.max()) + 1)) + i, return_index=True)
-    first.sort()
-    rows, i = rows[first], i[first]
-    start = np.searchsorted(rows, rows, side="left")
-    rank = np.arange(len(rows)) - start
+    order = np.lexsort((i, d, rows))  # by row, then distance, then window id
+    rows, c = rows[order], owner[i[order]]
+    _, first = np.unique(rows * np.int64(owner.max() + 1) + c, return_index=True)
+    first.sort()  # each (row, clip) once, at its nearest window, in distance order
+    rows, c = rows[first], c[first]
+    rank = np.arange(len(rows)) - np.searchsorted(rows, rows, side="left")
     keep = rank < k
-    return rows[keep], i[keep]
+    return rows[keep], c[keep]
 
 
 def shortlist_pairs(clips: Mapping[str, tuple[np.ndarray, np.ndarray]],
@@ -174,14 +174,11 @@ def shortlist_pairs(clips: Mapping[str, tuple[np.ndarray, np.ndarray]],
     db = np.ascontiguousarray(np.concatenate(descs))
     angles = 2 * np.pi * np.arange(params.headings) / params.headings
     queries = [np.stack([rotate_about_vertical(d, a) for a in angles]) for d in descs]
-    k = min(params.k, len(db) - int(sizes.min()))
-    dist, ids = _knn(db, [(int(bounds[c]), int(bounds[c + 1])) for c in range(len(keys))], queries, k, params)
-    rows, nb = _nearest_k(dist, ids, k)
-    b = owner[nb]
-    # one hit per (window, other clip)
-    win_clip = np.unique(rows.astype(np.int64) * len(keys) + b)
-    qa, qb = owner[win_clip // len(keys)], win_clip % len(keys)
-    lo, hi = np.minimum(qa, qb), np.maximum(qa, qb)
+    kw = min(max(params.k, params.k_windows), len(db) - int(sizes.min()))
+    dist, ids = _knn(db, [(int(bounds[c]), int(bounds[c + 1])) for c in range(len(keys))], queries, kw, params)
+    rows, b = _nearest_clips(dist, ids, owner, params.k)  # one hit per (window, other clip)
+    qa = owner[rows]
+    lo, hi = np.minimum(qa, b), np.maximum(qa, b)
     pair_ids, counts = np.unique(lo * len(keys) + hi, return_counts=True)
     hits = {(keys[int(p // len(keys))], keys[int(p % len(keys))]): int(n)
             for p, n in zip(pair_ids, counts, strict=True) if n >= params.min_hits}

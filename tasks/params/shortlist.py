@@ -16,8 +16,12 @@ class ShortlistParams(Params):
     of the pairs shortlisted in each chunk only (meant for ``index.chunk_by: none``)."""
 
     enabled: bool = False
-    #: nearest windows of other clips kept per window (each window's k nearest, its own clip excluded)
+    #: neighbour clips per window: the other clips of a window's ``k`` nearest windows (the nearest
+    #: window of each clip), its own clip excluded
     k: int = Field(24, ge=1)
+    #: windows asked of the k-NN index per window and heading, at least ``k``: deeper than ``k`` so that
+    #: a clip of many near-identical windows (standing still) takes one of the ``k`` places, not all
+    k_windows: int = Field(96, ge=1)
     #: windows: every ``stride``-th frame of the lowest feature rate (each frame's cloud is a
     #: window of ``features.window`` frames, 0.5 s at 10 Hz)
     stride: int = Field(1, ge=1)

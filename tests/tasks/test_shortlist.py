@@ -52,11 +52,11 @@ def test_every_planted_pair_is_shortlisted(planted):
     pc, clips = planted
     want = {tuple(sorted((pc.query.clip, k))) for k in pc.expected}
     for k in (4, ShortlistParams().k):
-        sl = shortlist_pairs(clips, ShortlistParams(k=k))
+        sl = shortlist_pairs(clips, ShortlistParams(k=k, k_windows=4 * k))
         assert want <= set(sl.pairs), (k, want - set(sl.pairs))
         assert {(c, c) for c in clips} <= set(sl.pairs)
         assert sl.candidates == len(clips) * (len(clips) + 1) // 2
-    assert len(shortlist_pairs(clips, ShortlistParams(k=4)).pairs) < sl.candidates
+    assert len(shortlist_pairs(clips, ShortlistParams(k=4, k_windows=16)).pairs) < sl.candidates
 
 
 def test_same_input_same_pairs(planted):
@@ -65,7 +65,7 @@ def test_same_input_same_pairs(planted):
     import faiss
 
     _, clips = planted
-    p = ShortlistParams(k=6, min_hits=2)
+    p = ShortlistParams(k=4, k_windows=12, min_hits=2)
     a = shortlist_pairs(clips, p)
     b = shortlist_pairs(dict(reversed(list(clips.items()))), p)
     threads = faiss.omp_get_max_threads()
@@ -81,8 +81,8 @@ def test_hnsw_gives_the_brute_force_pairs():
     """On a small corpus faiss's approximate search finds the exact neighbours (tests/naive.py)."""
     pc = planted_corpus(seed=0, n_copies=3, distractors=("walk", "sit", "punch"))
     clips = lowest(pc)
-    got = shortlist_pairs(clips, ShortlistParams(k=2, min_hits=2, headings=8, stride=2))
-    ref = ref_shortlist(clips, k=2, min_hits=2, headings=8, stride=2)
+    got = shortlist_pairs(clips, ShortlistParams(k=2, k_windows=6, min_hits=2, headings=8, stride=2))
+    ref = ref_shortlist(clips, k=2, k_windows=6, min_hits=2, headings=8, stride=2)
     assert got.pairs == ref
     assert len(ref) < got.candidates  # something was left out
 
