@@ -252,14 +252,52 @@ class ShortlistReport:
     candidates: int
     windows: int
     seconds: float
+    #: digest of what the shortlist is a function of (:func:`shortlist_inputs`)
+    inputs: str = ""
+    #: taken from the previous generation (same inputs), not recomputed
+    reused: bool = False
 
     def record(self) -> dict[str, Any]:
         return {"chunk": self.chunk, "pairs": len(self.keep), "candidates": self.candidates,
-                "windows": self.windows, "seconds": round(self.seconds, 3)}
+                "windows": self.windows, "seconds": round(self.seconds, 3), "inputs": self.inputs,
+                "reused": self.reused}
+
+
+def shortlist_inputs(chunk: Chunk, cfg: Config, bad_sha: set[str] = frozenset()) -> str:
+    """Digest of everything a chunk's shortlist depends on: its clips' contents by skeleton, the
+    feature parameters and the lowest rate, the shortlist parameters, the faiss version."""
+    import hashlib
+    import json
+    from importlib.metadata import version
+
+    groups = {s: sorted({c.sha256 for c in chunk.clips if c.skeleton == s} - set(bad_sha))
+              for s in sorted({c.skeleton for c in chunk.clips})}
+    data = {"groups": groups, "features": feature_digest(cfg), "lowest": min(float(r) for r in cfg.features.rates),
+            "shortlist": cfg.index.shortlist.model_dump(mode="json", exclude={"enabled"}),
+            "faiss": version("faiss-cpu")}
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def reused_shortlist(chunk: Chunk, prev: Generation | None, inputs: str) -> ShortlistReport | None:
+    """The chunk's shortlist as the previous generation recorded it, when its inputs digest is
+    ``inputs`` (the shortlist is a deterministic function of them): the pairs of its webs and of
+    its broken pairs in this chunk. None otherwise."""
+    rec = next((c.get("shortlist") for c in (prev.chunks if prev else []) if c["name"] == chunk.name), None)
+    if not rec or rec.get("inputs") != inputs:
+        return None
+    sha = {c["path"]: c["sha256"] for c in prev.clips}
+    keep = {(w["a_sha"], w["b_sha"]) for w in prev.webs if w.get("chunk") == chunk.name}
+    for b in prev.broken:
+        a_path, _, b_path = b["path"].partition(" x ")
+        if a_path in sha and b_path in sha:
+            keep.add((min(sha[a_path], sha[b_path]), max(sha[a_path], sha[b_path])))
+    if len(keep) != rec["pairs"]:
+        return None
+    return ShortlistReport(chunk.name, keep, rec["candidates"], rec["windows"], 0.0, inputs, reused=True)
 
 
 def shortlist_chunk(chunk: Chunk, cfg: Config, lowest: Callable[[str], tuple[Any, Any]],
-                    bad_sha: set[str] = frozenset()) -> ShortlistReport:
+                    bad_sha: set[str] = frozenset(), prev: Generation | None = None) -> ShortlistReport:
     """The pairs of ``chunk`` worth a web (:func:`motionweb.tasks.shortlist.shortlist_pairs` with
     ``index.shortlist``), per skeleton group (only compatible clips are paired), one entry per
     file content. ``lowest(sha)``: the clip's features at the lowest rate and its point weights.
@@ -267,9 +305,13 @@ def shortlist_chunk(chunk: Chunk, cfg: Config, lowest: Callable[[str], tuple[Any
     and the parameters: an unchanged corpus gets the same pairs on every run; when a clip changes,
     the whole chunk's shortlist is recomputed (its new windows may also be, or stop being, the
     neighbours of other clips' windows). Cost: :mod:`motionweb.tasks.shortlist`'s, about
-    O(W log W) for W windows, plus one read of every clip's lowest-rate features."""
+    O(W log W) for W windows, plus one read of every clip's lowest-rate features; none when
+    ``prev`` recorded the shortlist of the same inputs (:func:`reused_shortlist`)."""
     from motionweb.tasks.shortlist import shortlist_pairs
 
+    inputs = shortlist_inputs(chunk, cfg, bad_sha)
+    if (again := reused_shortlist(chunk, prev, inputs)) is not None:
+        return again
     t = time.perf_counter()
     keep: set[tuple[str, str]] = set()
     candidates = windows = 0
@@ -279,7 +321,7 @@ def shortlist_chunk(chunk: Chunk, cfg: Config, lowest: Callable[[str], tuple[Any
         keep.update(sl.pairs)
         candidates += sl.candidates
         windows += sl.windows
-    return ShortlistReport(chunk.name, keep, candidates, windows, time.perf_counter() - t)
+    return ShortlistReport(chunk.name, keep, candidates, windows, time.perf_counter() - t, inputs)
 
 
 def build_generation(
@@ -343,7 +385,8 @@ def build_generation(
         stats["shortlist"] = {"pairs": sum(len(r.keep) for r in shortlists),
                               "candidates": sum(r.candidates for r in shortlists),
                               "windows": sum(r.windows for r in shortlists),
-                              "seconds": round(sum(r.seconds for r in shortlists), 3)}
+                              "seconds": round(sum(r.seconds for r in shortlists), 3),
+                              "reused": sum(r.reused for r in shortlists)}
     return Generation(
         id=gen_id or new_id(),
         created=now_iso(),
@@ -564,9 +607,11 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
 
 
 @task(name="shortlist", no_cache=True)
-def shortlist_task(chunks: list[Chunk], cfg: Config, bad_sha: set[str]) -> dict[str, ShortlistReport]:
+def shortlist_task(chunks: list[Chunk], cfg: Config, bad_sha: set[str],
+                   prev: Generation | None = None) -> dict[str, ShortlistReport]:
     """Each chunk's shortlist (:func:`shortlist_chunk`) from the stored features at the lowest
-    rate, in this process (seconds, against the webs it saves; see ``bench/shortlist.py``)."""
+    rate, in this process (seconds, against the webs it saves; see ``bench/shortlist.py``), or
+    from ``prev`` when its inputs are unchanged."""
     store = MotionStore(cfg.store.path)
     fdig = feature_digest(cfg)
     low = min(float(r) for r in cfg.features.rates)
@@ -575,10 +620,11 @@ def shortlist_task(chunks: list[Chunk], cfg: Config, bad_sha: set[str]) -> dict[
         by_rate, weights = store.read_features(sha, fdig, [low])
         return by_rate[low], weights
 
-    out = {c.name: shortlist_chunk(c, cfg, lowest, bad_sha) for c in chunks}
+    out = {c.name: shortlist_chunk(c, cfg, lowest, bad_sha, prev) for c in chunks}
     for r in out.values():
-        run_logger().info("chunk %s: shortlist of %d of %d pairs from %d pose windows in %.1f s", r.chunk,
-                          len(r.keep), r.candidates, r.windows, r.seconds)
+        run_logger().info("chunk %s: shortlist of %d of %d pairs from %d pose windows %s", r.chunk,
+                          len(r.keep), r.candidates, r.windows,
+                          "as the previous generation's" if r.reused else f"in {r.seconds:.1f} s")
     return out
 
 
@@ -717,7 +763,7 @@ def unchanged_summary(cfg: Config) -> dict[str, Any] | None:
         if cfg.index.shortlist.enabled:
             if any(p.features_todo for p in plan_task.fn(chunks, cfg, prev, stage="features")):
                 return None
-            shortlists = shortlist_task.fn(chunks, cfg, set())
+            shortlists = shortlist_task.fn(chunks, cfg, set(), prev)
             timings["shortlist_s"] = time.perf_counter() - t
         plans = plan_task.fn(chunks, cfg, prev, shortlists, stage="pairs" if shortlists else "all")
         timings["plan_s"] = time.perf_counter() - t

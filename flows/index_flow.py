@@ -117,7 +117,7 @@ def _shortlisted(cfg: Config, chunks: list[Chunk], prev: Generation | None, timi
             _features(first, cfg, address, failed)
         timings["features_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    shortlists = shortlist_task(quote(chunks), cfg, set(failed))
+    shortlists = shortlist_task(quote(chunks), cfg, set(failed), quote(prev))
     timings["shortlist_s"] = time.perf_counter() - t
     t = time.perf_counter()
     plans = plan_task(quote(chunks), cfg, quote(prev), quote(shortlists), stage="pairs")

@@ -21,7 +21,7 @@ class ShortlistParams(Params):
     k: int = Field(24, ge=1)
     #: windows asked of the k-NN index per window and heading, at least ``k``: deeper than ``k`` so that
     #: a clip of many near-identical windows (standing still) takes one of the ``k`` places, not all
-    k_windows: int = Field(96, ge=1)
+    k_windows: int = Field(64, ge=1)
     #: windows: every ``stride``-th frame of the lowest feature rate (each frame's cloud is a
     #: window of ``features.window`` frames, 0.5 s at 10 Hz)
     stride: int = Field(1, ge=1)

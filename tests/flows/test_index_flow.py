@@ -209,7 +209,7 @@ def test_incremental_rerun_change_remove_and_params(indexed):
     (corpus / "run" / "r2.bvh").unlink()
     s3 = index_library(cfg)
     assert s3["pairs_computed"] == 3  # w1×w1, w1×w2, w1×w3
-    assert s3["features_computed"] == 1
+    assert s3["features_computed"] == 1 and s3["shortlist"]["reused"] == 0
     assert s3["pairs"] == 8 and s3["pairs_cached"] == 5
     gen = load_generation(store)
     assert all("run/r2.bvh" not in (w["a"], w["b"]) for w in gen.webs)
@@ -300,6 +300,7 @@ def test_shortlist_index_keeps_exact_webs_of_its_pairs(prefect_harness, tmp_path
     # nothing changed: nothing computed, the same generation, also without Prefect
     again = index_library(short)
     assert again["pairs_computed"] == 0 and again["generation"] == ss["generation"]
+    assert again["shortlist"]["reused"] == 1 and not ss["shortlist"]["reused"]  # the same inputs: not recomputed
     quick = unchanged_summary(short)
     assert quick is not None and quick["generation"] == ss["generation"] and quick["pairs"] == ss["pairs"]
     # a changed clip: its features and the new shortlist's pairs with it, the others cached
@@ -307,7 +308,7 @@ def test_shortlist_index_keeps_exact_webs_of_its_pairs(prefect_harness, tmp_path
     assert unchanged_summary(short) is None
     s3 = index_library(short)
     g3 = load_generation(MotionStore(short.store.path, read_only=True))
-    assert s3["features_computed"] == 1
+    assert s3["features_computed"] == 1 and s3["shortlist"]["reused"] == 0
     w1 = next(c["sha256"] for c in g3.clips if c["path"] == "walk/w1.bvh")
     assert {w["key"] for w in g3.webs if w["computed"]} == {w["key"] for w in g3.webs if w1 in (w["a_sha"], w["b_sha"])}
     assert s3["pairs"] == g3.stats["shortlist"]["pairs"] and ("walk/w1.bvh", "walk/w1.bvh") in {
