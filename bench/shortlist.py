@@ -96,9 +96,11 @@ def run_or_reuse(cfg: Config, clips: int, name: str) -> tuple[dict, Generation]:
     gen = load_generation(MotionStore(str(store), read_only=True)) if store.is_dir() else None
     if gen is not None and record.is_file():
         s = json.loads(record.read_text())
+        recorded = gen.config["index"].get("shortlist", {})
+        wanted = cfg.index.shortlist.model_dump(mode="json")
         if (len(gen.clips) == clips and gen.params["webs"] == web_digest(cfg)
                 and gen.config["index"]["chunk_by"] == "none"
-                and gen.config["index"].get("shortlist", {}) == cfg.index.shortlist.model_dump(mode="json")):
+                and (recorded == wanted if wanted["enabled"] else not recorded.get("enabled", False))):
             print(f"{name}: reusing {store} (built {s['wall_s']:.0f} s)", flush=True)
             return s, gen
     shutil.rmtree(store, ignore_errors=True)
