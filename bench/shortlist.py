@@ -42,6 +42,7 @@ os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "180")
 
 import numpy as np
 from motionweb.flows.config import Config
+from motionweb.store.cache import LRU
 from motionweb.store.catalog import scan_corpus
 from motionweb.store.demo.corpus import CATEGORIES, write_demo_corpus
 from motionweb.store.generations import Generation, load_generation
@@ -140,6 +141,31 @@ def recalled(exact: list[Segment], short: list[Segment]) -> int:
     return sum(any(m.start <= s.end and s.start <= m.end for s in by_clip.get(m.clip, [])) for m in exact)
 
 
+def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, webs: LRU, cap: int) -> dict:
+    """A search over the exact index's webs restricted to the shortlist of ``params`` (computed
+    here from the stored features), sharing the exact index's web cache."""
+    from dataclasses import replace
+
+    from motionweb.store.keys import feature_digest
+    from motionweb.tasks.shortlist import ShortlistParams, shortlist_pairs
+
+    low = min(float(r) for r in cfg.features.rates)
+    fdig = feature_digest(cfg)
+    feats = {}
+    for c in gen.clips:
+        by_rate, weights = store.read_features(c["sha256"], fdig, [low])
+        feats[c["sha256"]] = (by_rate[low], weights)
+    t = time.perf_counter()
+    sl = shortlist_pairs(feats, ShortlistParams(enabled=True, **params))
+    seconds = time.perf_counter() - t
+    keep = set(sl.pairs)
+    sub = replace(gen, webs=[w for w in gen.webs if (w["a_sha"], w["b_sha"]) in keep])
+    name = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
+    print(f"{name}: {len(sub.webs)} pairs, shortlist in {seconds:.0f} s", flush=True)
+    return {"name": name, "pairs": len(sub.webs), "seconds": seconds, "hit": 0,
+            "search": MatchSearch(StoreWebs(store, sub, None, webs), graphs=LRU(max_bytes=cap))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--variants", type=int, default=60, help="demo clips per category (60: 540 clips, ~127k frames)")
@@ -153,6 +179,11 @@ def main() -> None:
     ap.add_argument("--stride", type=int, default=None)
     ap.add_argument("--min-hits", type=int, default=None)
     ap.add_argument("--headings", type=int, default=None)
+    ap.add_argument("--also", nargs="*", default=[], metavar="JSON",
+                    help='more shortlist parameters (e.g. \'{"k": 48, "k_windows": 128}\'), measured without an '
+                         'index run: the exact index\'s webs restricted to their shortlist (the webs a shortlist '
+                         'index builds are the exact ones, tests/flows/test_index_flow.py)')
+    ap.add_argument("--cache-gb", type=float, default=2.0, help="bound of each web and graph cache per index")
     ap.add_argument("--keep", help="work folder (corpus, stores), reused when present")
     args = ap.parse_args()
     if args.queries < 1:
@@ -172,8 +203,13 @@ def main() -> None:
     ss, gs = run_or_reuse(short_cfg, clips, "shortlist")
 
     queries = random_queries(ge, args.queries, args.query_s, args.rate, args.seed)
-    me = MatchSearch(StoreWebs(MotionStore(exact_cfg.store.path, read_only=True), ge, None))
-    msh = MatchSearch(StoreWebs(MotionStore(short_cfg.store.path, read_only=True), gs, None))
+    cap = int(args.cache_gb * 1e9)
+    exact_store = MotionStore(exact_cfg.store.path, read_only=True)
+    exact_webs = LRU(max_bytes=cap)
+    me = MatchSearch(StoreWebs(exact_store, ge, None, exact_webs), graphs=LRU(max_bytes=cap))
+    msh = MatchSearch(StoreWebs(MotionStore(short_cfg.store.path, read_only=True), gs, None, LRU(max_bytes=cap)),
+                      graphs=LRU(max_bytes=cap))
+    variants = [restricted(exact_store, ge, exact_cfg, json.loads(a), exact_webs, cap) for a in args.also]
     n_exact = n_hit = n_short = same_eps = 0
     per_query, t_exact, t_short = [], 0.0, 0.0
     t0 = time.perf_counter()
@@ -190,6 +226,8 @@ def main() -> None:
         sh = [n.segment for n in msh.search(q, eps).nodes[1:]]
         t_short += time.perf_counter() - t
         hit = recalled(ex, sh)
+        for v in variants:
+            v["hit"] += recalled(ex, [n.segment for n in v["search"].search(q, eps).nodes[1:]])
         n_exact, n_hit, n_short = n_exact + len(ex), n_hit + hit, n_short + len(sh)
         if ex:
             per_query.append(hit / len(ex))
@@ -206,6 +244,9 @@ def main() -> None:
     print(f"{'exact':>10} {se['pairs']:11d} {1.0:7.3f} {se['wall_s']:8.1f} {'-':>11} {'-':>8} {n_exact:8d} {t_exact:8.1f}")
     print(f"{'shortlist':>10} {ss['pairs']:11d} {ss['pairs'] / se['pairs']:7.3f} {ss['wall_s']:8.1f} "
           f"{sh_stats.get('seconds', float('nan')):11.1f} {sh_stats.get('windows', 0):8d} {n_short:8d} {t_short:8.1f}")
+    for v in variants:
+        print(f"  {v['name']}: {v['pairs']} pairs ({v['pairs'] / se['pairs']:.3f} of all), shortlist "
+              f"{v['seconds']:.1f} s, recall {v['hit'] / max(1, n_exact):.4f} (exact webs restricted, no index run)")
     print(f"saved: {se['pairs'] - ss['pairs']} pairs ({1 - ss['pairs'] / se['pairs']:.1%}), "
           f"{se['wall_s'] - ss['wall_s']:.0f} s of index wall time ({1 - ss['wall_s'] / se['wall_s']:.1%})")
     print(f"recall over {len(queries)} queries ({len(per_query)} with matches, {n_exact} exact matches): "
