@@ -50,6 +50,7 @@ from motionweb.store.keys import web_digest
 from motionweb.store.webs import StoreWebs
 from motionweb.store.zarr_store import MotionStore
 from motionweb.tasks.matchgraph import Segment
+from motionweb.tasks.params.search import SearchParams
 from motionweb.tasks.ranking import default_epsilon, nearest_costs
 from motionweb.tasks.search import MatchSearch
 
@@ -141,7 +142,8 @@ def recalled(exact: list[Segment], short: list[Segment]) -> int:
     return sum(any(m.start <= s.end and s.start <= m.end for s in by_clip.get(m.clip, [])) for m in exact)
 
 
-def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, webs: LRU, cap: int) -> dict:
+def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, webs: LRU, cap: int,
+               sp: SearchParams) -> dict:
     """A search over the exact index's webs restricted to the shortlist of ``params`` (computed
     here from the stored features), sharing the exact index's web cache."""
     from dataclasses import replace
@@ -163,7 +165,7 @@ def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, w
     name = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
     print(f"{name}: {len(sub.webs)} pairs, shortlist in {seconds:.0f} s", flush=True)
     return {"name": name, "pairs": len(sub.webs), "seconds": seconds, "hit": 0,
-            "search": MatchSearch(StoreWebs(store, sub, None, webs), graphs=LRU(max_bytes=cap))}
+            "search": MatchSearch(StoreWebs(store, sub, None, webs), sp, graphs=LRU(max_bytes=cap))}
 
 
 def main() -> None:
@@ -183,6 +185,7 @@ def main() -> None:
                     help='more shortlist parameters (e.g. \'{"k": 48, "k_windows": 128}\'), measured without an '
                          'index run: the exact index\'s webs restricted to their shortlist (the webs a shortlist '
                          'index builds are the exact ones, tests/flows/test_index_flow.py)')
+    ap.add_argument("--tiers", type=int, default=None, help="search.max_tiers (default: the search's own, 10)")
     ap.add_argument("--cache-gb", type=float, default=2.0, help="bound of each web and graph cache per index")
     ap.add_argument("--keep", help="work folder (corpus, stores), reused when present")
     args = ap.parse_args()
@@ -206,10 +209,11 @@ def main() -> None:
     cap = int(args.cache_gb * 1e9)
     exact_store = MotionStore(exact_cfg.store.path, read_only=True)
     exact_webs = LRU(max_bytes=cap)
-    me = MatchSearch(StoreWebs(exact_store, ge, None, exact_webs), graphs=LRU(max_bytes=cap))
+    sp = SearchParams() if args.tiers is None else SearchParams(max_tiers=args.tiers)
+    me = MatchSearch(StoreWebs(exact_store, ge, None, exact_webs), sp, graphs=LRU(max_bytes=cap))
     msh = MatchSearch(StoreWebs(MotionStore(short_cfg.store.path, read_only=True), gs, None, LRU(max_bytes=cap)),
-                      graphs=LRU(max_bytes=cap))
-    variants = [restricted(exact_store, ge, exact_cfg, json.loads(a), exact_webs, cap) for a in args.also]
+                      sp, graphs=LRU(max_bytes=cap))
+    variants = [restricted(exact_store, ge, exact_cfg, json.loads(a), exact_webs, cap, sp) for a in args.also]
     n_exact = n_hit = n_short = same_eps = 0
     per_query, t_exact, t_short = [], 0.0, 0.0
     t0 = time.perf_counter()
@@ -231,14 +235,14 @@ def main() -> None:
         n_exact, n_hit, n_short = n_exact + len(ex), n_hit + hit, n_short + len(sh)
         if ex:
             per_query.append(hit / len(ex))
-        if (i + 1) % 20 == 0:
+        if (i + 1) % 10 == 0:
             print(f"  {i + 1}/{len(queries)} queries, recall so far {n_hit / max(1, n_exact):.4f} "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
     recall = n_hit / n_exact if n_exact else float("nan")
     pq = np.array(per_query) if per_query else np.array([np.nan])
     sh_stats = ss.get("shortlist", {})
     print()
-    print(f"shortlist parameters: {json.dumps(gs.config['index']['shortlist'])}")
+    print(f"shortlist parameters: {json.dumps(gs.config['index']['shortlist'])}; search tiers {sp.max_tiers}")
     print(f"{'index':>10} {'pairs built':>11} {'of all':>7} {'wall s':>8} {'shortlist s':>11} {'windows':>8} "
           f"{'matches':>8} {'search s':>8}")
     print(f"{'exact':>10} {se['pairs']:11d} {1.0:7.3f} {se['wall_s']:8.1f} {'-':>11} {'-':>8} {n_exact:8d} {t_exact:8.1f}")
