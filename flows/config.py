@@ -30,6 +30,7 @@ from motionweb.tasks.params.parameterize import ParameterizeParams
 from motionweb.tasks.params.retime import RetimeParams
 from motionweb.tasks.params.rootmotion import RootMotionParams
 from motionweb.tasks.params.search import SearchParams
+from motionweb.tasks.params.shortlist import ShortlistParams
 from motionweb.tasks.params.warp import WarpParams
 from pydantic import Field, ValidationError
 
@@ -76,6 +77,9 @@ class IndexConfig(Params):
     #: MiB of clip distance operands each Dask worker keeps between the pairs it computes (least
     #: recently used dropped first; about 48·frames·points bytes per clip and rate)
     operand_cache_mb: float = Field(512.0, gt=0)
+    #: build webs only for the clip pairs shortlisted by k-NN over pose windows (``tasks/shortlist.py``),
+    #: in each chunk; off: every pair of a chunk (KG04 §3). Meant for ``chunk_by: none``
+    shortlist: ShortlistParams = Field(default_factory=ShortlistParams)
 
 
 #: the config's path fields, which say where things are, not how they are computed

@@ -215,27 +215,128 @@ class ChunkPlan:
 
 
 def plan_chunk(chunk: Chunk, cfg: Config, has: Callable[[str], bool],
-               has_features: Callable[[str], bool]) -> ChunkPlan:
-    """Pair plan of one chunk split into cached and to-compute using the store predicates."""
+               has_features: Callable[[str], bool], keep: set[tuple[str, str]] | None = None,
+               features: bool = True) -> ChunkPlan:
+    """Pair plan of one chunk split into cached and to-compute using the store predicates.
+
+    ``keep``: the shortlisted pairs of the chunk (``(a.sha256, b.sha256)`` with ``a <= b``, see
+    :func:`shortlist_chunk`); only those are planned. None: every pair. ``features=False`` asks
+    nothing about features (``features_todo`` empty: a shortlist run planned them before)."""
     pairs = plan_pairs(chunk, web_digest(cfg), working_rate(cfg))
+    if keep is not None:
+        pairs = [j for j in pairs if (j.a.sha256, j.b.sha256) in keep]
     uniq = unique_jobs(pairs)
     todo = [j for j in uniq if not has(j.key)]
     todo_keys = {j.key for j in todo}
     cached = [j for j in pairs if j.key not in todo_keys]
-    feats = [c for c in {c.sha256: c for c in chunk.clips}.values() if not has_features(c.sha256)]
+    feats = ([c for c in {c.sha256: c for c in chunk.clips}.values() if not has_features(c.sha256)]
+             if features else [])
     return ChunkPlan(chunk, skeleton_groups(chunk), pairs, feats, todo, cached)
+
+
+def plan_features(chunk: Chunk, has_features: Callable[[str], bool]) -> ChunkPlan:
+    """The first plan of a shortlist run: the clips of a chunk lacking features, no pairs yet (the
+    shortlist reads every clip's features)."""
+    feats = [c for c in {c.sha256: c for c in chunk.clips}.values() if not has_features(c.sha256)]
+    return ChunkPlan(chunk, skeleton_groups(chunk), [], feats, [], [])
+
+
+@dataclass
+class ShortlistReport:
+    """A chunk's shortlist: its kept pairs and what they were chosen from."""
+
+    chunk: str
+    #: (a.sha256, b.sha256) with a <= b, self pairs included
+    keep: set[tuple[str, str]]
+    #: pairs the exact index would plan (every skeleton-compatible pair, self pairs included)
+    candidates: int
+    windows: int
+    seconds: float
+    #: digest of what the shortlist is a function of (:func:`shortlist_inputs`)
+    inputs: str = ""
+    #: taken from the previous generation (same inputs), not recomputed
+    reused: bool = False
+
+    def record(self) -> dict[str, Any]:
+        return {"chunk": self.chunk, "pairs": len(self.keep), "candidates": self.candidates,
+                "windows": self.windows, "seconds": round(self.seconds, 3), "inputs": self.inputs,
+                "reused": self.reused}
+
+
+def shortlist_inputs(chunk: Chunk, cfg: Config, bad_sha: set[str] = frozenset()) -> str:
+    """Digest of everything a chunk's shortlist depends on: its clips' contents by skeleton, the
+    feature parameters and the lowest rate, the shortlist parameters, the faiss version."""
+    import hashlib
+    import json
+    from importlib.metadata import version
+
+    groups = {s: sorted({c.sha256 for c in chunk.clips if c.skeleton == s} - set(bad_sha))
+              for s in sorted({c.skeleton for c in chunk.clips})}
+    data = {"groups": groups, "features": feature_digest(cfg), "lowest": min(float(r) for r in cfg.features.rates),
+            "shortlist": cfg.index.shortlist.model_dump(mode="json", exclude={"enabled"}),
+            "faiss": version("faiss-cpu")}
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def reused_shortlist(chunk: Chunk, prev: Generation | None, inputs: str) -> ShortlistReport | None:
+    """The chunk's shortlist as the previous generation recorded it, when its inputs digest is
+    ``inputs`` (the shortlist is a deterministic function of them): the pairs of its webs and of
+    its broken pairs in this chunk. None otherwise."""
+    rec = next((c.get("shortlist") for c in (prev.chunks if prev else []) if c["name"] == chunk.name), None)
+    if not rec or rec.get("inputs") != inputs:
+        return None
+    sha = {c["path"]: c["sha256"] for c in prev.clips}
+    keep = {(w["a_sha"], w["b_sha"]) for w in prev.webs if w.get("chunk") == chunk.name}
+    for b in prev.broken:
+        a_path, _, b_path = b["path"].partition(" x ")
+        if a_path in sha and b_path in sha:
+            keep.add((min(sha[a_path], sha[b_path]), max(sha[a_path], sha[b_path])))
+    if len(keep) != rec["pairs"]:
+        return None
+    return ShortlistReport(chunk.name, keep, rec["candidates"], rec["windows"], 0.0, inputs, reused=True)
+
+
+def shortlist_chunk(chunk: Chunk, cfg: Config, lowest: Callable[[str], tuple[Any, Any]],
+                    bad_sha: set[str] = frozenset(), prev: Generation | None = None) -> ShortlistReport:
+    """The pairs of ``chunk`` worth a web (:func:`motionweb.tasks.shortlist.shortlist_pairs` with
+    ``index.shortlist``), per skeleton group (only compatible clips are paired), one entry per
+    file content. ``lowest(sha)``: the clip's features at the lowest rate and its point weights.
+    Clips in ``bad_sha`` (features failed) are left out. A pure function of the chunk's contents
+    and the parameters: an unchanged corpus gets the same pairs on every run; when a clip changes,
+    the whole chunk's shortlist is recomputed (its new windows may also be, or stop being, the
+    neighbours of other clips' windows). Cost: :mod:`motionweb.tasks.shortlist`'s, about
+    O(W log W) for W windows, plus one read of every clip's lowest-rate features; none when
+    ``prev`` recorded the shortlist of the same inputs (:func:`reused_shortlist`)."""
+    from motionweb.tasks.shortlist import shortlist_pairs
+
+    inputs = shortlist_inputs(chunk, cfg, bad_sha)
+    if (again := reused_shortlist(chunk, prev, inputs)) is not None:
+        return again
+    t = time.perf_counter()
+    keep: set[tuple[str, str]] = set()
+    candidates = windows = 0
+    for shas in {s: sorted({c.sha256 for c in chunk.clips if c.skeleton == s} - bad_sha)
+                 for s in sorted({c.skeleton for c in chunk.clips})}.values():
+        sl = shortlist_pairs({sha: lowest(sha) for sha in shas}, cfg.index.shortlist)
+        keep.update(sl.pairs)
+        candidates += sl.candidates
+        windows += sl.windows
+    return ShortlistReport(chunk.name, keep, candidates, windows, time.perf_counter() - t, inputs)
 
 
 def build_generation(
     cfg: Config, catalog: Catalog, plans: list[ChunkPlan], results: dict[str, dict[str, Any]],
     failed_clips: dict[str, str], parent: str | None, timings: dict[str, float], gen_id: str | None = None,
-    cached_meta: dict[str, dict[str, Any]] | None = None,
+    cached_meta: dict[str, dict[str, Any]] | None = None, shortlists: list[ShortlistReport] | None = None,
 ) -> Generation:
     """The manifest of a run: clips, feature keys, web records, broken files, config, versions.
 
     ``results`` maps computed web keys to their record (counts, seconds, or ``error``);
     ``cached_meta`` the stored attributes of cached webs. Pairs that failed, or that involve a
-    clip that failed to load, are left out and listed under ``broken``.
+    clip that failed to load, are left out and listed under ``broken``. ``shortlists`` (a
+    shortlist run): each chunk's, recorded under ``stats["shortlist"]`` and in the chunk records;
+    the webs listed are those of the shortlisted pairs, so a reader (``store.webs.StoreWebs``)
+    finds no web, and the search no match, for a pair left out.
     """
     fdig = feature_digest(cfg)
     rates = sorted(float(r) for r in cfg.features.rates)
@@ -279,6 +380,13 @@ def build_generation(
         "broken": len(broken),
         "skeleton_minority": sum(len(p.skeleton.minority) for p in plans),
     }
+    by_chunk = {r.chunk: r for r in shortlists or []}
+    if shortlists is not None:
+        stats["shortlist"] = {"pairs": sum(len(r.keep) for r in shortlists),
+                              "candidates": sum(r.candidates for r in shortlists),
+                              "windows": sum(r.windows for r in shortlists),
+                              "seconds": round(sum(r.seconds for r in shortlists), 3),
+                              "reused": sum(r.reused for r in shortlists)}
     return Generation(
         id=gen_id or new_id(),
         created=now_iso(),
@@ -291,6 +399,7 @@ def build_generation(
         webs=webs,
         chunks=[{"name": p.chunk.name, "clips": len(p.chunk.clips), "frames": p.chunk.frames,
                  "pairs": len(p.pairs), "computed": len(p.todo), "features_computed": len(p.features_todo)}
+                | ({"shortlist": by_chunk[p.chunk.name].record()} if p.chunk.name in by_chunk else {})
                 for p in plans],
         broken=broken,
         skeleton=[asdict(p.skeleton) for p in plans if len(p.skeleton.groups) > 1],
@@ -323,6 +432,8 @@ class IndexSummary:
     params_changed: bool = False
     #: what the run found damaged in the pointer or current manifest and how it repaired it
     repaired: str = ""
+    #: a shortlist run (``index.shortlist.enabled``): pairs kept, candidates, windows, seconds
+    shortlist: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -337,6 +448,8 @@ def format_summary(s: IndexSummary | dict[str, Any]) -> str:
         (f"  pairs {d['pairs']}: computed {d['pairs_computed']}, cached {d['pairs_cached']} "
          f"(features computed for {d['features_computed']} clips)"),
         f"  chains {d['chains']}, bridges {d['bridges']}",
+        *([(f"  shortlist: {sl['pairs']} of {sl['candidates']} pairs kept ({sl['windows']} pose windows, "
+            f"{sl['seconds']:.1f} s)")] if (sl := d.get("shortlist")) else []),
         f"  wall time {d['wall_s']:.1f} s, store size {d['store_bytes'] / 1e6:.2f} MB",
         f"  parameters: features {d['params']['features']}, webs {d['params']['webs']}"
         + (" (new parameter hash: results are not mixed with the previous generation's)"
@@ -454,12 +567,15 @@ def catalog_task(cfg: Config) -> Catalog:
 
 
 @task(name="plan", no_cache=True)
-def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list[ChunkPlan]:
+def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
+              keep: dict[str, ShortlistReport] | None = None, stage: str = "all") -> list[ChunkPlan]:
     """Pair plan of every chunk, split into cached and to-compute by the store.
 
     Every object reused is verified first (read whole, checksum against the one recorded with
     it and in the current manifest): a missing or damaged one is recomputed, never committed
     again. Cost: one read of every reused object, O(store bytes used by this generation).
+    A shortlist run plans twice: ``stage="features"`` the clips lacking features (no pairs),
+    then ``stage="pairs"`` the pairs of each chunk's shortlist (``keep``, by chunk name).
     """
     store = MotionStore(cfg.store.path)
     fdig = feature_digest(cfg)
@@ -480,12 +596,41 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None) -> list
     def features_ok(sha: str) -> bool:
         return store.has_features(sha, fdig, rates) and sound(feature_key(sha, fdig))
 
-    plans = [plan_chunk(c, cfg, web_ok, features_ok) for c in chunks]
+    if stage == "features":
+        plans = [plan_features(c, features_ok) for c in chunks]
+        for p in plans:
+            logger.info("chunk %s: %d clips, %d need features (pairs planned after the shortlist)",
+                        p.chunk.name, len(p.chunk.clips), len(p.features_todo))
+        return plans
+    plans = [plan_chunk(c, cfg, web_ok, features_ok, None if keep is None else keep[c.name].keep,
+                        features=stage != "pairs") for c in chunks]
     for p in plans:
         logger.info("chunk %s: %d clips, %d pairs (%d to compute, %d cached), %d clips need features",
                     p.chunk.name, len(p.chunk.clips), len(p.pairs), len(p.todo), len(p.cached),
                     len(p.features_todo))
     return plans
+
+
+@task(name="shortlist", no_cache=True)
+def shortlist_task(chunks: list[Chunk], cfg: Config, bad_sha: set[str],
+                   prev: Generation | None = None) -> dict[str, ShortlistReport]:
+    """Each chunk's shortlist (:func:`shortlist_chunk`) from the stored features at the lowest
+    rate, in this process (seconds, against the webs it saves; see ``bench/shortlist.py``), or
+    from ``prev`` when its inputs are unchanged."""
+    store = MotionStore(cfg.store.path)
+    fdig = feature_digest(cfg)
+    low = min(float(r) for r in cfg.features.rates)
+
+    def lowest(sha: str) -> tuple[Any, Any]:
+        by_rate, weights = store.read_features(sha, fdig, [low])
+        return by_rate[low], weights
+
+    out = {c.name: shortlist_chunk(c, cfg, lowest, bad_sha, prev) for c in chunks}
+    for r in out.values():
+        run_logger().info("chunk %s: shortlist of %d of %d pairs from %d pose windows %s", r.chunk,
+                          len(r.keep), r.candidates, r.windows,
+                          "as the previous generation's" if r.reused else f"in {r.seconds:.1f} s")
+    return out
 
 
 @task(name="features", no_cache=True, retries=1)
@@ -550,7 +695,8 @@ class _Changed(Exception):
 
 def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkPlan], results: dict[str, dict[str, Any]],
            failed: dict[str, str], parent: str | None, prev: Generation | None, damage: PointerError | None,
-           timings: dict[str, float], t0: float, commit_fn: Callable[[Generation], Any]) -> dict[str, Any]:
+           timings: dict[str, float], t0: float, commit_fn: Callable[[Generation], Any],
+           shortlists: dict[str, ShortlistReport] | None = None) -> dict[str, Any]:
     """The end of an index run: the generation of the plans and results, committed with
     ``commit_fn`` unless it lists the current one's content, gc, and the run summary."""
     logger = run_logger()
@@ -559,7 +705,8 @@ def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkP
     cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
     for key in cached_keys - set(cached_meta):
         cached_meta[key] = store.web_attrs(key)
-    gen = build_generation(cfg, catalog, plans, results, failed, parent, timings, cached_meta=cached_meta)
+    gen = build_generation(cfg, catalog, plans, results, failed, parent, timings, cached_meta=cached_meta,
+                           shortlists=None if shortlists is None else list(shortlists.values()))
     keys = [w["key"] for w in gen.webs] + sorted({k for rs in gen.features.values() for k in rs.values()})
     gen.checksums = {k: c for k in keys if (c := store.recorded_checksum(k)) is not None}
     gen.timings["before_commit_s"] = time.perf_counter() - t0
@@ -582,7 +729,7 @@ def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkP
         store_bytes=store.size_bytes(), broken=gen.broken,
         skeleton_minority=[m for p in plans for m in p.skeleton.minority],
         params_changed=prev is not None and prev.params.get("webs") != gen.params["webs"],
-        repaired=repaired,
+        repaired=repaired, shortlist=gen.stats.get("shortlist", {}),
     )
     logger.info("generation %s: %d clips, %d pairs (%d computed, %d cached), %d broken files, %.1f s",
                 gen.id, summary.clips, summary.pairs, summary.pairs_computed, summary.pairs_cached,
@@ -616,7 +763,14 @@ def unchanged_summary(cfg: Config) -> dict[str, Any] | None:
             return None
         timings["catalog_s"] = time.perf_counter() - t0
         t = time.perf_counter()
-        plans = plan_task.fn(plan_chunks(catalog.entries, cfg.index.chunk_by), cfg, prev)
+        chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
+        shortlists = None
+        if cfg.index.shortlist.enabled:
+            if any(p.features_todo for p in plan_task.fn(chunks, cfg, prev, stage="features")):
+                return None
+            shortlists = shortlist_task.fn(chunks, cfg, set(), prev)
+            timings["shortlist_s"] = time.perf_counter() - t
+        plans = plan_task.fn(chunks, cfg, prev, shortlists, stage="pairs" if shortlists else "all")
         timings["plan_s"] = time.perf_counter() - t
     finally:
         plain.setLevel(level)
@@ -628,6 +782,6 @@ def unchanged_summary(cfg: Config) -> dict[str, Any] | None:
         raise _Changed
 
     try:
-        return finish(cfg, store, catalog, plans, {}, {}, parent, prev, None, timings, t0, changed)
+        return finish(cfg, store, catalog, plans, {}, {}, parent, prev, None, timings, t0, changed, shortlists)
     except _Changed:
         return None

@@ -14,17 +14,23 @@ from typing import Any
 from motionweb.flows.config import Config, load_config
 from motionweb.flows.index import (
     SMALL_RUN_CELLS,
+    Chunk,
+    ChunkPlan,
+    ShortlistReport,
     catalog_task,
     commit_task,
     dask_scheduler,
     features_task,
     finish,
+    frames_at,
     plan_chunks,
     plan_task,
     repair_note,
+    shortlist_task,
     webs_task,
+    working_rate,
 )
-from motionweb.store.generations import check_current, load_generation, repair_current
+from motionweb.store.generations import Generation, check_current, load_generation, repair_current
 from motionweb.store.zarr_store import MotionStore
 from prefect import flow, get_run_logger
 from prefect.utilities.annotations import quote
@@ -58,26 +64,64 @@ def index_library(config: str | Config) -> dict[str, Any]:
                          "files): nothing to index")
     timings["catalog_s"] = time.perf_counter() - t0
     chunks = plan_chunks(catalog.entries, cfg.index.chunk_by)
-    t = time.perf_counter()
-    plans = plan_task(quote(chunks), cfg, quote(prev))
-    timings["plan_s"] = time.perf_counter() - t
-
-    todo_cells = sum(j.cells for p in plans for j in p.todo)
     results: dict[str, dict[str, Any]] = {}
     failed: dict[str, str] = {}
+    if cfg.index.shortlist.enabled:
+        plans, shortlists = _shortlisted(cfg, chunks, prev, timings, failed)
+    else:
+        shortlists = None
+        t = time.perf_counter()
+        plans = plan_task(quote(chunks), cfg, quote(prev))
+        timings["plan_s"] = time.perf_counter() - t
+    todo_cells = sum(j.cells for p in plans for j in p.todo)
     t = time.perf_counter()
-    if any(p.todo or p.features_todo for p in plans):
+    if any(p.todo or (shortlists is None and p.features_todo) for p in plans):
         with dask_scheduler(cfg.dask, small=todo_cells < SMALL_RUN_CELLS) as address:
             logger.info("dask scheduler %s; %d pairs (%.3g cells) to compute",
                         address, sum(len(p.todo) for p in plans), todo_cells)
-            feats = [features_task.submit(quote(p), cfg, address) for p in plans]
-            for rec in (r for f in feats for r in f.result()):
-                if "error" in rec:
-                    failed[rec["sha256"]] = rec["error"]
-            timings["features_s"] = time.perf_counter() - t
+            if shortlists is None:
+                _features(plans, cfg, address, failed)
+                timings["features_s"] = time.perf_counter() - t
             webs = [webs_task.submit(quote(p), cfg, address, set(failed)) for p in plans]
             for rec in (r for f in webs for r in f.result()):
                 results[rec["key"]] = rec
     timings["compute_s"] = time.perf_counter() - t
+    if shortlists is not None:  # the features were computed before the shortlist
+        timings["compute_s"] += timings.get("features_s", 0.0)
     return finish(cfg, store, catalog, plans, results, failed, parent, prev, damage, timings, t0,
-                  lambda gen: commit_task(quote(gen), cfg.store.path))
+                  lambda gen: commit_task(quote(gen), cfg.store.path), shortlists)
+
+
+def _features(plans: list[ChunkPlan], cfg: Config, address: str, failed: dict[str, str]) -> None:
+    """Features of the clips of ``plans`` that lack them, on Dask; clips that failed into ``failed``."""
+    feats = [features_task.submit(quote(p), cfg, address) for p in plans]
+    for rec in (r for f in feats for r in f.result()):
+        if "error" in rec:
+            failed[rec["sha256"]] = rec["error"]
+
+
+def _shortlisted(cfg: Config, chunks: list[Chunk], prev: Generation | None, timings: dict[str, float],
+                 failed: dict[str, str]) -> tuple[list[ChunkPlan], dict[str, ShortlistReport]]:
+    """A shortlist run's plans (``index.shortlist``): the features every clip lacks (on Dask, a
+    cluster sized by the webs they could need: each new clip against every clip), then each
+    chunk's shortlist from the stored features, then the pair plan of the shortlisted pairs."""
+    t = time.perf_counter()
+    first = plan_task(quote(chunks), cfg, quote(prev), stage="features")
+    timings["plan_s"] = time.perf_counter() - t
+    todo = [c for p in first for c in p.features_todo]
+    if todo:
+        t = time.perf_counter()
+        rate = working_rate(cfg)
+        upper = sum(frames_at(c, rate) for c in todo) * sum(frames_at(c, rate) for ch in chunks for c in ch.clips)
+        with dask_scheduler(cfg.dask, small=upper < SMALL_RUN_CELLS) as address:
+            _features(first, cfg, address, failed)
+        timings["features_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    shortlists = shortlist_task(quote(chunks), cfg, set(failed), quote(prev))
+    timings["shortlist_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    plans = plan_task(quote(chunks), cfg, quote(prev), quote(shortlists), stage="pairs")
+    timings["plan_s"] += time.perf_counter() - t
+    for p, f in zip(plans, first, strict=True):
+        p.features_todo = f.features_todo
+    return plans, shortlists

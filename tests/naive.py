@@ -692,3 +692,42 @@ def ref_timing_distances(polys, fps: float, p: np.ndarray, pd: np.ndarray, pdd: 
         dist[k] = np.sqrt(dx * dx + dy * dy)
     scale = 1 + np.maximum(np.abs(pdd), np.asarray(pd) ** 2)
     return frames, dist, dist <= 1e-3 * scale
+
+
+def ref_shortlist(clips: dict, k: int, k_windows: int, min_hits: int, headings: int,
+                  stride: int = 1) -> list[tuple[str, str]]:
+    """``tasks.shortlist.shortlist_pairs`` by brute force: every window's squared distance to every
+    window of every other clip with the query turned to each of ``headings`` headings (point by
+    point, with explicit centroids and weights); per heading its ``k_windows`` nearest windows
+    (ties by window order); over their union, each clip at its nearest window, the ``k`` nearest
+    clips (ties by window order); the pairs of clips with ≥ ``min_hits`` (window, other clip) hits
+    in either direction, every self pair included. O(W²·headings·P)."""
+    keys = sorted(clips)
+    wins = []  # (clip index, centred cloud (P, 3), weights)
+    for ci, key in enumerate(keys):
+        f, w = clips[key]
+        for fr in range(0, len(f), stride):
+            c = np.asarray(f[fr], np.float64).copy()
+            c[:, 0] -= np.sum(w * c[:, 0])
+            c[:, 2] -= np.sum(w * c[:, 2])
+            wins.append((ci, c, np.asarray(w, np.float64)))
+    hits: dict[tuple[int, int], int] = defaultdict(int)
+    for ca, p, w in wins:
+        seen: dict[int, tuple[float, int]] = {}  # window -> (least distance over the headings, window)
+        for h in range(headings):
+            a = 2 * np.pi * h / headings
+            x = np.cos(a) * p[:, 0] + np.sin(a) * p[:, 2]
+            z = -np.sin(a) * p[:, 0] + np.cos(a) * p[:, 2]
+            cand = sorted((float(np.sum(w * ((x - q[:, 0]) ** 2 + (p[:, 1] - q[:, 1]) ** 2 + (z - q[:, 2]) ** 2))), di)
+                          for di, (cb, q, _) in enumerate(wins) if cb != ca)
+            for d, di in cand[:k_windows]:
+                seen[di] = min(seen.get(di, (np.inf, di)), (d, di))
+        nearest: dict[int, tuple[float, int]] = {}
+        for d, di in seen.values():
+            cb = wins[di][0]
+            nearest[cb] = min(nearest.get(cb, (np.inf, di)), (d, di))
+        for cb in sorted(nearest, key=lambda c: nearest[c])[:k]:
+            hits[(min(ca, cb), max(ca, cb))] += 1
+    pairs = [(keys[i], keys[i]) for i in range(len(keys))]
+    pairs += [(keys[a], keys[b]) for (a, b), n in hits.items() if n >= min_hits]
+    return sorted(pairs)

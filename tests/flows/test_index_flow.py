@@ -268,3 +268,48 @@ def test_plot_web_figure(tmp_path):
     assert (tmp_path / "web.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="different skeletons"):
         plot_web(cfg, "w1", "odd", tmp_path / "x.png")
+
+
+def test_shortlist_index_keeps_exact_webs_of_its_pairs(prefect_harness, tmp_path):
+    """``chunk_by: none`` with ``index.shortlist``: webs only for the shortlisted pairs, each
+    byte-equal to the exact all-pairs index's web of that pair; every self pair kept; a changed
+    clip gets its features and its pairs of the recomputed shortlist, the rest cached; a rerun
+    with nothing changed computes nothing (the flow and the Prefect-free answer alike)."""
+    from motionweb.flows.index import unchanged_summary
+
+    corpus = write_corpus(tmp_path / "corpus")
+    exact = make_config(tmp_path, corpus, str(tmp_path / "exact"), index={"chunk_by": "none"})
+    short = make_config(tmp_path, corpus, str(tmp_path / "short"),
+                        index={"chunk_by": "none", "shortlist": {"enabled": True, "k": 1, "min_hits": 6}})
+    se, ss = index_library(exact), index_library(short)
+    # 5 clips of one skeleton (15 pairs) + odd with itself
+    assert se["pairs"] == 16 and [b["path"] for b in ss["broken"]] == ["run/broken.bvh"]
+    assert ss["shortlist"]["candidates"] == 16 and ss["pairs"] == ss["shortlist"]["pairs"] < 16
+    ge = load_generation(MotionStore(exact.store.path, read_only=True))
+    gs = load_generation(MotionStore(short.store.path, read_only=True))
+    assert gs.stats["shortlist"]["pairs"] == ss["pairs"] and gs.chunks[0]["shortlist"]["chunk"] == "all"
+    exact_keys = {w["key"] for w in ge.webs}
+    assert {w["key"] for w in gs.webs} < exact_keys
+    assert {(w["a"], w["b"]) for w in gs.webs if w["self"]} == {(c["path"], c["path"]) for c in gs.clips}
+    sa, sb = MotionStore(exact.store.path, read_only=True), MotionStore(short.store.path, read_only=True)
+    for w in gs.webs:
+        (xa, ta), (xb, tb) = sa.read_web_arrays(w["key"]), sb.read_web_arrays(w["key"])
+        assert ta == tb and sorted(xa) == sorted(xb), w["key"]
+        for name in xa:
+            assert xa[name].dtype == xb[name].dtype and xa[name].tobytes() == xb[name].tobytes(), (w["key"], name)
+    # nothing changed: nothing computed, the same generation, also without Prefect
+    again = index_library(short)
+    assert again["pairs_computed"] == 0 and again["generation"] == ss["generation"]
+    assert again["shortlist"]["reused"] == 1 and not ss["shortlist"]["reused"]  # the same inputs: not recomputed
+    quick = unchanged_summary(short)
+    assert quick is not None and quick["generation"] == ss["generation"] and quick["pairs"] == ss["pairs"]
+    # a changed clip: its features and the new shortlist's pairs with it, the others cached
+    write_bvh(chain_motion(2.0, 1.0, 0.4), corpus / "walk" / "w1.bvh")
+    assert unchanged_summary(short) is None
+    s3 = index_library(short)
+    g3 = load_generation(MotionStore(short.store.path, read_only=True))
+    assert s3["features_computed"] == 1 and s3["shortlist"]["reused"] == 0
+    w1 = next(c["sha256"] for c in g3.clips if c["path"] == "walk/w1.bvh")
+    assert {w["key"] for w in g3.webs if w["computed"]} == {w["key"] for w in g3.webs if w1 in (w["a_sha"], w["b_sha"])}
+    assert s3["pairs"] == g3.stats["shortlist"]["pairs"] and ("walk/w1.bvh", "walk/w1.bvh") in {
+        (w["a"], w["b"]) for w in g3.webs}

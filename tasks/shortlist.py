@@ -1,0 +1,186 @@
+"""Candidate clip pairs by approximate nearest neighbours over pose windows (issue 25, part 4).
+
+KG04 §3 builds a match web for every pair of motions: O(clips²) webs, which a library without
+categories (``index.chunk_by: none``) pays in full. Most pairs hold nothing the search returns
+(a kick and a sit share no half second of motion). This stage shortlists the pairs worth a web;
+the index then builds exact webs (``tasks.matchweb``) for those pairs only.
+
+Descriptor. The features at the lowest rate (KG04 §3.2's coarsest level, 10 Hz by default) are
+already windows: frame ``f``'s cloud holds the joints of the ``features.window`` frames centred on
+it (``tasks.features.clip_features``, 0.5 s at 10 Hz). A window's descriptor is that cloud with
+its horizontal coordinates centred on their weighted mean and every point scaled by the square
+root of its weight, flattened: ``(3·P,)`` for ``P = window·J`` points. For two descriptors
+``u, v`` and a rotation ``R`` about the vertical axis, ``|u − R v|²`` is the KG04 frame distance
+(``tasks.distance``) for that rotation with the best horizontal translation (the centroids
+aligned), so ``min_R |u − R v|²`` is the frame distance itself, the value of a cell of the
+coarsest distance grid. Windows are taken every ``stride`` frames.
+
+Rotation. The k-NN metric is plain Euclidean, so each query window is searched at ``headings``
+headings ``2πh/headings`` (the database holds each window once, as recorded); a neighbour's
+distance is the least over the headings, within a factor ``cos(π/headings)`` of the aligned
+distance's cross term. No canonical heading is guessed from the pose (a principal axis of the
+cloud flips or spins when the cloud is nearly round, e.g. standing still).
+
+Neighbours → pairs. Each window keeps its ``k`` nearest windows of other clips (its own clip is
+excluded from the search); ``hits(a, b)`` counts the windows of ``a`` with a neighbour in ``b``
+plus the windows of ``b`` with a neighbour in ``a``. A pair is shortlisted when ``hits ≥
+min_hits``; every self pair is kept, as the exact index keeps them (KG04 §3.3 finds repeats
+within a clip).
+
+Library: faiss (``faiss-cpu``, ``IndexHNSWFlat``). Chosen over hnswlib and pynndescent because on
+Python 3.11+ with numpy 2 it installs as a binary wheel that needs numpy alone (hnswlib 0.8.0,
+last released 2023-12, ships only a source archive that compiles C++ at install time; pynndescent
+0.7 pulls in scikit-learn and joblib), it is maintained (releases through 2026), and it is
+deterministic the way this project needs: HNSW levels come from a fixed seed inside faiss, the
+graph is built with one OpenMP thread (faiss inserts in parallel otherwise, and the graph then
+depends on thread timing), and a search's answer for one query does not depend on the threads.
+It also restricts a search to other clips directly (``IDSelectorNot(IDSelectorRange)``), so a
+long clip of near-identical windows (standing still) cannot fill a window's k neighbours with
+itself.
+
+Cost: descriptors O(W·P) for W windows; the HNSW build O(W·log W·M·P); the search
+O(W·headings·ef_search·log W·P) — grows about as W log W, against O(W²) web grid cells of the
+exact all-pairs index at the same rate. Memory O(W·P) for the database plus O(M·W) links.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from motionweb.tasks.params.shortlist import ShortlistParams
+
+__all__ = ["Shortlist", "ShortlistParams", "rotate_about_vertical", "shortlist_pairs", "window_descriptors"]
+
+
+def window_descriptors(features: np.ndarray, weights: np.ndarray, stride: int = 1) -> np.ndarray:
+    """(W, 3·P) float32 descriptors of every ``stride``-th frame of ``features`` (F, P, 3) with point
+    weights (P,) summing to 1: each cloud centred horizontally on its weighted mean, each point
+    scaled by sqrt(weight), flattened point-major (x, y, z per point). See the module notes."""
+    f = np.asarray(features, dtype=np.float64)[::max(1, int(stride))]
+    w = np.asarray(weights, dtype=np.float64)
+    if f.ndim != 3 or f.shape[2] != 3 or f.shape[1] != w.shape[0]:
+        raise ValueError(f"features must be (F, P, 3) with P = {w.shape[0]} points, got {f.shape}")
+    centred = f.copy()
+    for axis in (0, 2):  # horizontal: x and z (column 1 is vertical)
+        centred[:, :, axis] -= (f[:, :, axis] @ w)[:, None]
+    centred *= np.sqrt(w)[None, :, None]
+    return np.ascontiguousarray(centred.reshape(len(f), -1), dtype=np.float32)
+
+
+def rotate_about_vertical(desc: np.ndarray, angle: float) -> np.ndarray:
+    """Descriptors (W, 3·P) turned by ``angle`` radians about the vertical (y) axis."""
+    d = desc.reshape(len(desc), -1, 3)
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.empty_like(d)
+    out[:, :, 0] = c * d[:, :, 0] + s * d[:, :, 2]
+    out[:, :, 1] = d[:, :, 1]
+    out[:, :, 2] = -s * d[:, :, 0] + c * d[:, :, 2]
+    return out.reshape(desc.shape)
+
+
+@dataclass
+class Shortlist:
+    """The shortlisted pairs of a set of clips.
+
+    ``pairs``: sorted unordered pairs ``(a, b)`` with ``a <= b`` of clip keys, every self pair
+    included; ``hits[(a, b)]``: the neighbour hits of each cross pair kept (see the module notes);
+    ``windows``: windows indexed; ``candidates``: the pairs of the clips (self pairs included)."""
+
+    pairs: list[tuple[str, str]]
+    hits: dict[tuple[str, str], int] = field(default_factory=dict)
+    windows: int = 0
+    candidates: int = 0
+
+    def keeps(self, a: str, b: str) -> bool:
+        return (min(a, b), max(a, b)) in self._set
+
+    def __post_init__(self) -> None:
+        self._set = set(self.pairs)
+
+
+def _faiss():
+    import faiss
+
+    return faiss
+
+
+def _knn(db: np.ndarray, owner_ranges: list[tuple[int, int]], queries: list[np.ndarray], k: int,
+         params: ShortlistParams) -> tuple[np.ndarray, np.ndarray]:
+    """For each clip c (``queries[c]``: its windows at every heading, (headings, Wc, D)), the ``k``
+    nearest database windows outside ``owner_ranges[c]`` at each heading: (distances, ids), each
+    (W, headings·k) with rows in database order (-1 ids where fewer exist)."""
+    faiss = _faiss()
+    threads = faiss.omp_get_max_threads()
+    index = faiss.IndexHNSWFlat(db.shape[1], params.hnsw_m)
+    index.hnsw.efConstruction = params.ef_construction
+    faiss.omp_set_num_threads(1)  # a deterministic graph: faiss inserts in parallel otherwise
+    try:
+        index.add(db)
+    finally:
+        faiss.omp_set_num_threads(threads)
+    n_head = queries[0].shape[0] if queries else 0
+    dist = np.full((len(db), n_head * k), np.inf, np.float32)
+    ids = np.full((len(db), n_head * k), -1, np.int64)
+    for (lo, hi), q in zip(owner_ranges, queries, strict=True):
+        if hi <= lo:
+            continue
+        outside = faiss.IDSelectorNot(faiss.IDSelectorRange(lo, hi))
+        sp = faiss.SearchParametersHNSW(sel=outside, efSearch=max(params.ef_search, k))
+        d, i = index.search(q.reshape(-1, db.shape[1]), k, params=sp)
+        # (headings·Wc, k) → (Wc, headings·k)
+        dist[lo:hi] = d.reshape(n_head, hi - lo, k).transpose(1, 0, 2).reshape(hi - lo, -1)
+        ids[lo:hi] = i.reshape(n_head, hi - lo, k).transpose(1, 0, 2).reshape(hi - lo, -1)
+    return dist, ids
+
+
+def _nearest_clips(dist: np.ndarray, ids: np.ndarray, owner: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per row (window), the ``k`` other clips whose nearest window over the headings is nearest:
+    (rows, clips) flat, ties broken by window id (deterministic)."""
+    rows = np.repeat(np.arange(len(ids)), ids.shape[1])
+    d, i = dist.ravel(), ids.ravel()
+    ok = i >= 0
+    rows, d, i = rows[ok], d[ok], i[ok]
+    order = np.lexsort((i, d, rows))  # by row, then distance, then window id
+    rows, c = rows[order], owner[i[order]]
+    _, first = np.unique(rows * np.int64(owner.max() + 1) + c, return_index=True)
+    first.sort()  # each (row, clip) once, at its nearest window, in distance order
+    rows, c = rows[first], c[first]
+    rank = np.arange(len(rows)) - np.searchsorted(rows, rows, side="left")
+    keep = rank < k
+    return rows[keep], c[keep]
+
+
+def shortlist_pairs(clips: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                    params: ShortlistParams | None = None) -> Shortlist:
+    """The shortlist of ``clips``: key -> (features at the lowest rate (F, P, 3), point weights
+    (P,)), every clip with the same points (one skeleton). Same input, same output: clips are
+    taken in key order whatever the mapping's order. See the module notes for the descriptor,
+    the neighbours and the cost."""
+    params = params or ShortlistParams()
+    keys = sorted(clips)
+    self_pairs = [(c, c) for c in keys]
+    n_cand = len(keys) * (len(keys) + 1) // 2
+    if len(keys) < 2:
+        return Shortlist(self_pairs, {}, 0, n_cand)
+    descs = [window_descriptors(*clips[c], params.stride) for c in keys]
+    dims = {d.shape[1] for d in descs}
+    if len(dims) != 1:
+        raise ValueError(f"clips of a shortlist must have the same points, got descriptor sizes {sorted(dims)}")
+    sizes = np.array([len(d) for d in descs])
+    bounds = np.concatenate([[0], np.cumsum(sizes)])
+    owner = np.repeat(np.arange(len(keys)), sizes)
+    db = np.ascontiguousarray(np.concatenate(descs))
+    angles = 2 * np.pi * np.arange(params.headings) / params.headings
+    queries = [np.stack([rotate_about_vertical(d, a) for a in angles]) for d in descs]
+    kw = min(max(params.k, params.k_windows), len(db) - int(sizes.min()))
+    dist, ids = _knn(db, [(int(bounds[c]), int(bounds[c + 1])) for c in range(len(keys))], queries, kw, params)
+    rows, b = _nearest_clips(dist, ids, owner, params.k)  # one hit per (window, other clip)
+    qa = owner[rows]
+    lo, hi = np.minimum(qa, b), np.maximum(qa, b)
+    pair_ids, counts = np.unique(lo * len(keys) + hi, return_counts=True)
+    hits = {(keys[int(p // len(keys))], keys[int(p % len(keys))]): int(n)
+            for p, n in zip(pair_ids, counts, strict=True) if n >= params.min_hits}
+    pairs = sorted(self_pairs + list(hits))
+    return Shortlist(pairs, hits, len(db), n_cand)

@@ -1,0 +1,97 @@
+"""The candidate-pair shortlist (tasks/shortlist.py, issue 25): its descriptor is the KG04 frame
+distance, its pairs hold every planted match, faiss's HNSW gives the brute-force answer on a small
+corpus, and the same input gives the same pairs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from motionweb.tasks.distance import distance_grid
+from motionweb.tasks.features import FeatureParams, clip_features, point_weights
+from motionweb.tasks.shortlist import (
+    ShortlistParams,
+    rotate_about_vertical,
+    shortlist_pairs,
+    window_descriptors,
+)
+from naive import ref_shortlist
+from planted import planted_corpus
+
+FC = FeatureParams()
+LOW = min(FC.rates)
+
+
+def lowest(pc) -> dict:
+    w = point_weights(next(iter(pc.clips.values())).skeleton, FC)
+    return {k: (clip_features(m, LOW, FC), w) for k, m in pc.clips.items()}
+
+
+@pytest.fixture(scope="module")
+def planted():
+    pc = planted_corpus(seed=0, n_copies=8)
+    return pc, lowest(pc)
+
+
+def test_descriptor_distance_is_the_frame_distance(planted):
+    """min over headings of |u − R v|² is the coarsest grid's cell value (KG04 §3.1's metric)."""
+    _, clips = planted
+    (fa, w), (fb, _) = clips["kick/query"], clips["walk/walk_00"]
+    grid = distance_grid(fa[::4], fb[::4], w)
+    u, v = window_descriptors(fa, w, stride=4), window_descriptors(fb, w, stride=4)
+    best = np.full(grid.shape, np.inf)
+    for a in np.linspace(0, 2 * np.pi, 720, endpoint=False):
+        rv = rotate_about_vertical(v, a).astype(np.float64)
+        d = (u.astype(np.float64) ** 2).sum(1)[:, None] + (rv ** 2).sum(1)[None] - 2 * u.astype(np.float64) @ rv.T
+        best = np.minimum(best, d)
+    np.testing.assert_allclose(best, grid, rtol=2e-3, atol=1e-5)
+
+
+def test_every_planted_pair_is_shortlisted(planted):
+    """The query clip and every clip holding a planted copy of its kick are paired, with fewer
+    neighbours than the default too; and some pairs are left out."""
+    pc, clips = planted
+    want = {tuple(sorted((pc.query.clip, k))) for k in pc.expected}
+    for k in (4, ShortlistParams().k):
+        sl = shortlist_pairs(clips, ShortlistParams(k=k, k_windows=4 * k))
+        assert want <= set(sl.pairs), (k, want - set(sl.pairs))
+        assert {(c, c) for c in clips} <= set(sl.pairs)
+        assert sl.candidates == len(clips) * (len(clips) + 1) // 2
+    assert len(shortlist_pairs(clips, ShortlistParams(k=4, k_windows=16)).pairs) < sl.candidates
+
+
+def test_same_input_same_pairs(planted):
+    """Fixed seeds and a one-thread build: the same pairs and hits whatever the order of the clips
+    and the threads faiss searches with."""
+    import faiss
+
+    _, clips = planted
+    p = ShortlistParams(k=4, k_windows=12, min_hits=2)
+    a = shortlist_pairs(clips, p)
+    b = shortlist_pairs(dict(reversed(list(clips.items()))), p)
+    threads = faiss.omp_get_max_threads()
+    faiss.omp_set_num_threads(1)
+    try:
+        c = shortlist_pairs(clips, p)
+    finally:
+        faiss.omp_set_num_threads(threads)
+    assert a.pairs == b.pairs == c.pairs and a.hits == b.hits == c.hits and a.windows == c.windows
+
+
+def test_hnsw_gives_the_brute_force_pairs():
+    """On a small corpus faiss's approximate search finds the exact neighbours (tests/naive.py)."""
+    pc = planted_corpus(seed=0, n_copies=3, distractors=("walk", "sit", "punch"))
+    clips = lowest(pc)
+    got = shortlist_pairs(clips, ShortlistParams(k=2, k_windows=6, min_hits=2, headings=8, stride=2))
+    ref = ref_shortlist(clips, k=2, k_windows=6, min_hits=2, headings=8, stride=2)
+    assert got.pairs == ref
+    assert len(ref) < got.candidates  # something was left out
+
+
+def test_one_clip_and_mixed_skeletons(planted):
+    _, clips = planted
+    one = {"kick/query": clips["kick/query"]}
+    assert shortlist_pairs(one).pairs == [("kick/query", "kick/query")]
+    f, _ = clips["walk/walk_00"]
+    bad = {**one, "other": (f[:, :-5], np.full(f.shape[1] - 5, 1 / (f.shape[1] - 5)))}
+    with pytest.raises(ValueError, match="same points"):
+        shortlist_pairs(bad)
