@@ -47,9 +47,10 @@ from bench.corpus import build_corpus, run_index
 QUERY_S = 1.5
 
 
-def random_queries(gen, n: int, rate: float, rng: np.random.Generator) -> list[Segment]:
-    """``n`` random 1.5 s segments of random clips long enough to hold one."""
-    length = round(QUERY_S * rate)
+def random_queries(gen, n: int, rate: float, rng: np.random.Generator, seconds: float = QUERY_S) -> list[Segment]:
+    """``n`` random segments of ``seconds`` (frames at the web rate) of random clips long enough
+    to hold one (also bench/shortlist.py's queries)."""
+    length = round(seconds * rate)
     clips = [c for c in gen.clips if round(c["duration"] * rate) > length + 1]
     out = []
     for k in rng.choice(len(clips), n):

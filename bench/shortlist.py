@@ -55,6 +55,7 @@ from motionweb.tasks.ranking import default_epsilon, nearest_costs
 from motionweb.tasks.search import MatchSearch
 
 from bench.corpus import CorpusError, frames60, rates_for
+from bench.search import random_queries
 
 
 def build_corpus(work: Path, variants: int, min_frames: int) -> tuple[Path, int, int]:
@@ -119,19 +120,6 @@ def run_or_reuse(cfg: Config, clips: int, name: str) -> tuple[dict, Generation]:
     record.write_text(json.dumps(s))
     print(f"{name}: {s['pairs']} pairs in {s['wall_s']:.0f} s (load {s['load_after']:.1f})", flush=True)
     return s, load_generation(MotionStore(str(store), read_only=True))
-
-
-def random_queries(gen: Generation, n: int, seconds: float, rate: float, seed: int) -> list[Segment]:
-    """``n`` random windows of ``seconds`` (frames at the web rate) in random clips long enough."""
-    rng = np.random.default_rng(seed)
-    length = round(seconds * rate)
-    clips = sorted((c for c in gen.clips if round(c["duration"] * rate) > length + 1), key=lambda c: c["path"])
-    out = []
-    for k in rng.choice(len(clips), n):
-        frames = round(clips[k]["duration"] * rate) + 1
-        s = int(rng.integers(0, frames - length - 1))
-        out.append(Segment(clips[k]["path"], s, s + length))
-    return out
 
 
 def recalled(exact: list[Segment], short: list[Segment]) -> int:
@@ -205,7 +193,7 @@ def main() -> None:
     se, ge = run_or_reuse(exact_cfg, clips, "exact")
     ss, gs = run_or_reuse(short_cfg, clips, "shortlist")
 
-    queries = random_queries(ge, args.queries, args.query_s, args.rate, args.seed)
+    queries = random_queries(ge, args.queries, args.rate, np.random.default_rng(args.seed), args.query_s)
     cap = int(args.cache_gb * 1e9)
     exact_store = MotionStore(exact_cfg.store.path, read_only=True)
     exact_webs = LRU(max_bytes=cap)
