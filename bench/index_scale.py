@@ -15,6 +15,16 @@ the worker's operand cache; the floor is one per clip of the batch), with the lo
 Then every web computed is compared byte for byte between the two codes (arrays and
 attributes): the webs must be identical.
 
+With ``--breakdown N`` it measures where a pair's time goes instead, in this process on ``N``
+random pairs of the category (the worker's own functions, stage by stage): preparing the pair's
+operands, the coarse grid (GEMM) and web, and per finer level the band cells' values
+(``refine._eval_band``) apart from the rest of the refinement (paths, bridges), then the write.
+It counts the cells each level evaluates (unique cells of the union of bands) against the full
+grid, and prints two arithmetic floors measured in the same run on the working-rate grids of
+the sampled pairs: those cells at the per-cell kernel's rate (``tasks.distance.cell_distance``,
+whose float64 sums the stored webs' values are), and every level's whole grid by the GEMM path
+the coarsest level uses (float32 sums in BLAS's order: values that differ in the last bits).
+
 With ``--commit-store STORE`` (an indexed store, e.g. bench/app_scale.py's 381k one) it measures
 the index flow's serial tail instead: the commit task called inside a Prefect flow with that
 store's generation (146,610 web records for the 381k corpus) as its argument, as the previous
@@ -23,6 +33,7 @@ task's body is the same no-op in both, so the difference is Prefect's walk over 
 (resolving futures, recording task inputs: O(objects in the argument), in Python).
 
     .venv/bin/python -m bench.index_scale [--clips 180] [--batches 1] [--keep DIR] [--base REV]
+    .venv/bin/python -m bench.index_scale --breakdown 300 [--clips 180]
     .venv/bin/python -m bench.index_scale --commit-store DIR
 """
 
@@ -162,12 +173,154 @@ def commit_tail(store_dir: str) -> None:
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
+def breakdown(store: Path, entries: list, cfg: Config, n: int) -> None:
+    """Per-pair cost by stage on ``n`` random pairs of the category (see the module notes)."""
+    import math
+    import random
+
+    from motionweb.flows.runtime.workers import clip_operands, pin_blas_threads, web_counts
+    from motionweb.store.keys import feature_digest
+    from motionweb.store.zarr_store import _pack, checksum
+    from motionweb.tasks.distance import _cells_kernel, distance_grid_prepared, prepare_operands_pair
+    from motionweb.tasks.matchweb import refine as R
+    from motionweb.tasks.matchweb.build import build_web_full
+    from motionweb.tasks.matchweb.params import self_band
+
+    pin_blas_threads()
+    rate = working_rate(cfg)
+    jobs = plan_pairs(Chunk("walk", tuple(entries)), web_digest(cfg), rate)
+    rnd = random.Random(1)
+    sample = rnd.sample(jobs, min(n, len(jobs)))
+    fd = feature_digest(cfg)
+    t = time.perf_counter()
+    ops = {}
+    for j in sample:
+        for sha in (j.a.sha256, j.b.sha256):
+            if sha not in ops:
+                ops[sha] = clip_operands(str(store), sha, fd)
+    read_s = (time.perf_counter() - t) / len(ops)
+    rates = sorted(ops[sample[0].a.sha256])
+    mw = cfg.matchweb
+    stages = ["prepare", "coarse grid", "coarse web"] + [f"{r:g} Hz {k}" for r in rates[1:] for k in ("values", "rest")] \
+        + ["arrays, pack, checksum"]
+    sec = dict.fromkeys(stages, 0.0)
+    cells = {"full": dict.fromkeys(rates, 0), "evaluated": dict.fromkeys(rates, 0)}
+
+    def one(j, count: bool) -> None:
+        oa = ops[j.a.sha256]
+        ob = oa if j.self_pair else ops[j.b.sha256]
+        t0 = time.perf_counter()
+        pairs = {r: prepare_operands_pair(oa[r], ob[r]) for r in rates}
+        t1 = time.perf_counter()
+        grid0 = distance_grid_prepared(*pairs[rates[0]])
+        t2 = time.perf_counter()
+        web = build_web_full(grid0, rates[0], mw, j.self_pair)
+        t3 = time.perf_counter()
+        sec["prepare"] += t1 - t0
+        sec["coarse grid"] += t2 - t1
+        sec["coarse web"] += t3 - t2
+        if count:
+            cells["full"][rates[0]] += grid0.size
+            cells["evaluated"][rates[0]] += grid0.size
+        for r in rates[1:]:
+            pa, pb = pairs[r]
+            fa, fb = pa.n_frames, pb.n_frames
+            s, h = float(r / web.rate), 1.5
+            band_w = self_band(mw, r) if j.self_pair else -1
+            ta = time.perf_counter()
+            index = np.full((-(-fa // R.TILE), -(-fb // R.TILE)), -1, np.int64)
+            pc, bc = web.paths_cells.astype(np.int64), web.bridges_cells.astype(np.int64)
+            R._mark_tiles(pc, web.paths_offsets, s, h, fa, fb, index)
+            R._mark_tiles(bc, web.bridges_offsets, s, h, fa, fb, index)
+            pool = R._alloc_tiles(index)
+            for c, o in ((pc, web.paths_offsets), (bc, web.bridges_offsets)):
+                for q in range(len(o) - 1):
+                    row0, lo, hi, off = R.upsample_band(c[o[q]:o[q + 1]], s, h, fa, fb)
+                    R._eval_band(row0, lo, hi, off, index, pool, pa.left, pa.left_y, pa.norms, pb.right,
+                                 pb.right_y, pb.norms, band_w, np.empty(off[-1]))
+            tb = time.perf_counter()
+            web = R.refine_web(web, pa, pb, r, mw, j.self_pair)
+            tc = time.perf_counter()
+            sec[f"{r:g} Hz values"] += tb - ta
+            sec[f"{r:g} Hz rest"] += max(0.0, (tc - tb) - (tb - ta))  # refine_web evaluates the same cells again
+            if count:
+                cells["full"][r] += fa * fb
+                cells["evaluated"][r] += int(np.count_nonzero(~np.isnan(pool)))
+        t4 = time.perf_counter()
+        arrays = web.to_arrays()
+        parts, _, _ = _pack(arrays)
+        checksum(parts)
+        web_counts(arrays)
+        sec["arrays, pack, checksum"] += time.perf_counter() - t4
+
+    for j in sample[:3]:
+        one(j, False)  # compiled kernels loaded
+    for k in sec:
+        sec[k] = 0.0
+    load = os.getloadavg()[0]
+    for j in sample:
+        one(j, True)
+    m = len(sample)
+    p = ops[sample[0].a.sha256][rates[0]].w.shape[0]
+    flops_cell = 10 * p  # three products of K = 2P, 2P, P (2 flops each), then the fused combine
+    fine = sum(cells["evaluated"][r] for r in rates[1:]) / m
+    coarse = cells["evaluated"][rates[0]] / m
+    # the per-cell kernel (the stored values) and the GEMM path (the coarsest level's) on the
+    # working-rate grids of the first 20 pairs, each cell once
+    per_cell = gemm_cell = 0.0
+    n_cells = 0
+    for j in sample[:20]:
+        oa = ops[j.a.sha256]
+        ob = oa if j.self_pair else ops[j.b.sha256]
+        pa0, pb0 = prepare_operands_pair(oa[rates[-1]], ob[rates[-1]])
+        rows = np.repeat(np.arange(pa0.n_frames), pb0.n_frames).astype(np.int64)
+        cols = np.tile(np.arange(pb0.n_frames), pa0.n_frames).astype(np.int64)
+        out = np.empty(len(rows))
+        _cells_kernel(pa0.left, pa0.left_y, pa0.norms, pb0.right, pb0.right_y, pb0.norms, rows, cols, out)
+        distance_grid_prepared(pa0, pb0)
+        t = time.perf_counter()
+        _cells_kernel(pa0.left, pa0.left_y, pa0.norms, pb0.right, pb0.right_y, pb0.norms, rows, cols, out)
+        t1 = time.perf_counter()
+        distance_grid_prepared(pa0, pb0)
+        per_cell += t1 - t
+        gemm_cell += time.perf_counter() - t1
+        n_cells += len(rows)
+    per_cell /= n_cells
+    gemm_cell /= n_cells
+    total = sum(sec.values()) / m
+    print(f"{m} random pairs of {len(jobs)}; P = {p} points per frame; load {load:.1f} "
+          f"(at the end {os.getloadavg()[0]:.1f}); clip read + operands: {read_s * 1e3:.2f} ms per clip")
+    print(f"{'stage':24s} {'ms/pair':>8s} {'share':>6s}")
+    for k, v in sec.items():
+        print(f"{k:24s} {v / m * 1e3:8.3f} {v / m / total:6.0%}")
+    print(f"{'total':24s} {total * 1e3:8.3f}")
+    for r in rates:
+        print(f"cells at {r:g} Hz: {cells['evaluated'][r] / m:9.0f} evaluated of {cells['full'][r] / m:9.0f} "
+              f"({cells['evaluated'][r] / max(1, cells['full'][r]):.0%})")
+    print(f"a cell at the working rate: {per_cell * 1e9:.1f} ns by the per-cell kernel "
+          f"(tasks.distance.cell_distance, {flops_cell / per_cell / 1e9:.1f} GFLOP/s), {gemm_cell * 1e9:.1f} ns "
+          f"by the GEMM path on the whole grid (distance_grid_prepared, {flops_cell / gemm_cell / 1e9:.1f} GFLOP/s)")
+    floor_cells = fine * per_cell + coarse * gemm_cell
+    floor_gemm = sum(cells["full"][r] for r in rates) / m * gemm_cell
+    print(f"floors per pair: the evaluated cells at the per-cell kernel's rate (fine levels) and the GEMM "
+          f"path's (coarsest) {floor_cells * 1e3:.3f} ms; every level's whole grid by the GEMM path "
+          f"{floor_gemm * 1e3:.3f} ms; measured {total * 1e3:.3f} ms = {total / floor_cells:.1f}x / "
+          f"{total / floor_gemm:.1f}x")
+    pairs381 = 146_610
+    print(f"for the 381k corpus ({pairs381} pairs of such categories) on 2 workers: "
+          f"{pairs381 * total / 2:.0f} s at this cost; floors {pairs381 * floor_cells / 2:.0f} s (per-cell values) "
+          f"and {pairs381 * floor_gemm / 2:.0f} s (whole grids by GEMM)")
+    if not math.isfinite(total) or m == 0:
+        raise SystemExit("nothing measured")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--clips", type=int, default=180, help="clips of the category (180: the 381k corpus's)")
     ap.add_argument("--batches", type=int, default=1, help="batches of the flow's plan computed per code")
     ap.add_argument("--keep", help="work folder (corpus, features, base code), reused when present")
     ap.add_argument("--commit-store", help="measure the commit task's Prefect overhead on this store instead")
+    ap.add_argument("--breakdown", type=int, default=0, help="measure where the time of N random pairs goes instead")
     ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
                                                  "(default: where this branch left main)")
     args = ap.parse_args()
@@ -180,6 +333,9 @@ def main() -> None:
                                  "features": {"rates": [10.0, 20.0, 30.0]}})
     t = time.perf_counter()
     store, entries = build(work, args.clips, cfg)
+    if args.breakdown:
+        breakdown(store, entries, cfg, args.breakdown)
+        return
     frames = sum(frames60(e.duration) for e in entries)
     rate = working_rate(cfg)
     jobs = plan_pairs(Chunk("walk", tuple(entries)), web_digest(cfg), rate)

@@ -86,6 +86,26 @@ def vertical_shift(*features: np.ndarray, weights: np.ndarray) -> float:
     return _shared_height([_heights(f, w) for f in features])
 
 
+@njit(cache=True, nogil=True)
+def _shift_heights(y, xx, zz, w, y0, total, left_y, right_y) -> None:
+    """One pass over (F, P) clouds shifted down by ``y0`` (d = y − y0): ``total = xx + d² + zz``
+    (float64, the terms of the norms), ``left_y = d·w`` and ``right_y = d`` (the output's dtype).
+
+    The same operations, in the same order and precision, as the NumPy expressions they replace
+    (``(xx + d*d) + zz``, ``(d*w).astype``), so the operands are the same bytes (tested); no
+    fastmath, so nothing is reordered or fused.
+
+    Bounds: every array is (F, P) as ``y`` (``w``: (P,)), checked by :meth:`ClipOperands.prepare`,
+    which allocates the outputs.
+    """
+    for f in range(y.shape[0]):
+        for p in range(y.shape[1]):
+            d = y[f, p] - y0
+            total[f, p] = xx[f, p] + d * d + zz[f, p]
+            left_y[f, p] = d * w[p]
+            right_y[f, p] = d
+
+
 @dataclass(frozen=True)
 class ClipOperands:
     """Everything of :func:`prepare_features` that does not depend on the vertical shift ``y0``.
@@ -142,16 +162,20 @@ class ClipOperands:
                            self.centroid)
 
     def prepare(self, y0: float = 0.0) -> PreparedFeatures:
-        """The GEMM operands with heights shifted by ``y0`` (O(F·P) elementwise)."""
-        y = self.y - y0
-        norms = (self.xx + y * y + self.zz) @ self.w
+        """The GEMM operands with heights shifted by ``y0``: one fused O(F·P) pass
+        (:func:`_shift_heights`) and one matrix-vector product for the norms."""
+        f, p = self.y.shape
+        total = np.empty((f, p))
+        left_y = np.empty((f, p), self.dtype)
+        right_y = np.empty((f, p), self.dtype)
+        _shift_heights(self.y, self.xx, self.zz, self.w, float(y0), total, left_y, right_y)
         return PreparedFeatures(
             left=self.left,
-            left_y=np.ascontiguousarray(y * self.w, dtype=self.dtype),
+            left_y=left_y,
             right=self.right,
             right_rot=self.right_rot,
-            right_y=np.ascontiguousarray(y, dtype=self.dtype),
-            norms=norms.astype(self.dtype),
+            right_y=right_y,
+            norms=(total @ self.w).astype(self.dtype),
             centroid=self.centroid,
             y0=float(y0),
         )

@@ -40,6 +40,7 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
     # KG04 §3.1-3.2: frame distances, local minima, chains, bridges, refinement
     "index": (
         ("motionweb.tasks.distance", "_combine", "f4[:,:] f4[:,:] f4[:,:] f4[:] f4[:] f4[:,:]", 0.2),
+        ("motionweb.tasks.distance", "_shift_heights", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8 f8[:,:] f4[:,:] f4[:,:]", 0.2),
         ("motionweb.tasks.matchweb.minima", "_local_minima", "f4[:,:]", 0.45),
         ("motionweb.tasks.matchweb.minima", "_valid_region", "f4[:,:] u1[:,:] f8", 0.5),
         ("motionweb.tasks.matchweb.minima", "_find_chains", "f4[:,:] u1[:,:] i8 i8", 0.9),
@@ -60,6 +61,7 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
         ("motionweb.tasks.search", "_greedy_disjoint", "i8[:] i8[:] i8[:] f8", 0.2),
         ("motionweb.tasks.search", "place_matches", "i8[:] i8[:] i8[:] i8[:,:] i8 f8 f8", 0.6),
         ("motionweb.tasks.distance", "_combine", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8[:] f8[:,:]", 0.2),
+        ("motionweb.tasks.distance", "_shift_heights", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8 f8[:,:] f8[:,:] f8[:,:]", 0.2),
         ("motionweb.tasks.register", "_band_valid", "i8[:] i8[:] i8[:] f8[:] f8", 0.5),
         ("motionweb.tasks.matchweb.band", "best_state_total", "f8[:,:] i8", 0.1),
     ),

@@ -101,25 +101,35 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
     """Distance values on a band's cells (inf inside the ignored self band |i − j| ≤ band).
 
     Each cell is evaluated once per level: its value is kept in the tile ``pool`` and the bands
-    of chains and bridges that overlap read it from there.
+    of chains and bridges that overlap read it from there. A band row is walked one tile at a
+    time, so the tile is looked up once per TILE columns rather than once per cell (the values,
+    from the same :func:`~motionweb.tasks.distance.cell_distance`, are the same bytes).
 
     Bounds: writes ``out[off[t] .. off[t] + hi[t] − lo[t]]`` (``off[-1]`` cells, ``out``'s size) and
-    the pool tiles that :func:`_mark_tiles` numbered for the same band (index ≥ 0).
+    the pool tiles that :func:`_mark_tiles` numbered for the same band (index ≥ 0); a row's
+    columns ``j .. jend`` lie in one tile (``jend ≤ j0 + TILE − 1``).
     """
     for t in range(lo.shape[0]):
         i = row0 + t
         ti = i // TILE
         ri = i - ti * TILE
-        for j in range(lo[t], hi[t] + 1):
-            tile = pool[index[ti, j // TILE]]
-            v = tile[ri, j % TILE]
-            if math.isnan(v):
-                if band >= 0 and abs(i - j) <= band:
-                    v = INF
-                else:
-                    v = cell_distance(left, left_y, na, right, right_y, nb, i, j)
-                tile[ri, j % TILE] = v
-            out[off[t] + j - lo[t]] = v
+        base = off[t] - lo[t]
+        j = lo[t]
+        while j <= hi[t]:
+            tj = j // TILE
+            j0 = tj * TILE
+            jend = min(hi[t], j0 + TILE - 1)
+            tile = pool[index[ti, tj]]
+            for jj in range(j, jend + 1):
+                v = tile[ri, jj - j0]
+                if math.isnan(v):
+                    if band >= 0 and abs(i - jj) <= band:
+                        v = INF
+                    else:
+                        v = cell_distance(left, left_y, na, right, right_y, nb, i, jj)
+                    tile[ri, jj - j0] = v
+                out[base + jj] = v
+            j = jend + 1
 
 
 @njit(cache=True, nogil=True)

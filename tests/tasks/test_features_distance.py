@@ -128,3 +128,24 @@ def test_blocks_and_cells_agree_with_the_grid(clouds) -> None:
     c = np.array([0, 69, 1, 40])
     assert np.allclose(distance_cells(pa, pb, r, c), g[r, c], rtol=1e-4, atol=1e-6)
     assert np.allclose(distance_prepared(pa, pb, r, c), g[np.ix_(r, c)], rtol=1e-5, atol=1e-7)
+
+
+def test_prepare_gives_the_bytes_of_the_numpy_expressions_it_fuses():
+    """ClipOperands.prepare's fused pass (_shift_heights) against the NumPy expressions it
+    replaced: the operands, and so every web built from them, are the same bytes (issue 25)."""
+    from motionweb.tasks.distance import ClipOperands
+
+    rng = np.random.default_rng(3)
+    for _ in range(60):
+        f_n, p_n = int(rng.integers(1, 300)), int(rng.integers(1, 130))
+        clouds = (rng.normal(size=(f_n, p_n, 3)) * rng.uniform(0.01, 3)).astype(np.float32)
+        w = rng.random(p_n) + 0.01
+        for dt in (np.float32, np.float64):
+            ops = ClipOperands.of(clouds, w, dt)
+            y0 = float(rng.normal())
+            got = ops.prepare(y0)
+            y = ops.y - y0
+            assert got.norms.tobytes() == ((ops.xx + y * y + ops.zz) @ ops.w).astype(dt).tobytes()
+            assert got.left_y.tobytes() == np.ascontiguousarray(y * ops.w, dtype=dt).tobytes()
+            assert got.right_y.tobytes() == np.ascontiguousarray(y, dtype=dt).tobytes()
+            assert got.left_y.dtype == dt and got.right_y.flags.c_contiguous
