@@ -7,7 +7,8 @@ Layout under the store root (a local folder or any fsspec URL)::
                                                  parameters: its (F_rate, P, 3) point clouds per
                                                  rate (r10, r20, r30 ..., design §3) and (P,) point
                                                  weights back to back, laid out in its attributes
-    webs/shards/<wdig>/<shard id>                one packed uint8 array per written batch of webs:
+    webs/shards/<wdig>/<shard id>                one packed uint8 array per written batch of webs,
+                                                 its chunks in one Zarr v3 shard (one object):
                                                  the flat arrays of MatchWeb.to_arrays() (ragged
                                                  paths as values + offsets, KG04 §3.2) of each web
                                                  back to back; its attributes map every web key
@@ -198,10 +199,17 @@ class MotionStore:
         parts, layout, _ = _pack(arrays)
         self._write_bytes(key, parts, PACKED_CHUNK, {**attrs, "layout": layout})
 
-    def _write_bytes(self, key: str, parts: list[np.ndarray], chunk: int, attrs: dict[str, Any]) -> zarr.Array:
-        """One uint8 Zarr array of the concatenated ``parts``, marked complete after its data."""
+    def _write_bytes(self, key: str, parts: list[np.ndarray], chunk: int, attrs: dict[str, Any],
+                     one_object: bool = False) -> zarr.Array:
+        """One uint8 Zarr array of the concatenated ``parts``, marked complete after its data.
+
+        ``one_object``: its chunks go into one Zarr v3 shard (one stored object beside its
+        ``zarr.json``, the chunks still read one by one through the shard's index), so a store's
+        object count grows with the batches written, not with their bytes (issue 25)."""
         buf = np.concatenate(parts) if parts else np.zeros(0, np.uint8)
-        z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(max(1, min(buf.size, chunk)),),
+        inner = max(1, min(buf.size, chunk))
+        shards = (max(inner, -(-buf.size // inner) * inner),) if one_object else None
+        z = zarr.create_array(self.zstore, name=key, shape=buf.shape, chunks=(inner,), shards=shards,
                               dtype=np.uint8, compressors=COMPRESSORS, overwrite=True,
                               attributes={**attrs, "checksum": checksum(buf), "written": now_iso()})
         if buf.size:
@@ -344,7 +352,7 @@ class MotionStore:
                                 "checksum": checksum(p)}
                 start = end
             shard = f"{SHARDS}/{wdig}/{new_id()}"
-            self._shards[shard] = self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries})
+            self._shards[shard] = self._write_bytes(shard, parts, SHARD_CHUNK, {"webs": entries}, one_object=True)
             self._webs.update({key: (shard, e) for key, e in entries.items()})
 
     def write_web(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any] | None = None) -> None:

@@ -103,6 +103,24 @@ def test_a_batch_of_webs_shares_one_shard(tmp_path):
     assert sorted(opened) == sorted(set(opened)) and len(opened) == 2  # wd1's and wd2's shard
 
 
+def test_a_shard_of_many_chunks_is_one_object(tmp_path):
+    """A batch's webs are one Zarr v3 shard: its chunks (SHARD_CHUNK bytes each) are one stored
+    object beside the array's zarr.json, however many there are, and every web reads back."""
+    from motionweb.store.zarr_store import SHARD_CHUNK
+
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(9)
+    big = {"paths_cells": rng.integers(0, 1000, (3 * SHARD_CHUNK // 8, 2)).astype(np.int32),
+           "paths_offsets": np.array([0, 3 * SHARD_CHUNK // 8], np.int64)}
+    keys = [web_key(SHA_A, SHA_B, "wd"), web_key(SHA_B, SHA_A, "wd")]
+    store.write_webs([(keys[0], big, {}), (keys[1], ragged_web(rng), {})])
+    (shard,) = [p for p in (tmp_path / "s" / "webs" / "shards" / "wd").iterdir() if p.is_dir()]
+    files = [p for p in shard.rglob("*") if p.is_file()]
+    assert sorted(p.name for p in files) == ["0", "zarr.json"], files  # > 3 chunks of bytes, one object
+    got, _ = MotionStore(str(tmp_path / "s"), read_only=True).read_web_arrays(keys[0])
+    np.testing.assert_array_equal(got["paths_cells"], big["paths_cells"])
+
+
 def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
     from motionweb.store.zarr_store import StoreIntegrityError
 
