@@ -53,7 +53,8 @@ class QueryResult:
 def committed_generation(store_url: str) -> tuple[MotionStore, Generation]:
     """The store's committed generation (ValueError when it was never indexed)."""
     store = MotionStore(store_url, read_only=True)
-    gen = load_generation(store) if current_id(store) else None
+    gen_id = current_id(store)
+    gen = load_generation(store, gen_id, lean=True) if gen_id else None  # webs as columns: a search reads few
     if gen is None:
         raise ValueError(f"store {store_url} was never indexed: run `motionweb index CONFIG` first")
     return store, gen

@@ -36,6 +36,7 @@ from importlib import metadata
 from typing import Any
 
 from motionweb.store.keys import SHARDS, STORE_SCHEMA, grid_key
+from motionweb.store.webtable import parse_manifest
 from motionweb.store.zarr_store import MotionStore, StoreError, now_iso
 
 log = logging.getLogger(__name__)
@@ -148,12 +149,20 @@ def _manifest_path(gen_id: str) -> str:
     return f"generations/{gen_id}.json"
 
 
-def _manifest(store: MotionStore, gen_id: str, sha256: str | None = None) -> Generation:
+def _manifest(store: MotionStore, gen_id: str, sha256: str | None = None, lean: bool = False) -> Generation:
     """A generation's manifest, checked: it parses, names itself and was completed (and its
-    bytes have the SHA-256 the pointer recorded, when given). ValueError (or OSError) saying why."""
+    bytes have the SHA-256 the pointer recorded, when given). ValueError (or OSError) saying why.
+    ``lean``: see :func:`load_generation`."""
     raw = store.fs.cat_file(store.path(_manifest_path(gen_id)))
+    digest = hashlib.sha256(raw).hexdigest() if sha256 is not None else None
     try:
-        data = json.loads(raw)
+        if lean:
+            text = raw.decode()
+            del raw  # the bytes and their text are each as large as the manifest
+            data = parse_manifest(text)
+            del text
+        else:
+            data = json.loads(raw)
     except UnicodeDecodeError:
         raise ValueError("is not text (garbage bytes)") from None
     except ValueError as exc:
@@ -168,7 +177,7 @@ def _manifest(store: MotionStore, gen_id: str, sha256: str | None = None) -> Gen
         raise ValueError(f"holds generation {gen.id!r}, not {gen_id!r}")
     if not gen.completed:
         raise ValueError("was never completed")
-    if sha256 is not None and hashlib.sha256(raw).hexdigest() != sha256:
+    if sha256 is not None and digest != sha256:
         raise ValueError("differs from the checksum recorded in the pointer")
     return gen
 
@@ -184,7 +193,7 @@ def newest_intact(store: MotionStore, exclude: str | None = None) -> str | None:
         if gid == exclude:
             continue
         try:
-            _manifest(store, gid)
+            _manifest(store, gid, lean=True)
         except (OSError, ValueError):
             continue
         return gid
@@ -226,7 +235,7 @@ def check_current(store: MotionStore) -> str | None:
         raise damaged(POINTER, f"names no generation (it holds {raw[:60]!r})")
     sha = data.get("manifest_sha256")
     try:
-        _manifest(store, gid, sha if isinstance(sha, str) else None)
+        _manifest(store, gid, sha if isinstance(sha, str) else None, lean=True)
     except FileNotFoundError:
         raise damaged(POINTER, f"names generation {gid}, whose manifest {_manifest_path(gid)} is missing",
                       gid) from None
@@ -306,14 +315,18 @@ def _point_to(store: MotionStore, gen: Generation) -> None:
                                "manifest_sha256": hashlib.sha256(raw).hexdigest()})
 
 
-def load_generation(store: MotionStore, gen_id: str | None = None) -> Generation | None:
+def load_generation(store: MotionStore, gen_id: str | None = None, lean: bool = False) -> Generation | None:
     """A generation's manifest (the current one by default, see :func:`current_id`); None when
-    the store was never indexed."""
+    the store was never indexed. ``lean`` (a reader that searches, e.g. the app): the web records
+    parsed one at a time into a :class:`~motionweb.store.webtable.WebTable` (a 146,610-web
+    manifest: ~50 MB of columns instead of ~300 MB of dicts, which a process does not give back
+    once it held them) and the object checksums left out (they serve verification and the index,
+    which load the manifest whole)."""
     gen_id = gen_id or current_id(store)
     if gen_id is None:
         return None
     try:
-        return _manifest(store, gen_id)
+        return _manifest(store, gen_id, lean=lean)
     except (OSError, ValueError) as exc:
         raise StoreError(store.url, _manifest_path(gen_id), str(exc) if isinstance(exc, ValueError)
                          else f"is unreadable ({type(exc).__name__})") from None

@@ -2,7 +2,8 @@
 
 :class:`StoreWebs` maps a clip to the webs touching it, each oriented with that clip as rows,
 restricted to one category or not. Opening one reads no web: it indexes the manifest's web
-records by clip, O(webs of the generation); a web is read from the store when a clip it touches
+records by clip in numpy over their columns (:class:`~motionweb.store.webtable.WebTable`), O(webs
+of the generation) with no Python per web, and holds O(webs) integers; a web is read from the store when a clip it touches
 is first asked for, and kept in a cache (:class:`~motionweb.store.cache.LRU`: unbounded by
 default, so each web is read once; the service passes one bounded by bytes).
 """
@@ -12,9 +13,12 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from motionweb.store.cache import LRU
 from motionweb.store.generations import Generation, load_generation
 from motionweb.store.web import MatchWeb, transpose
+from motionweb.store.webtable import WebTable
 from motionweb.store.zarr_store import MotionStore, StoreError
 
 #: clip key -> [(other clip key, web oriented with the clip as rows)]
@@ -34,12 +38,27 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
             raise ValueError(f"store {store.url} was never indexed (no committed generation)")
         self.store, self.generation, self.category = store, gen, category
         self.categories = {c["path"]: c.get("category", "") for c in gen.clips}
-        self._by_clip: dict[str, list[dict[str, Any]]] = {}
-        for w in gen.webs:
-            if category is None or (self.categories.get(w["a"]) == category and self.categories.get(w["b"]) == category):
-                self._by_clip.setdefault(w["a"], []).append(w)
-                if w["b"] != w["a"]:
-                    self._by_clip.setdefault(w["b"], []).append(w)
+        self.table = gen.webs if isinstance(gen.webs, WebTable) else WebTable(gen.webs)
+        # per clip, the web ids touching it in the manifest's order (CSR: ``_ids[_ptr[i]:_ptr[i+1]]``
+        # for clip ``_paths[i]``), O(webs) in numpy: no Python per web
+        paths = list(dict.fromkeys([*self.categories, *self.table.strings("a")[0], *self.table.strings("b")[0]]))
+        a, b = self.table.ends(paths)
+        keep = np.ones(len(a), bool)
+        if category is not None:
+            in_cat = np.array([self.categories.get(p) == category for p in paths], bool)
+            keep = in_cat[a] & in_cat[b]
+        ids = np.flatnonzero(keep).astype(np.int64)
+        other = ids[b[ids] != a[ids]]
+        end = np.concatenate([a[ids], b[other]])
+        web = np.concatenate([ids, other])
+        # the order a dict filled web by web would have: by web, ``a`` before ``b``
+        first = np.full(len(paths), np.iinfo(np.int64).max, np.int64)
+        np.minimum.at(first, end, np.concatenate([2 * ids, 2 * other + 1]))
+        order = np.lexsort((web, end))
+        self._ids = web[order]
+        self._ptr = np.concatenate([[0], np.cumsum(np.bincount(end, minlength=len(paths)))])
+        self._row = {p: i for i, p in enumerate(paths) if self._ptr[i + 1] > self._ptr[i]}
+        self._order = [paths[i] for i in np.argsort(first, kind="stable") if paths[i] in self._row]
         self.cache = cache if cache is not None else LRU()
         self.reads = 0
 
@@ -76,11 +95,17 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
             self.cache.put(("web", rec["key"]), web, web.nbytes)
         return web
 
-    def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
-        if clip not in self._by_clip:
+    def records_of(self, clip: str) -> list[dict[str, Any]]:
+        """The manifest records of the webs touching ``clip`` in the restriction, in the
+        manifest's order (KeyError: none)."""
+        i = self._row.get(clip)
+        if i is None:
             raise KeyError(clip)
+        return [self.table[int(w)] for w in self._ids[self._ptr[i]:self._ptr[i + 1]]]
+
+    def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
         out = []
-        for rec in self._by_clip[clip]:
+        for rec in self.records_of(clip):
             web = self._read(rec)
             if rec["a"] == clip:
                 out.append((rec["b"], web))
@@ -93,14 +118,17 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         return out
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._by_clip)
+        return iter(self._order)
 
     def __len__(self) -> int:
-        return len(self._by_clip)
+        return len(self._row)
+
+    def __contains__(self, clip: object) -> bool:
+        return clip in self._row
 
     def records(self) -> list[dict[str, Any]]:
-        """The manifest records of every web of the restriction, once each."""
-        return list({r["key"]: r for rs in self._by_clip.values() for r in rs}.values())
+        """The manifest records of every web of the restriction, once each, in the manifest's order."""
+        return list({r["key"]: r for r in (self.table[int(w)] for w in np.unique(self._ids))}.values())
 
     def all_webs(self) -> list[MatchWeb]:
         """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`), kept in

@@ -731,3 +731,15 @@ def ref_shortlist(clips: dict, k: int, k_windows: int, min_hits: int, headings: 
     pairs = [(keys[i], keys[i]) for i in range(len(keys))]
     pairs += [(keys[a], keys[b]) for (a, b), n in hits.items() if n >= min_hits]
     return sorted(pairs)
+
+
+def webs_by_clip(webs: list[dict], categories: dict[str, str], category: str | None) -> dict[str, list[dict]]:
+    """The web records touching each clip, restricted to ``category`` (None: all), a dict filled
+    record by record in the manifest's order: what ``store.webs.StoreWebs`` indexes in numpy."""
+    out: dict[str, list[dict]] = {}
+    for w in webs:
+        if category is None or (categories.get(w["a"]) == category and categories.get(w["b"]) == category):
+            out.setdefault(w["a"], []).append(w)
+            if w["b"] != w["a"]:
+                out.setdefault(w["b"], []).append(w)
+    return out

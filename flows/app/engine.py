@@ -276,7 +276,7 @@ class Engine:
         return gen_id
 
     def _open(self, gen_id: str) -> Snapshot:
-        gen = load_generation(MotionStore(self.url, read_only=True), gen_id)
+        gen = load_generation(MotionStore(self.url, read_only=True), gen_id, lean=True)
         return Snapshot(self.url, gen)
 
     def _swap_after_warm(self, snap: Snapshot) -> None:

@@ -109,7 +109,7 @@ class Spaces:
                     self._order.append(digest)
                     return hit
             space = load_space(self.cfg, digest)
-            gen = load_generation(MotionStore(self.cfg.store.path, read_only=True), attrs["generation"])
+            gen = load_generation(MotionStore(self.cfg.store.path, read_only=True), attrs["generation"], lean=True)
             loaded = Loaded(space, indexed_config(gen).corpus.up_axis)
             with self._lock:
                 self._loaded[digest] = loaded

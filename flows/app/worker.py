@@ -129,7 +129,7 @@ class _State:
             # index of every web's bytes once read (O(webs of the store)), so one per scope would
             # hold it once per category searched
             store = MotionStore(self.url, read_only=True)
-            gen = load_generation(store, gen_id)
+            gen = load_generation(store, gen_id, lean=True)
             self.gens[gen_id] = (gen, indexed_config(gen), {}, store)
             while len(self.gens) > KEEP_GENERATIONS:
                 self.gens.popitem(last=False)
