@@ -42,6 +42,7 @@ from typing import Any
 import fsspec
 import numpy as np
 import zarr
+from motionweb.store.cache import LRU
 from motionweb.store.keys import SHARDS, feature_key, grid_key, rate_tag, web_digest_of
 from motionweb.store.web import MatchWeb
 from zarr.codecs import BloscCodec
@@ -57,6 +58,9 @@ PACKED_CHUNK = 1 << 24
 REMOTE_OPTIONS = {"use_listings_cache": False}
 #: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
 SHARD_CHUNK = 1 << 18
+#: shards a read-only store keeps open (each holds the parsed index of its batch's webs, ~2,000
+#: entries, ~7 MB): the others are opened again when one of their webs is read
+KEEP_OPEN_SHARDS = 8
 
 
 #: the async filesystems zarr reads and writes remote stores through, kept until exit (fsspec
@@ -165,6 +169,13 @@ class MotionStore:
         self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
         # complete shards seen so far, kept open: opening one parses its whole index of webs
         self._shards: dict[str, zarr.Array] = {}
+        # read-only (a reader of a library of any size): web key -> the index in _shard_names of
+        # the newest complete shard holding it, and a few shards kept open (their index of webs
+        # parsed), the rest opened again when a web of theirs is read
+        self._key_shard: dict[str, int] = {}
+        self._shard_names: list[str] = []
+        self._open_shards = LRU(max_items=KEEP_OPEN_SHARDS)
+        self._seen_shards: dict[str, int] = {}
 
     def __reduce__(self):
         return (MotionStore, (self.url, self.read_only))
@@ -361,18 +372,39 @@ class MotionStore:
 
     def _web_entry(self, key: str) -> tuple[str, dict[str, Any]] | None:
         """(shard, entry) of a web key; lists the digest's shards again when the key is unknown."""
+        if self.read_only:
+            if key not in self._key_shard:
+                self._load_shards(web_digest_of(key))
+            i = self._key_shard.get(key)
+            z = self._shard(self._shard_names[i]) if i is not None else None
+            e = z.attrs["webs"].get(key) if z is not None else None
+            return (self._shard_names[i], e) if e is not None else None
         if key not in self._webs:
             self._load_shards(web_digest_of(key))
         return self._webs.get(key)
 
+    def _shard(self, shard: str) -> zarr.Array | None:
+        """A complete shard, open (its index of webs parsed): kept by a writer, by a reader only
+        while it is among the ``KEEP_OPEN_SHARDS`` last used."""
+        z = self._shards.get(shard) if not self.read_only else self._open_shards.get(shard)
+        if z is None:
+            z = self._open(shard)
+            if z is not None and self.read_only:
+                self._open_shards.put(shard, z)
+        return z
+
     def _load_shards(self, wdig: str) -> None:
+        """Take in the complete shards of web digest ``wdig`` not seen yet (one listing; each new
+        shard's index of webs read). A reader keeps of each only its keys (O(webs) keys in all)
+        and the last few shards open."""
         try:
             entries = self.fs.ls(self.path(f"{SHARDS}/{wdig}"), detail=True)
         except FileNotFoundError:
             return
+        seen = self._shards if not self.read_only else self._seen_shards
         for name in sorted(e["name"] for e in entries if e["type"] == "directory"):
             shard = f"{SHARDS}/{wdig}/{os.path.basename(name.rstrip('/'))}"
-            if shard in self._shards:
+            if shard in seen:
                 continue
             try:
                 z = self._open(shard)
@@ -381,6 +413,12 @@ class MotionStore:
                 ok = False
             if not ok:
                 continue  # being written, its writer died, or damaged: its webs are not seen
+            if self.read_only:
+                self._seen_shards[shard] = len(self._shard_names)
+                self._key_shard.update(dict.fromkeys(z.attrs["webs"], len(self._shard_names)))
+                self._shard_names.append(shard)
+                self._open_shards.put(shard, z)
+                continue
             self._shards[shard] = z
             self._webs.update({key: (shard, e) for key, e in z.attrs["webs"].items()})
 
@@ -392,7 +430,7 @@ class MotionStore:
     def web_keys(self, wdig: str) -> set[str]:
         """Every completely written web key with parameter digest ``wdig`` (one shard listing)."""
         self._load_shards(wdig)
-        return {k for k in self._webs if web_digest_of(k) == wdig}
+        return {k for k in (self._key_shard if self.read_only else self._webs) if web_digest_of(k) == wdig}
 
     def web_attrs(self, key: str) -> dict[str, Any]:
         """The attributes a web was written with ({} when absent)."""
@@ -402,7 +440,7 @@ class MotionStore:
     def read_web_arrays(self, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """The flat arrays of a web (names, dtypes and shapes as written) and its attributes."""
         found = self._web_entry(key)
-        z = (self._shards.get(found[0]) or self._open(found[0])) if found else None
+        z = self._shard(found[0]) if found else None
         if z is None:
             raise KeyError(f"{self.url}: no complete web {key!r}")
         e = found[1]

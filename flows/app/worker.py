@@ -150,8 +150,12 @@ class _State:
 
     def warm(self, gen_id: str, category: str | None) -> int:
         """Open the scope: index its web records by clip (O(webs of the generation)), reading no
-        web; the number of clips. Searches read the webs they reach."""
-        return len(self.scope(gen_id, category).webs)
+        web, and take in the store's shards (their keys; once per store); the number of clips.
+        Searches read the webs they reach."""
+        sc = self.scope(gen_id, category)
+        if len(sc.webs.table):
+            self.generation(gen_id)[3].web_shard(sc.webs.table[0]["key"])
+        return len(sc.webs)
 
     def stats(self) -> dict[str, Any]:
         """The cache's entries, bytes and bound, and the webs read from the store so far."""

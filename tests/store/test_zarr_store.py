@@ -121,6 +121,38 @@ def test_a_shard_of_many_chunks_is_one_object(tmp_path):
     np.testing.assert_array_equal(got["paths_cells"], big["paths_cells"])
 
 
+def test_a_reader_keeps_the_keys_of_every_shard_and_few_shards_open(tmp_path):
+    """A read-only store (the app's search workers) maps every web key to its shard but keeps
+    only KEEP_OPEN_SHARDS shards open (their index of webs parsed); every web reads back as the
+    writer wrote it, from the newest shard holding it, and a shard written after the reader
+    opened is found."""
+    from motionweb.store.zarr_store import KEEP_OPEN_SHARDS
+
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(3)
+    shas = [f"{i:02x}" * 32 for i in range(2 * KEEP_OPEN_SHARDS + 3)]
+    written = {}
+    for i in range(len(shas) - 1):  # one shard per batch, more shards than are kept open
+        batch = [(web_key(shas[i], shas[j], "wd"), ragged_web(rng)) for j in (i, i + 1)]
+        store.write_webs([(k, w, {"i": i}) for k, w in batch])
+        written.update(batch)
+    again = web_key(shas[0], shas[0], "wd")  # written again in a later shard: the newer one serves
+    written[again] = ragged_web(rng)
+    store.write_webs([(again, written[again], {"i": "again"})])
+    reader = MotionStore(str(tmp_path / "s"), read_only=True)
+    for k in [*written, *reversed(written)]:
+        got, attrs = reader.read_web_arrays(k)
+        for name, arr in written[k].items():
+            np.testing.assert_array_equal(got[name], arr)
+        assert len(reader._open_shards) <= KEEP_OPEN_SHARDS
+    assert reader.web_attrs(again) == {"i": "again"}
+    assert reader.web_keys("wd") == set(written)
+    assert not reader._webs and not reader._shards  # a reader holds no entry of a shard it closed
+    late = web_key(shas[-1], shas[-1], "wd")
+    store.write_webs([(late, ragged_web(rng), {})])
+    assert reader.has(late) and not reader.has(web_key(shas[-1], shas[0], "wd"))
+
+
 def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
     from motionweb.store.zarr_store import StoreIntegrityError
 
