@@ -4,6 +4,7 @@ category = dominant action, deterministic bytes, the plan, BVH round trip."""
 from __future__ import annotations
 
 import json
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -44,12 +45,12 @@ def test_take_is_continuous_and_mixed(index: int) -> None:
     assert motion.n_frames == truth["frames"]
     actions = [s["action"] for s in truth["segments"]]
     assert len(set(actions)) >= 2
-    assert all(a != b for a, b in zip(actions, actions[1:], strict=False))  # no action twice in a row
+    assert all(a != b for a, b in pairwise(actions))  # no action twice in a row
     # segments and blends tile the take without gaps or overlaps
     spans = sorted([(s["start_frame"], s["end_frame"]) for s in truth["segments"]]
                    + [(b["start_frame"], b["end_frame"]) for b in truth["blends"]])
     assert spans[0][0] == 0 and spans[-1][1] == motion.n_frames - 1
-    assert all(b[0] == a[1] + 1 for a, b in zip(spans, spans[1:], strict=False))
+    assert all(b[0] == a[1] + 1 for a, b in pairwise(spans))
     gp, _ = forward_kinematics(motion)
     joint_step = np.linalg.norm(np.diff(gp, axis=0), axis=-1).max(axis=1)
     root_step = np.linalg.norm(np.diff(motion.root_positions, axis=0), axis=-1)
