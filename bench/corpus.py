@@ -153,6 +153,33 @@ def cmu_categories(root: Path) -> dict[str, str]:
         return {f"cmu/{row['path']}": row["category"] for row in csv.DictReader(f)}
 
 
+def real_placement(root: Path, entries) -> list[tuple]:
+    """Where each real clip of ``root`` (catalog ``entries``) goes in a benchmark corpus:
+    (entry, corpus path, category) for the CMU ASF/AMC trials, ``cmu-<manifest category>/<subject>/``
+    (categories from cmu/manifest.csv), and the DeepMimic clips, ``dm-<name>/``. CMU's two BVH
+    conversions are left out: one repeats an AMC trial, and neither declares its length unit."""
+    cmu = cmu_categories(root)
+    placed = []
+    for e in entries:
+        if e.format == "asfamc":
+            if e.path not in cmu:
+                raise CorpusError(f"{e.path} has no category in {root / 'cmu' / 'manifest.csv'}")
+            cat = "cmu-" + cmu[e.path]
+            placed.append((e, f"{cat}/{Path(e.path).parent.name}/{Path(e.path).name}", cat))
+        elif e.format == "deepmimic":
+            cat = "dm-" + e.name.removeprefix("humanoid3d_")
+            placed.append((e, f"{cat}/{Path(e.path).name}", cat))
+    return placed
+
+
+def link_urdf(root: Path, out: Path) -> None:
+    """Link DeepMimic's humanoid.urdf into ``out`` (its clips find it at ../humanoid.urdf)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for urdf in root.rglob("humanoid.urdf"):
+        if not (out / "humanoid.urdf").exists():
+            (out / "humanoid.urdf").symlink_to(urdf.resolve())
+
+
 def check_corpus(out: Path, cat, expected: dict[str, str], target_frames: int) -> int:
     """Stop (:class:`CorpusError`) unless the scan of ``out`` found exactly the clips written
     (corpus path -> category in ``expected``), none unreadable, with those categories and at least
@@ -195,27 +222,14 @@ def build_corpus(out: Path, target_frames: int, seed: int = 7) -> dict:
     if real.errors:
         raise CorpusError(f"{len(real.errors)} clips of {root} do not load: "
                           + "; ".join(f"{e.path}: {e.reason}" for e in real.errors[:5]))
-    cmu = cmu_categories(root)
-    out.mkdir(parents=True, exist_ok=True)
-    for urdf in root.rglob("humanoid.urdf"):  # DeepMimic clips find it at ../humanoid.urdf
-        if not (out / "humanoid.urdf").exists():
-            (out / "humanoid.urdf").symlink_to(urdf.resolve())
+    link_urdf(root, out)
     expected: dict[str, str] = {}  # corpus path -> category
     frames = 0
-    n_real = n_var = n_syn = skipped = 0
+    n_real = n_var = n_syn = 0
     motions = []
-    for e in real.entries:
-        if e.format == "asfamc":
-            if e.path not in cmu:
-                raise CorpusError(f"{e.path} has no category in {root / 'cmu' / 'manifest.csv'}")
-            cat = "cmu-" + cmu[e.path]
-            rel = f"{cat}/{Path(e.path).parent.name}/{Path(e.path).name}"
-        elif e.format == "deepmimic":
-            cat = "dm-" + e.name.removeprefix("humanoid3d_")
-            rel = f"{cat}/{Path(e.path).name}"
-        else:
-            skipped += 1
-            continue
+    placed = real_placement(root, real.entries)
+    skipped = len(real.entries) - len(placed)
+    for e, rel, cat in placed:
         link_clip(Path(e.abs_path), out / rel)
         expected[rel] = cat
         frames += frames60(e.duration)

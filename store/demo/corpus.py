@@ -4,7 +4,8 @@ Every clip is built from a plan by the rig (`rig.py`: analytic two-bone IK for l
 per-category generator (`clips.py`), so the ground truth (foot stance intervals, exact ballistic
 flights, effector targets at apex frames) holds by construction. This module places a clip in the
 world, writes its truth and the corpus: :data:`CATEGORIES`, :func:`generate_clip`,
-:func:`walk_then_jump`, :func:`write_clip`, :func:`truth_json`, :func:`write_demo_corpus`.
+:func:`walk_then_jump`, :func:`seeded_rng`, :func:`clip_from_rng`,
+:func:`write_clip`, :func:`truth_json`, :func:`write_demo_corpus`.
 """
 
 from __future__ import annotations
@@ -49,7 +50,9 @@ CATEGORIES: tuple[str, ...] = ("walk", "run", "jump", "kick", "punch", "reach", 
 # putting it together
 
 
-def _rng(category: str, variant: int, seed: int) -> np.random.Generator:
+def seeded_rng(category: str, variant: int, seed: int) -> np.random.Generator:
+    """The generator of one clip: seeded by (seed, CRC-32 of ``category``, variant), so each clip's
+    draws are independent of every other clip's and of the order clips are made in."""
     return np.random.default_rng([int(seed) & 0xFFFFFFFF, zlib.crc32(category.encode()), int(variant)])
 
 
@@ -126,19 +129,27 @@ def generate_clip(category: str, variant: int, seed: int, fps: float = 60.0) -> 
     """One synthetic clip of ``category`` and its ground truth; deterministic in (category, variant,
     seed, fps). Targets are in the clip's start heading frame (origin: root at frame 0 on the
     ground, axes turned by the heading at frame 0); ``world`` gives them in the file's frame."""
+    return clip_from_rng(category, variant, seeded_rng(category, variant, seed), seed, fps)
+
+
+def clip_from_rng(category: str, variant: int, rng: np.random.Generator, seed: int = 0, fps: float = 60.0,
+                  name: str | None = None) -> tuple[Motion, dict[str, Any]]:
+    """One synthetic clip of ``category`` drawn from ``rng`` (``variant`` picks the generator's
+    style: speeds, sides, heights; ``seed`` is only recorded in the truth): what
+    :func:`generate_clip` makes with its own seeded generator, for callers that seed clips
+    otherwise (``takes.py``). Cost O(frames · joints)."""
     if category not in GENERATORS:
         raise ValueError(f"unknown category {category!r}; expected one of {', '.join(CATEGORIES)}")
     rig = Rig.from_skeleton(humanoid_skeleton())
-    rng = _rng(category, variant, seed)
     spec = GENERATORS[category](rig, variant, rng, fps)
-    return _finish(rig, spec, category, variant, seed, fps, rng, f"{category}_{variant:02d}")
+    return _finish(rig, spec, category, variant, seed, fps, rng, name or f"{category}_{variant:02d}")
 
 
 def walk_then_jump(seed: int = 0, fps: float = 60.0) -> tuple[Motion, dict[str, Any]]:
     """About 2-3 s of straight walking, a stop, then a forward jump with an exact ballistic flight
     of at least 0.5 s and a landing (the guided-warp test clip)."""
     rig = Rig.from_skeleton(humanoid_skeleton())
-    rng = _rng("walk_then_jump", 0, seed)
+    rng = seeded_rng("walk_then_jump", 0, seed)
     gait = replace(walk_gait(1, rng), turn=0.0)
     plants = gait.plants(rig, 0.0, 8.0)
     t_min = 1.9 + 0.3 * rng.uniform(0, 1)
