@@ -42,11 +42,12 @@ from typing import Any
 import fsspec
 import numpy as np
 import zarr
-from motionweb.store.cache import LRU
 from motionweb.store.keys import SHARDS, feature_key, grid_key, rate_tag, web_digest_of
 from motionweb.store.web import MatchWeb
 from zarr.codecs import BloscCodec
-from zarr.storage import FsspecStore, LocalStore
+from zarr.core.array import AsyncArray
+from zarr.core.metadata import ArrayV3Metadata
+from zarr.storage import FsspecStore, LocalStore, StorePath
 
 #: Blosc lz4 + byte shuffle: fastest writes and a better ratio on float32 (measured on this store)
 COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
@@ -58,9 +59,6 @@ PACKED_CHUNK = 1 << 24
 REMOTE_OPTIONS = {"use_listings_cache": False}
 #: bytes per chunk of a web shard (a web read decodes ~1-2 chunks, not the whole shard)
 SHARD_CHUNK = 1 << 18
-#: shards a read-only store keeps open (each holds the parsed index of its batch's webs, ~2,000
-#: entries, ~7 MB): the others are opened again when one of their webs is read
-KEEP_OPEN_SHARDS = 8
 
 
 #: the async filesystems zarr reads and writes remote stores through, kept until exit (fsspec
@@ -169,12 +167,14 @@ class MotionStore:
         self._webs: dict[str, tuple[str, dict[str, Any]]] = {}
         # complete shards seen so far, kept open: opening one parses its whole index of webs
         self._shards: dict[str, zarr.Array] = {}
-        # read-only (a reader of a library of any size): web key -> the index in _shard_names of
-        # the newest complete shard holding it, and a few shards kept open (their index of webs
-        # parsed), the rest opened again when a web of theirs is read
-        self._key_shard: dict[str, int] = {}
+        # read-only (a reader of a library of any size): web key -> (shard number, entry number)
+        # of the newest complete shard holding it; per shard its name, its array opened without
+        # its attributes, and its entries as one compact JSON text each in a bytes blob (see
+        # _take_in_shard): O(webs) bytes in a few large buffers, no Python object per web
+        self._key_entry: dict[str, tuple[int, int]] = {}
         self._shard_names: list[str] = []
-        self._open_shards = LRU(max_items=KEEP_OPEN_SHARDS)
+        self._shard_arrays: list[zarr.Array] = []
+        self._shard_blobs: list[tuple[bytes, np.ndarray]] = []
         self._seen_shards: dict[str, int] = {}
 
     def __reduce__(self):
@@ -373,25 +373,46 @@ class MotionStore:
     def _web_entry(self, key: str) -> tuple[str, dict[str, Any]] | None:
         """(shard, entry) of a web key; lists the digest's shards again when the key is unknown."""
         if self.read_only:
-            if key not in self._key_shard:
+            if key not in self._key_entry:
                 self._load_shards(web_digest_of(key))
-            i = self._key_shard.get(key)
-            z = self._shard(self._shard_names[i]) if i is not None else None
-            e = z.attrs["webs"].get(key) if z is not None else None
-            return (self._shard_names[i], e) if e is not None else None
+            found = self._key_entry.get(key)
+            if found is None:
+                return None
+            blob, ends = self._shard_blobs[found[0]]
+            return self._shard_names[found[0]], json.loads(blob[ends[found[1]]:ends[found[1] + 1]])
         if key not in self._webs:
             self._load_shards(web_digest_of(key))
         return self._webs.get(key)
 
     def _shard(self, shard: str) -> zarr.Array | None:
-        """A complete shard, open (its index of webs parsed): kept by a writer, by a reader only
-        while it is among the ``KEEP_OPEN_SHARDS`` last used."""
-        z = self._shards.get(shard) if not self.read_only else self._open_shards.get(shard)
-        if z is None:
-            z = self._open(shard)
-            if z is not None and self.read_only:
-                self._open_shards.put(shard, z)
-        return z
+        """A complete shard's array (a reader's opened without its attributes)."""
+        if self.read_only and shard in self._seen_shards:
+            return self._shard_arrays[self._seen_shards[shard]]
+        return self._shards.get(shard) or self._open(shard)
+
+    def _take_in_shard(self, shard: str) -> bool:
+        """A reader takes in a shard: its zarr.json read once, its array opened from that metadata
+        without the attributes, each web entry kept as compact JSON in one blob (about 0.9 kB a
+        web; a parsed entry is several times that). False when the shard is not complete (being
+        written, its writer died, or damaged: its webs are not seen). Cost O(its webs)."""
+        try:
+            meta = json.loads(self.fs.cat_file(self.path(f"{shard}/zarr.json")))
+            attrs = meta.pop("attributes", {})
+            if not (attrs.get("complete", False) and isinstance(attrs.get("webs"), dict)):
+                return False
+            z = zarr.Array(AsyncArray(metadata=ArrayV3Metadata.from_dict(meta), store_path=StorePath(self.zstore, shard)))
+        except Exception:  # noqa: BLE001 - a damaged shard header: its webs are missing
+            return False
+        n = len(self._shard_names)
+        texts = [json.dumps(e, separators=(",", ":")).encode() for e in attrs["webs"].values()]
+        ends = np.zeros(len(texts) + 1, np.int64)
+        np.cumsum([len(t) for t in texts], out=ends[1:])
+        self._shard_blobs.append((b"".join(texts), ends))
+        self._key_entry.update({k: (n, i) for i, k in enumerate(attrs["webs"])})
+        self._shard_names.append(shard)
+        self._shard_arrays.append(z)
+        self._seen_shards[shard] = n
+        return True
 
     def _load_shards(self, wdig: str) -> None:
         """Take in the complete shards of web digest ``wdig`` not seen yet (one listing; each new
@@ -406,6 +427,9 @@ class MotionStore:
             shard = f"{SHARDS}/{wdig}/{os.path.basename(name.rstrip('/'))}"
             if shard in seen:
                 continue
+            if self.read_only:
+                self._take_in_shard(shard)
+                continue
             try:
                 z = self._open(shard)
                 ok = z is not None and z.attrs.get("complete", False) and isinstance(z.attrs.get("webs"), dict)
@@ -413,12 +437,6 @@ class MotionStore:
                 ok = False
             if not ok:
                 continue  # being written, its writer died, or damaged: its webs are not seen
-            if self.read_only:
-                self._seen_shards[shard] = len(self._shard_names)
-                self._key_shard.update(dict.fromkeys(z.attrs["webs"], len(self._shard_names)))
-                self._shard_names.append(shard)
-                self._open_shards.put(shard, z)
-                continue
             self._shards[shard] = z
             self._webs.update({key: (shard, e) for key, e in z.attrs["webs"].items()})
 
@@ -430,7 +448,7 @@ class MotionStore:
     def web_keys(self, wdig: str) -> set[str]:
         """Every completely written web key with parameter digest ``wdig`` (one shard listing)."""
         self._load_shards(wdig)
-        return {k for k in (self._key_shard if self.read_only else self._webs) if web_digest_of(k) == wdig}
+        return {k for k in (self._key_entry if self.read_only else self._webs) if web_digest_of(k) == wdig}
 
     def web_attrs(self, key: str) -> dict[str, Any]:
         """The attributes a web was written with ({} when absent)."""

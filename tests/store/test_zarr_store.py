@@ -95,8 +95,8 @@ def test_a_batch_of_webs_shares_one_shard(tmp_path):
     # a shard is opened once per store instance, not once per web read (its index can be large)
     opened = []
     fresh = MotionStore(str(tmp_path / "s"), read_only=True)
-    original = fresh._open
-    fresh._open = lambda key: opened.append(key) or original(key)
+    original = fresh._take_in_shard
+    fresh._take_in_shard = lambda key: opened.append(key) or original(key)
     for _ in range(3):
         for k in keys:
             fresh.read_web_arrays(k)
@@ -121,18 +121,16 @@ def test_a_shard_of_many_chunks_is_one_object(tmp_path):
     np.testing.assert_array_equal(got["paths_cells"], big["paths_cells"])
 
 
-def test_a_reader_keeps_the_keys_of_every_shard_and_few_shards_open(tmp_path):
-    """A read-only store (the app's search workers) maps every web key to its shard but keeps
-    only KEEP_OPEN_SHARDS shards open (their index of webs parsed); every web reads back as the
-    writer wrote it, from the newest shard holding it, and a shard written after the reader
-    opened is found."""
-    from motionweb.store.zarr_store import KEEP_OPEN_SHARDS
-
+def test_a_reader_keeps_each_shard_index_compact(tmp_path):
+    """A read-only store (the app's search workers) takes in each shard once: its array opened
+    without its attributes and its entries as compact text, no parsed entry kept; every web reads
+    back as the writer wrote it, from the newest shard holding it, and a shard written after the
+    reader opened is found."""
     store = MotionStore(str(tmp_path / "s"))
     rng = np.random.default_rng(3)
-    shas = [f"{i:02x}" * 32 for i in range(2 * KEEP_OPEN_SHARDS + 3)]
+    shas = [f"{i:02x}" * 32 for i in range(12)]
     written = {}
-    for i in range(len(shas) - 1):  # one shard per batch, more shards than are kept open
+    for i in range(len(shas) - 1):  # one shard per batch
         batch = [(web_key(shas[i], shas[j], "wd"), ragged_web(rng)) for j in (i, i + 1)]
         store.write_webs([(k, w, {"i": i}) for k, w in batch])
         written.update(batch)
@@ -144,10 +142,12 @@ def test_a_reader_keeps_the_keys_of_every_shard_and_few_shards_open(tmp_path):
         got, attrs = reader.read_web_arrays(k)
         for name, arr in written[k].items():
             np.testing.assert_array_equal(got[name], arr)
-        assert len(reader._open_shards) <= KEEP_OPEN_SHARDS
+        assert reader.verify(k) is None
     assert reader.web_attrs(again) == {"i": "again"}
     assert reader.web_keys("wd") == set(written)
-    assert not reader._webs and not reader._shards  # a reader holds no entry of a shard it closed
+    assert len(reader._shard_names) == len(shas)
+    assert not reader._webs and not reader._shards  # no parsed entry, no array with its attributes
+    assert all(not dict(z.attrs) for z in reader._shard_arrays)
     late = web_key(shas[-1], shas[-1], "wd")
     store.write_webs([(late, ragged_web(rng), {})])
     assert reader.has(late) and not reader.has(web_key(shas[-1], shas[0], "wd"))
