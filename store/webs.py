@@ -14,7 +14,6 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-
 from motionweb.store.cache import LRU
 from motionweb.store.generations import Generation, load_generation
 from motionweb.store.web import MatchWeb, transpose

@@ -115,7 +115,7 @@ class TableBuilder:
 
     def add(self, rec: dict[str, Any]) -> None:
         if not isinstance(rec, dict):
-            raise ValueError(f"web record {self.n + len(self._pending)} is a JSON {type(rec).__name__}, "
+            raise ValueError(f"web record {self.n + len(self._pending)} is a JSON {type(rec).__name__}, "  # noqa: TRY004 - damage to a manifest, not a caller's type error
                              "not an object")
         self._pending.append(rec)
         if len(self._pending) >= self.batch:

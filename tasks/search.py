@@ -49,6 +49,7 @@ store generation.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -85,8 +86,9 @@ class WalkGraph:
     interior cell, or the joined cell for a two-cell bridge). The walks of rows a.. start at the
     earliest row-a cell of each path crossing row a: for web w these are
     ``starts[start_off[w·F + a]:start_off[w·F + a + 1]]``, in path order. ``others[w]`` is the
-    columns clip of web w. The work buffers of :func:`find_matches` are allocated on first use and
-    reused by every query (one query at a time per graph).
+    columns clip of web w. The work buffers of :func:`_walk` are not the graph's: one set per thread,
+    grown to the largest graph walked (:func:`work_buffers`), so a cache of graphs holds their
+    states only.
     """
 
     rate: float
@@ -105,7 +107,6 @@ class WalkGraph:
     dropped_steps: int = 0
     clip_names: list[str] = field(init=False, repr=False)
     clip_rank: np.ndarray = field(init=False, repr=False)
-    _work: tuple[np.ndarray, ...] = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
         self.clip_names = sorted(set(self.others))
@@ -117,20 +118,33 @@ class WalkGraph:
 
     @property
     def nbytes(self) -> int:
-        """Bytes it holds, its work buffers counted whether allocated yet or not (7 arrays of
-        ``n_states`` 8-byte items): what the service's cache counts."""
+        """Bytes it holds (what the service's cache counts; the work buffers are the thread's)."""
         return array_bytes(self.rows, self.cols, self.values, self.nxt, self.branch_off, self.branch_to,
-                           self.web_rows, self.start_off, self.starts, self.clip_rank) + 56 * self.n_states
+                           self.web_rows, self.start_off, self.starts, self.clip_rank)
 
     @property
     def work(self) -> tuple[np.ndarray, ...]:
-        """The work buffers of :func:`_walk` (7 arrays of ``n_states``)."""
-        if not self._work:
-            n = self.n_states
-            self._work = (np.full(n, -1, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
-                          np.empty(n, np.float64), np.empty(n, np.float64), np.empty(n, np.int64),
-                          np.empty(n, np.int64))
-        return self._work
+        """The work buffers of :func:`_walk` for this graph (7 arrays of ``n_states``, the first
+        all −1): views of the calling thread's (:func:`work_buffers`)."""
+        return work_buffers(self.n_states)
+
+
+_POOL = threading.local()
+
+
+def work_buffers(n: int) -> tuple[np.ndarray, ...]:
+    """The work buffers of :func:`_walk` for ``n`` states (7 arrays ``(n,)``: ``local`` all −1,
+    which every walk restores, then reach, stack, cost, total, length, pred): views of one set per
+    thread, grown (by at least a quarter) when a larger graph is walked. The walks of a thread run
+    one at a time, so every graph of a thread shares them: 56 bytes per state of the largest
+    graph walked, not of every graph kept."""
+    have = getattr(_POOL, "work", None)
+    if have is None or len(have[0]) < n:
+        m = max(n, len(have[0]) * 5 // 4) if have is not None else n
+        _POOL.work = have = (np.full(m, -1, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
+                             np.empty(m, np.float64), np.empty(m, np.float64), np.empty(m, np.int64),
+                             np.empty(m, np.int64))
+    return tuple(x[:n] for x in have)
 
 
 def _check_web(web: MatchWeb) -> None:
@@ -589,9 +603,14 @@ def _walk_arrays(graph: WalkGraph, a: int, b: int, eps: float):
     such walk found on ties (KG04 §3.3). Returns (clip ranks, c, d, averages, cells, offsets,
     entries) with ``entries`` indexing the walk outputs in the order each key first appears."""
     _check_rows(graph, a, b)
-    webs, cs, ds, avgs, flat, off = _walk(
-        graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.start_off,
-        graph.starts, len(graph.others), graph.n_frames, int(a), int(b), float(eps), *graph.work)
+    work = graph.work
+    try:
+        webs, cs, ds, avgs, flat, off = _walk(
+            graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.start_off,
+            graph.starts, len(graph.others), graph.n_frames, int(a), int(b), float(eps), *work)
+    except BaseException:
+        work[0].fill(-1)  # a walk cut short leaves its cells marked: the next walk finds them clean
+        raise
     rank = graph.clip_rank[webs]
     order = np.lexsort((np.arange(len(webs)), avgs, ds, cs, rank))
     new = np.ones(len(order), bool)

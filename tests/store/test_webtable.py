@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from motionweb.store.generations import Generation, load_generation
 from motionweb.store.webs import StoreWebs
 from motionweb.store.webtable import WebTable
 from motionweb.store.zarr_store import MotionStore, new_id, now_iso
-from tests.naive import webs_by_clip
+from naive import webs_by_clip
 
 
 def records(n_clips: int, pairs: list[tuple[int, int]]) -> list[dict]:
@@ -109,7 +108,7 @@ def test_a_lean_generation_holds_the_same_records(tmp_path):
     assert np.array_equal(StoreWebs(store, lean)._ids, StoreWebs(store, full)._ids)
 
 
-@pytest.mark.parametrize("dump", [dict(indent=1, sort_keys=True), dict(), dict(separators=(",", ":")), dict(indent="\t")])
+@pytest.mark.parametrize("dump", [{"indent": 1, "sort_keys": True}, {}, {"separators": (",", ":")}, {"indent": "\t"}])
 def test_a_manifest_parses_as_json_does(dump):
     import json
 

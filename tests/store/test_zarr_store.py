@@ -139,7 +139,7 @@ def test_a_reader_keeps_each_shard_index_compact(tmp_path):
     store.write_webs([(again, written[again], {"i": "again"})])
     reader = MotionStore(str(tmp_path / "s"), read_only=True)
     for k in [*written, *reversed(written)]:
-        got, attrs = reader.read_web_arrays(k)
+        got, _ = reader.read_web_arrays(k)
         for name, arr in written[k].items():
             np.testing.assert_array_equal(got[name], arr)
         assert reader.verify(k) is None

@@ -454,3 +454,33 @@ def test_rank_trials_finds_far_variants_through_tiers(chain) -> None:
     many = rank_trials(ms, pc.query, tiers=len(pc.expected))
     assert many.found[:3] == list(pc.expected)[:3] and set(many.found) <= set(pc.expected)
     assert many.ranking[:len(pc.expected)] == list(pc.expected)  # chain order
+
+
+def test_graphs_share_the_threads_work_buffers(chain) -> None:
+    """The walk's work buffers are one set per thread (tasks/search.work_buffers), grown for a
+    larger graph and shared by every graph: a search after walks of graphs of other sizes gives
+    what it gives in a fresh thread (fresh buffers), and a cached graph holds no buffers."""
+    import threading
+
+    from motionweb.tasks.search import _POOL, work_buffers
+
+    pc, webs = chain
+    ms = MatchSearch(webs)
+    sizes = {c: ms.graph(c).n_states for c in webs}
+    first = search(pc.query, 0.003, webs, SearchParams())
+    for c in sorted(sizes, key=sizes.get, reverse=True):  # walk the largest graphs first
+        ms.matches(Segment(c, 0, ms.graph(c).n_frames - 1), 0.01)
+    assert len(_POOL.work[0]) >= max(sizes.values())
+    assert (_POOL.work[0] == -1).all()  # every walk restores the marks
+    fresh = []
+    t = threading.Thread(target=lambda: fresh.append(search(pc.query, 0.003, webs, SearchParams())))
+    t.start()
+    t.join()
+    again = search(pc.query, 0.003, webs, SearchParams())
+    for got in (fresh[0], again):
+        assert [(n.segment, n.tier) for n in got.nodes] == [(n.segment, n.tier) for n in first.nodes]
+        assert [n.distance for n in got.nodes] == [n.distance for n in first.nodes]
+    g = ms.graph(pc.query.clip)
+    assert g.nbytes == sum(a.nbytes for a in (g.rows, g.cols, g.values, g.nxt, g.branch_off, g.branch_to,
+                                              g.web_rows, g.start_off, g.starts, g.clip_rank))
+    assert all(len(b) == 5 for b in work_buffers(5))
