@@ -153,6 +153,37 @@ def test_a_reader_keeps_each_shard_index_compact(tmp_path):
     assert reader.has(late) and not reader.has(web_key(shas[-1], shas[0], "wd"))
 
 
+def test_a_reader_reads_local_shards_directly_as_zarr_does(tmp_path):
+    """A reader's direct read of a local shard (chunks located by the shard's index, decompressed
+    with Blosc) gives zarr's bytes for every web, over chunk boundaries; damaged bytes are told
+    by zarr's path, naming the web."""
+    from motionweb.store.zarr_store import SHARD_CHUNK, StoreIntegrityError
+
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(4)
+    big = {"paths_cells": rng.integers(0, 1000, (SHARD_CHUNK // 6, 2)).astype(np.int32)}  # spans chunks
+    keys = [web_key(f"{i:02x}" * 32, "ff" * 32, "wd") for i in range(6)]
+    webs = [big if i == 2 else ragged_web(rng) for i in range(6)]
+    store.write_webs([(k, w, {}) for k, w in zip(keys, webs, strict=True)])
+    reader = MotionStore(str(tmp_path / "s"), read_only=True)
+    for k, w in zip(keys, webs, strict=True):
+        shard, e = reader._web_entry(k)
+        direct = reader._read_local(shard, e["start"], e["nbytes"])
+        assert direct is not None
+        np.testing.assert_array_equal(direct, np.asarray(reader._shard(shard)[e["start"]:e["start"] + e["nbytes"]]))
+        got, _ = reader.read_web_arrays(k)
+        for name, arr in w.items():
+            np.testing.assert_array_equal(got[name], arr)
+    assert len(reader._local_layouts) == 1
+    (chunk,) = [p for p in (tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0")]
+    data = bytearray(chunk.read_bytes())
+    data[40:60] = bytes(20)  # inside the first compressed chunk
+    chunk.write_bytes(bytes(data))
+    damaged = MotionStore(str(tmp_path / "s"), read_only=True)
+    with pytest.raises(StoreIntegrityError, match=keys[0]):
+        damaged.read_web_arrays(keys[0])
+
+
 def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
     from motionweb.store.zarr_store import StoreIntegrityError
 
