@@ -35,6 +35,7 @@ import atexit
 import hashlib
 import json
 import os
+import threading
 import uuid
 from datetime import UTC, datetime
 from typing import Any
@@ -104,6 +105,18 @@ def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0) -> dict[str
     """Inverse of :func:`_pack` on ``buf`` holding the bytes from offset ``base`` on."""
     return {name: buf[start - base:start - base + nbytes].view(np.dtype(dtype)).reshape(shape).copy()
             for name, dtype, shape, start, nbytes in layout}
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch(name: str, n: int) -> np.ndarray:
+    """This thread's reusable uint8 buffer ``name``, at least ``n`` bytes (a view of ``n``)."""
+    buf = getattr(_SCRATCH, name, None)
+    if buf is None or len(buf) < n:
+        buf = np.empty(max(n, 2 * len(buf) if buf is not None else n), np.uint8)
+        setattr(_SCRATCH, name, buf)
+    return buf[:n]
 
 
 class StoreError(ValueError):
@@ -491,7 +504,9 @@ class MotionStore:
         Zarr v3 sharding codec lays it out) and each decompressed (Blosc). A web read is then one
         file read and a chunk or two decompressed (zarr's path costs ~1 ms more per read in its
         asynchronous machinery). None when the shard is not laid out so (another codec chain, an
-        object store) or the bytes cannot be had: the caller reads through zarr, which checks."""
+        object store) or the bytes cannot be had: the caller reads through zarr, which checks.
+        The bytes are a view of this thread's scratch buffers (no allocation per read, which
+        fragmented the heap by gigabytes over a day of searches): valid until its next read."""
         layout = self._local_layouts.get(shard) if self.read_only and self._local else None
         if layout is None:
             return None
@@ -505,16 +520,19 @@ class MotionStore:
                 self._local_layouts[shard] = (path, inner, index)
             size = inner[0]
             first, last = start // size, (start + nbytes - 1) // size
-            parts = []
+            flat = _scratch("chunks", (last - first + 1) * size)
             with open(path, "rb") as fh:
-                for c in range(first, last + 1):
+                for i, c in enumerate(range(first, last + 1)):
                     off, n = (int(x) for x in index[c])
+                    dest = flat[i * size:(i + 1) * size]
                     if off == 2**64 - 1:
-                        parts.append(np.zeros(size, np.uint8))  # never written: the fill value
+                        dest[:] = 0  # never written: the fill value
                         continue
                     fh.seek(off)
-                    parts.append(np.frombuffer(_BLOSC.decode(fh.read(n)), np.uint8))
-            flat = np.concatenate(parts) if len(parts) > 1 else parts[0]
+                    comp = _scratch("compressed", n)
+                    if fh.readinto(comp) != n:
+                        return None
+                    _BLOSC.decode(comp, out=dest)
             lo = start - first * size
             out = flat[lo:lo + nbytes]
             return out if len(out) == nbytes else None

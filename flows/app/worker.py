@@ -53,6 +53,8 @@ CRASH_ENV = "MOTIONWEB_TEST_CRASH_CLIP"
 KEEP_GENERATIONS = 2
 #: kinds of search (scope × ε rule) a standby rehearses, at most
 KEEP_EXAMPLES = 32
+#: glibc's ``M_MMAP_THRESHOLD`` in a worker process, bytes (see :class:`Worker`)
+MMAP_THRESHOLD = 256 * 1024
 log = logging.getLogger("motionweb.app")
 
 
@@ -293,7 +295,12 @@ class Worker:
         """Start ``python -m module FD *args`` (this module's loop, given the store URL; or another
         worker's, e.g. :mod:`motionweb.flows.app.session_worker`)."""
         mine, theirs = socket.socketpair()
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        # glibc's malloc: a fixed mmap threshold, so that arrays of 256 kB and more (decompressed
+        # chunks, walk graphs packed and evicted) go back to the system when freed; its default
+        # raises the threshold after such a free and then serves them from a heap that a day of
+        # searches fragments (381k-frame store: 1.26 GB resident for 0.26 GB of cache, 0.64 GB
+        # with the threshold fixed). Ignored by other C libraries.
+        env = {"MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD), **os.environ, "PYTHONUNBUFFERED": "1"}
         self.proc = subprocess.Popen([sys.executable, "-m", module, str(theirs.fileno()), *args],
                                      pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
                                      stdout=subprocess.DEVNULL, env=env, close_fds=True)

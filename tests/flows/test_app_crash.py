@@ -177,6 +177,22 @@ def test_a_crashing_registration_costs_only_itself(crashy) -> None:
     crashy.seen_workers = getattr(crashy, "seen_workers", set()) | worker_pids()
 
 
+def test_workers_give_freed_arrays_back_to_the_system(crashy) -> None:
+    """Each search worker runs with glibc's mmap threshold fixed (flows/app/worker.Worker), so
+    large arrays freed after a search do not stay in a fragmented heap."""
+    from motionweb.flows.app.worker import MMAP_THRESHOLD
+
+    wait_for(lambda: standby_ready(crashy.port), 60, "a standby worker")
+    pids = worker_pids()
+    assert len(pids) >= 2  # the primary and its standby
+    for pid in pids:
+        try:
+            env = psutil.Process(pid).environ()
+        except (psutil.NoSuchProcess, psutil.ZombieProcess):
+            continue
+        assert env.get("MALLOC_MMAP_THRESHOLD_") == str(MMAP_THRESHOLD)
+
+
 def test_no_worker_is_left_after_shutdown(crashy) -> None:
     pids = getattr(crashy, "seen_workers", set()) | worker_pids()
     assert pids
