@@ -297,12 +297,9 @@ class PeakRSS:
         self._skip: set[int] = set()
         self.root = root
 
-    def _sample(self) -> int:
-        me = self.root or psutil.Process()
-        try:
-            total = me.memory_info().rss
-        except psutil.Error:
-            return 0
+    def _children(self, me: psutil.Process) -> list[int]:
+        """The RSS of each child process of ``me``, Prefect's server excluded."""
+        out = []
         for c in me.children(recursive=True):
             try:
                 if c.pid in self._skip:
@@ -310,10 +307,18 @@ class PeakRSS:
                 if any("uvicorn" in a or "prefect" in a for a in c.cmdline()):
                     self._skip.add(c.pid)
                     continue
-                total += c.memory_info().rss
+                out.append(c.memory_info().rss)
             except psutil.Error:
                 pass
-        return total
+        return out
+
+    def _sample(self) -> int:
+        me = self.root or psutil.Process()
+        try:
+            total = me.memory_info().rss
+        except psutil.Error:
+            return 0
+        return total + sum(self._children(me))
 
     def _run(self) -> None:
         while not self._stop.is_set():

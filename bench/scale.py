@@ -40,7 +40,6 @@ import math
 import os
 import shutil
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -62,6 +61,7 @@ from motionweb.store.zarr_store import MotionStore
 from bench.corpus import (
     RATE,
     CorpusError,
+    PeakRSS,
     check_corpus,
     frames60,
     link_clip,
@@ -162,33 +162,12 @@ def expected_pairs(entries, rate: float) -> tuple[int, float]:
 
 
 # ------------------------------------------------------------------------------------ measures
-class WorkerPeak:
+class WorkerPeak(PeakRSS):
     """Largest RSS of any one child process of this one (the Dask workers; Prefect's server
     excluded), sampled every 50 ms while the block runs."""
 
-    def __init__(self, interval: float = 0.05):
-        self.interval, self.peak, self._stop = interval, 0, threading.Event()
-
-    def _run(self) -> None:
-        me = psutil.Process()
-        while not self._stop.is_set():
-            for c in me.children(recursive=True):
-                try:
-                    if any("uvicorn" in a or "prefect" in a for a in c.cmdline()):
-                        continue
-                    self.peak = max(self.peak, c.memory_info().rss)
-                except psutil.Error:
-                    pass
-            time.sleep(self.interval)
-
-    def __enter__(self) -> WorkerPeak:  # noqa: PYI034
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join()
+    def _sample(self) -> int:
+        return max(self._children(self.root or psutil.Process()), default=0)
 
 
 def store_objects(store: Path) -> int:
