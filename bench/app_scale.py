@@ -21,7 +21,7 @@ store (``--no-record``: no Prefect) and measured:
     each process's RSS at the end, and the worker's cache then (this checkout only).
 A code that is not ready within ``--timeout`` s is reported so and stopped.
 
-    .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base REV] [--queries 40]
+    .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base REV] [--queries 40] [--cache-mb MB]
 """
 
 from __future__ import annotations
@@ -187,6 +187,8 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=40)
     ap.add_argument("--only-this", action="store_true", help="measure this checkout only (no previous code)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds a code may take to be ready")
+    ap.add_argument("--cache-mb", type=float, default=None,
+                    help="app.cache_mb of the service (each search worker's bound; default: the config's default)")
     args = ap.parse_args()
 
     work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-app-scale-"))
@@ -199,8 +201,11 @@ def main() -> None:
     if gen is None:
         raise CorpusError(f"{store} was never indexed")
     cfg_path = work / "app-scale.yaml"
-    cfg_path.write_text(yaml.safe_dump({"corpus": {"path": str(corpus), "length_unit": "m"},
-                                        "store": {"path": str(store)}, "output": str(work / "out")}))
+    cfg = {"corpus": {"path": str(corpus), "length_unit": "m"}, "store": {"path": str(store)},
+           "output": str(work / "out")}
+    if args.cache_mb is not None:
+        cfg["app"] = {"cache_mb": args.cache_mb}
+    cfg_path.write_text(yaml.safe_dump(cfg))
     queries = random_queries(gen, args.queries, np.random.default_rng(3))
     frames = sum(c["frames"] for c in gen.clips)
     print(f"store {store}: {len(gen.clips)} clips, {frames} frames (native rates), {len(gen.webs)} webs; "
