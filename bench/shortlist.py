@@ -224,8 +224,9 @@ def main() -> None:
         if ex:
             per_query.append(hit / len(ex))
         if (i + 1) % 10 == 0:
-            print(f"  {i + 1}/{len(queries)} queries, recall so far {n_hit / max(1, n_exact):.4f} "
-                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(f"  {i + 1}/{len(queries)} queries, recall so far {n_hit / max(1, n_exact):.4f} pooled, "
+                  f"{np.median(per_query) if per_query else float('nan'):.4f} median per query, "
+                  f"{min(per_query, default=float('nan')):.4f} least ({time.perf_counter() - t0:.0f} s)", flush=True)
     recall = n_hit / n_exact if n_exact else float("nan")
     pq = np.array(per_query) if per_query else np.array([np.nan])
     sh_stats = ss.get("shortlist", {})
