@@ -284,10 +284,17 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     return WalkGraph(
         rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs),
         rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
-        values=cat["values"][order], nxt=nxt, branch_off=branch_off,
-        branch_to=b_to[by_from], dropped_steps=dropped, web_rows=np.searchsorted(key, want).astype(np.int64),
-        start_off=start_off, starts=new[e_state[e_order]],
+        values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off),
+        branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
+        start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
     )
+
+
+def _narrow(a: np.ndarray) -> np.ndarray:
+    """State numbers and offsets as int32 when they fit (half the bytes a cached graph holds;
+    the same values), else int64."""
+    fits = a.size == 0 or (int(a.max()) < 2**31 and int(a.min()) >= -(2**31))
+    return np.ascontiguousarray(a, np.int32 if fits else np.int64)
 
 
 def _ranges(n: np.ndarray) -> np.ndarray:

@@ -484,3 +484,4 @@ def test_graphs_share_the_threads_work_buffers(chain) -> None:
     assert g.nbytes == sum(a.nbytes for a in (g.rows, g.cols, g.values, g.nxt, g.branch_off, g.branch_to,
                                               g.web_rows, g.start_off, g.starts, g.clip_rank))
     assert all(len(b) == 5 for b in work_buffers(5))
+    assert all(a.dtype == np.int32 for a in (g.nxt, g.branch_off, g.branch_to, g.web_rows, g.start_off, g.starts))
