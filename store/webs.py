@@ -39,7 +39,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         self.categories = {c["path"]: c.get("category", "") for c in gen.clips}
         self.table = gen.webs if isinstance(gen.webs, WebTable) else WebTable(gen.webs)
         # per clip, the web ids touching it in the manifest's order (CSR: ``_ids[_ptr[i]:_ptr[i+1]]``
-        # for clip ``_paths[i]``), O(webs) in numpy: no Python per web
+        # for the clip ``_row`` maps to ``i``), O(webs) in numpy: no Python per web
         paths = list(dict.fromkeys([*self.categories, *self.table.strings("a")[0], *self.table.strings("b")[0]]))
         a, b = self.table.ends(paths)
         keep = np.ones(len(a), bool)
