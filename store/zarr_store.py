@@ -47,9 +47,13 @@ from motionweb.store.keys import SHARDS, feature_key, grid_key, rate_tag, web_di
 from motionweb.store.web import MatchWeb
 from numcodecs import Blosc
 from zarr.codecs import BloscCodec
-from zarr.core.array import AsyncArray
-from zarr.core.metadata import ArrayV3Metadata
 from zarr.storage import FsspecStore, LocalStore, StorePath
+
+try:  # zarr's own classes, to open a shard from metadata already read (MotionStore._take_in_shard)
+    from zarr.core.array import AsyncArray
+    from zarr.core.metadata import ArrayV3Metadata
+except ImportError:  # a zarr that moved them: readers open shards with zarr.open (attributes and all)
+    AsyncArray = ArrayV3Metadata = None
 
 #: Blosc lz4 + byte shuffle: fastest writes and a better ratio on float32 (measured on this store)
 COMPRESSORS = (BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),)
@@ -419,7 +423,10 @@ class MotionStore:
             attrs = meta.pop("attributes", {})
             if not (attrs.get("complete", False) and isinstance(attrs.get("webs"), dict)):
                 return False
-            z = zarr.Array(AsyncArray(metadata=ArrayV3Metadata.from_dict(meta), store_path=StorePath(self.zstore, shard)))
+            z = (zarr.Array(AsyncArray(metadata=ArrayV3Metadata.from_dict(meta), store_path=StorePath(self.zstore, shard)))
+                 if AsyncArray is not None else self._open(shard))
+            if z is None:
+                return False
         except Exception:  # noqa: BLE001 - a damaged shard header: its webs are missing
             return False
         n = len(self._shard_names)
