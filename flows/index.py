@@ -34,10 +34,9 @@ from motionweb.store.catalog import Catalog, ClipEntry, scan_corpus
 from motionweb.store.generations import (
     Generation,
     PointerError,
-    check_current,
     commit,
+    current_generation,
     gc,
-    load_generation,
     package_versions,
     same_content,
 )
@@ -748,8 +747,8 @@ def unchanged_summary(cfg: Config) -> dict[str, Any] | None:
     t0 = time.perf_counter()
     store = MotionStore(cfg.store.path)
     try:
-        parent = check_current(store)
-        prev = load_generation(store, parent) if parent else None
+        prev = current_generation(store, strict=True)
+        parent = prev.id if prev is not None else None
     except StoreError:  # PointerError included: the flow repairs it
         return None
     if prev is None:

@@ -30,7 +30,7 @@ from motionweb.flows.index import (
     webs_task,
     working_rate,
 )
-from motionweb.store.generations import Generation, check_current, load_generation, repair_current
+from motionweb.store.generations import Generation, current_generation, load_generation, repair_current
 from motionweb.store.zarr_store import MotionStore
 from prefect import flow, get_run_logger
 from prefect.utilities.annotations import quote
@@ -52,8 +52,11 @@ def index_library(config: str | Config) -> dict[str, Any]:
     timings: dict[str, float] = {}
     store = MotionStore(cfg.store.path)
     damage = repair_current(store)  # a damaged pointer names the newest intact generation again
-    parent = check_current(store) if damage is None else damage.fallback
-    prev = load_generation(store, parent) if parent else None
+    if damage is None:
+        prev = current_generation(store, strict=True)
+    else:
+        prev = load_generation(store, damage.fallback) if damage.fallback else None
+    parent = prev.id if prev is not None else None
     repaired = "" if damage is None else repair_note(damage)
     if repaired:
         logger.warning("%s: %s", store.url, repaired)

@@ -23,7 +23,7 @@ from motionweb.flows.commands.requests import QueryRequest
 from motionweb.flows.config import Config, load_config
 from motionweb.flows.runtime.lazy_prefect import call, flow, run_logger, task
 from motionweb.store.formats import read_motion, write_motion
-from motionweb.store.generations import Generation, current_id, load_generation, package_versions
+from motionweb.store.generations import Generation, current_generation, package_versions
 from motionweb.store.kinematics import sample_motion
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs, WebSource
@@ -53,8 +53,7 @@ class QueryResult:
 def committed_generation(store_url: str) -> tuple[MotionStore, Generation]:
     """The store's committed generation (ValueError when it was never indexed)."""
     store = MotionStore(store_url, read_only=True)
-    gen_id = current_id(store)
-    gen = load_generation(store, gen_id, lean=True) if gen_id else None  # webs as columns: a search reads few
+    gen = current_generation(store, lean=True)  # webs as columns: a search reads few
     if gen is None:
         raise ValueError(f"store {store_url} was never indexed: run `motionweb index CONFIG` first")
     return store, gen

@@ -45,11 +45,9 @@ class _Column:
 
     @classmethod
     def of(cls, values: list[Any]) -> _Column:
-        """Any field, from its value per record (``_MISSING`` where a record lacks it)."""
+        """A field that is not all strings (those are coded as they come: :class:`_Field`), from
+        its value per record (``_MISSING`` where a record lacks it)."""
         kinds = {type(v) for v in values}
-        if kinds == {str}:
-            distinct = {v: i for i, v in enumerate(dict.fromkeys(values))}
-            return cls.of_strings(list(distinct), np.fromiter((distinct[v] for v in values), np.int64, len(values)))
         if kinds == {bool}:
             return cls("bool", np.array(values, dtype=bool))
         if kinds == {int} and all(-2**63 <= v < 2**63 for v in values):

@@ -37,6 +37,7 @@ import json
 import os
 import threading
 import uuid
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -152,6 +153,18 @@ def new_id() -> str:
     return datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ") + "-" + uuid.uuid4().hex[:6]
 
 
+@dataclass(slots=True)
+class _ReaderShard:
+    """A complete shard as a reader keeps it (:meth:`MotionStore._take_in_shard`): its name, its
+    array opened without its attributes, and its web entries as compact JSON texts, entry ``i``
+    being ``blob[ends[i]:ends[i + 1]]`` (``ends`` (entries + 1,))."""
+
+    name: str
+    array: zarr.Array
+    blob: bytes
+    ends: np.ndarray
+
+
 class MotionStore:
     """A Zarr v3 store of features, webs and grids (design §9); manifests: ``store/generations.py``.
 
@@ -192,10 +205,8 @@ class MotionStore:
         # its attributes, and its entries as one compact JSON text each in a bytes blob (see
         # _take_in_shard): O(webs) bytes in a few large buffers, no Python object per web
         self._key_entry: dict[str, tuple[int, int]] = {}
-        self._shard_names: list[str] = []
-        self._shard_arrays: list[zarr.Array] = []
-        self._shard_blobs: list[tuple[bytes, np.ndarray]] = []
-        self._seen_shards: dict[str, int] = {}
+        self._reader_shards: list[_ReaderShard] = []
+        self._seen_shards: dict[str, int] = {}  # shard name -> its number in _reader_shards
         # a reader's local shards laid out as write_webs lays them out: (file, (inner chunk
         # bytes, chunks), the shard's index once read) (see _read_local)
         self._local_layouts: dict[str, tuple[str, tuple[int, int], np.ndarray | None]] = {}
@@ -401,8 +412,8 @@ class MotionStore:
             found = self._key_entry.get(key)
             if found is None:
                 return None
-            blob, ends = self._shard_blobs[found[0]]
-            return self._shard_names[found[0]], json.loads(blob[ends[found[1]]:ends[found[1] + 1]])
+            rs = self._reader_shards[found[0]]
+            return rs.name, json.loads(rs.blob[rs.ends[found[1]]:rs.ends[found[1] + 1]])
         if key not in self._webs:
             self._load_shards(web_digest_of(key))
         return self._webs.get(key)
@@ -410,7 +421,7 @@ class MotionStore:
     def _shard(self, shard: str) -> zarr.Array | None:
         """A complete shard's array (a reader's opened without its attributes)."""
         if self.read_only and shard in self._seen_shards:
-            return self._shard_arrays[self._seen_shards[shard]]
+            return self._reader_shards[self._seen_shards[shard]].array
         return self._shards.get(shard) or self._open(shard)
 
     def _take_in_shard(self, shard: str) -> bool:
@@ -429,14 +440,12 @@ class MotionStore:
                 return False
         except Exception:  # noqa: BLE001 - a damaged shard header: its webs are missing
             return False
-        n = len(self._shard_names)
+        n = len(self._reader_shards)
         texts = [json.dumps(e, separators=(",", ":")).encode() for e in attrs["webs"].values()]
         ends = np.zeros(len(texts) + 1, np.int64)
         np.cumsum([len(t) for t in texts], out=ends[1:])
-        self._shard_blobs.append((b"".join(texts), ends))
+        self._reader_shards.append(_ReaderShard(shard, z, b"".join(texts), ends))
         self._key_entry.update({k: (n, i) for i, k in enumerate(attrs["webs"])})
-        self._shard_names.append(shard)
-        self._shard_arrays.append(z)
         self._seen_shards[shard] = n
         if self._local and meta.get("codecs") and meta["codecs"][0].get("name") == "sharding_indexed":
             cfg = meta["codecs"][0].get("configuration", {})

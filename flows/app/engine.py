@@ -56,7 +56,7 @@ from motionweb.flows.query import (
 )
 from motionweb.store.bvh import format_bvh
 from motionweb.store.cache import LRU
-from motionweb.store.generations import Generation, current_id, load_generation, pointer_signature
+from motionweb.store.generations import Generation, current_generation, load_generation, pointer_signature
 from motionweb.store.gltf import glb_bytes
 from motionweb.store.motion import Motion
 from motionweb.store.webs import StoreWebs
@@ -245,6 +245,8 @@ class Engine:
         self.url = cfg.store.path
         self._snap: Snapshot | None = None
         self._pointer: tuple[tuple | None, str | None] = (None, None)  # (pointer_signature, its generation)
+        #: the generation the last strict check parsed, until :meth:`_open` takes it (parsed once)
+        self._parsed: Generation | None = None
         self._lock = threading.Lock()
         self._loading: threading.Thread | None = None
         self.results = LRU(max_items=KEEP_RESULTS)
@@ -264,19 +266,27 @@ class Engine:
 
     # ------------------------------------------------------------------ generations
     def pointer(self) -> str | None:
-        """The current generation's id (``current_id``: the strict check, which reads the whole
-        manifest, O(webs), runs only when the pointer or its manifest changed since the last
-        request: :func:`~motionweb.store.generations.pointer_signature`)."""
+        """The current generation's id (``current_generation``: the strict check, which reads the
+        whole manifest, O(webs), runs only when the pointer or its manifest changed since the last
+        request: :func:`~motionweb.store.generations.pointer_signature`; the generation it parsed
+        is kept for :meth:`_open`)."""
         store = MotionStore(self.url, read_only=True)
         sig = pointer_signature(store)
         if sig is not None and sig == self._pointer[0]:
             return self._pointer[1]
-        gen_id = current_id(store)
-        self._pointer = (sig, gen_id)
+        gen = current_generation(store, lean=True)
+        gen_id = gen.id if gen is not None else None
+        with self._lock:
+            self._pointer = (sig, gen_id)
+            self._parsed = gen
         return gen_id
 
     def _open(self, gen_id: str) -> Snapshot:
-        gen = load_generation(MotionStore(self.url, read_only=True), gen_id, lean=True)
+        """A snapshot of ``gen_id``, from the manifest the pointer check parsed when it is that one
+        (called with ``_lock`` held)."""
+        gen, self._parsed = self._parsed, None
+        if gen is None or gen.id != gen_id:
+            gen = load_generation(MotionStore(self.url, read_only=True), gen_id, lean=True)
         return Snapshot(self.url, gen)
 
     def _swap_after_warm(self, snap: Snapshot) -> None:
@@ -297,6 +307,8 @@ class Engine:
         gen_id = self.pointer()
         with self._lock:
             snap, loading = self._snap, self._loading
+            if snap is not None and snap.gen.id == gen_id:
+                self._parsed = None  # the one served: no second copy kept
             if gen_id is not None and (snap is None or snap.gen.id != gen_id) and loading is None:
                 new = self._open(gen_id)
                 if snap is None:  # nothing to serve meanwhile: serve it now, warm it behind

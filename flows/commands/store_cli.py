@@ -16,7 +16,7 @@ def verify(
     the pointer and recomputes the objects)."""
     from motionweb.flows.commands.cli import config_or_fail, run_command
     from motionweb.flows.commands.reported import CommandError
-    from motionweb.store.generations import PointerError, check_current, load_generation, verify_generation
+    from motionweb.store.generations import PointerError, current_generation, verify_generation
     from motionweb.store.zarr_store import MotionStore, StoreError
 
     cfg = config_or_fail(config)
@@ -24,8 +24,7 @@ def verify(
     def work() -> dict[str, Any]:
         store = MotionStore(cfg.store.path)
         try:
-            gen_id = check_current(store)
-            gen = load_generation(store, gen_id) if gen_id else None
+            gen = current_generation(store, strict=True)
         except PointerError as exc:
             raise CommandError(f"damaged: {exc}", exit_code=1) from None
         except StoreError as exc:

@@ -12,6 +12,7 @@ from motionweb.store.generations import (
     PointerError,
     check_current,
     commit,
+    current_generation,
     current_id,
     gc,
     generation_ids,
@@ -177,6 +178,48 @@ def test_damaged_pointer_is_reported_read_around_and_repaired(tmp_path, caplog, 
     assert found is not None and found.key == key
     assert check_current(store) == fallback and repair_current(store) is None
     assert (tmp_path / "s" / f"generations/{g2.id}.json").exists()  # the repair deletes nothing
+
+
+def _count_parses(monkeypatch) -> list[str]:
+    """The generation ids whose manifest is parsed from now on."""
+    import motionweb.store.generations as generations
+
+    seen, parse = [], generations._manifest
+
+    def counting(store, gen_id, *args, **kwargs):
+        seen.append(gen_id)
+        return parse(store, gen_id, *args, **kwargs)
+
+    monkeypatch.setattr(generations, "_manifest", counting)
+    return seen
+
+
+@pytest.mark.parametrize("lean", [False, True])
+def test_current_generation_parses_the_manifest_once(tmp_path, monkeypatch, lean):
+    store, _, _ = _two_generations(tmp_path)
+    keys = [web_key(SHA_A, SHA_B, "wd1"), web_key(SHA_B, SHA_B, "wd1")]
+    for i, k in enumerate(keys):
+        store.write_web(k, ragged_web(np.random.default_rng(i)))
+    g3 = _gen(store, keys)
+    commit(store, g3)
+    parsed = _count_parses(monkeypatch)
+    gen = current_generation(store, lean=lean, strict=True)
+    assert parsed == [g3.id] and gen.id == g3.id
+    webs = [{k: w[k] for k in ("a", "b", "key")} for w in gen.to_dict()["webs"]]
+    assert webs == [{k: w[k] for k in ("a", "b", "key")} for w in g3.webs] and len(webs) == 2
+    assert current_generation(MotionStore(str(tmp_path / "empty"))) is None
+
+
+@pytest.mark.parametrize("kind", ["truncated pointer", "edited manifest"])
+def test_current_generation_strict_raises_reader_falls_back(tmp_path, caplog, kind):
+    store, g1, g2 = _two_generations(tmp_path)
+    key = _damage(tmp_path, kind, g2)
+    with pytest.raises(PointerError) as info:
+        current_generation(store, strict=True)
+    assert info.value.key == key
+    fallback = g1.id if key != "current" else g2.id
+    assert current_generation(store, lean=True).id == fallback
+    assert f"falling back to generation {fallback}" in caplog.text
 
 
 def test_never_indexed_is_not_damage(tmp_path):

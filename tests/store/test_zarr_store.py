@@ -145,9 +145,9 @@ def test_a_reader_keeps_each_shard_index_compact(tmp_path):
         assert reader.verify(k) is None
     assert reader.web_attrs(again) == {"i": "again"}
     assert reader.web_keys("wd") == set(written)
-    assert len(reader._shard_names) == len(shas)
+    assert len(reader._reader_shards) == len(shas)
     assert not reader._webs and not reader._shards  # no parsed entry, no array with its attributes
-    assert all(not dict(z.attrs) for z in reader._shard_arrays)
+    assert all(not dict(rs.array.attrs) for rs in reader._reader_shards)
     late = web_key(shas[-1], shas[-1], "wd")
     store.write_webs([(late, ragged_web(rng), {})])
     assert reader.has(late) and not reader.has(web_key(shas[-1], shas[0], "wd"))
