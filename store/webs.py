@@ -28,10 +28,16 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     """A :data:`WebSource` over a committed store generation: the webs touching a clip, oriented
     with it as rows, restricted to clips of ``category`` (None: all). A web is read when first
     asked for and kept in ``cache`` (with its transpose when needed; keyed by the web's content
-    key, so scopes and generations sharing a cache share its webs); ``reads`` counts the reads."""
+    key, so scopes and generations sharing a cache share its webs); ``reads`` counts the reads.
+
+    ``keep_webs=False``: webs asked for by clip are read and not kept (a web already in ``cache`` is
+    still used). For a reader that keeps what it derives from them instead, in the same bounded
+    cache: the service's search keeps each clip's walk graph (``tasks.search.MatchSearch``); kept
+    too, a clip's webs and their transposes took about twice its graph's bytes and evicted the
+    graphs a search reaches next."""
 
     def __init__(self, store: MotionStore, generation: Generation | None = None, category: str | None = None,
-                 cache: LRU | None = None):
+                 cache: LRU | None = None, keep_webs: bool = True):
         gen = generation if generation is not None else load_generation(store)
         if gen is None:
             raise ValueError(f"store {store.url} was never indexed (no committed generation)")
@@ -59,6 +65,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         self._row = {p: i for i, p in enumerate(paths) if self._ptr[i + 1] > self._ptr[i]}
         self._order = [paths[i] for i in np.argsort(first, kind="stable") if paths[i] in self._row]
         self.cache = cache if cache is not None else LRU()
+        self.keep_webs = keep_webs
         self.reads = 0
 
     @classmethod
@@ -87,11 +94,12 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         self.reads += 1
         return web
 
-    def _read(self, rec: dict[str, Any]) -> MatchWeb:
+    def _read(self, rec: dict[str, Any], keep: bool = True) -> MatchWeb:
         web = self.cache.get(("web", rec["key"]))
         if web is None:
             web = self._load(rec)
-            self.cache.put(("web", rec["key"]), web, web.nbytes)
+            if keep:
+                self.cache.put(("web", rec["key"]), web, web.nbytes)
         return web
 
     def records_of(self, clip: str) -> list[dict[str, Any]]:
@@ -105,14 +113,15 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
         out = []
         for rec in self.records_of(clip):
-            web = self._read(rec)
+            web = self._read(rec, self.keep_webs)
             if rec["a"] == clip:
                 out.append((rec["b"], web))
             else:
                 t = self.cache.get(("web-t", rec["key"]))
                 if t is None:
                     t = transpose(web)
-                    self.cache.put(("web-t", rec["key"]), t, t.nbytes)
+                    if self.keep_webs:
+                        self.cache.put(("web-t", rec["key"]), t, t.nbytes)
                 out.append((rec["a"], t))
         return out
 

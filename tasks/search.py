@@ -165,39 +165,59 @@ def _check_web(web: MatchWeb) -> None:
             raise ValueError("a bridge of the web joins a path cell that does not exist")
 
 
-def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
-    """States, successors and branches of one web, numbered from ``base`` (vectorised).
+def _packed_states(webs: Sequence[MatchWeb]) -> dict[str, np.ndarray]:
+    """States, successors and branches of all ``webs`` at once (vectorised over every cell of
+    every web: no Python per web beyond gathering its arrays). Numbering: every web's path cells
+    in web and path order, then every web's bridge interiors in web and bridge order; within a
+    web that is its path cells then its bridge interiors, so the (web, row, col) sort of
+    :func:`walk_graph` breaks ties in the same order as per-web packing (``tests/naive.py``
+    ``ref_walk_graph``).
 
     A bridge of fewer than two cells (two paths that share a cell: the junction's cells coincide)
     is a switch of path at that cell, not a step: its branches go from the shared cell of the
     leaving path straight to the successors of the joined path's cell (the next cell of that path
     and its bridges of two or more cells), so the shared cell is counted once and no step stays in
-    place (KG04 §3.3 walks advance a row or a column per step; :func:`walk_graph` relies on it)."""
-    n_cells = len(web.paths_cells)
-    offs = web.paths_offsets
-    nxt = np.arange(base + 1, base + n_cells + 1, dtype=np.int64)
-    nxt[offs[1:][np.diff(offs) > 0] - 1] = -1
-    lens = np.diff(web.bridges_offsets)
-    inner = np.maximum(lens - 2, 0)
-    inner_start = base + n_cells + np.cumsum(inner) - inner
-    from_state = base + offs[web.bridges[:, 0]] + web.bridges[:, 1]
-    to_state = base + offs[web.bridges[:, 2]] + web.bridges[:, 3]
-    keep = np.ones(len(web.bridges_cells), bool)
-    keep[web.bridges_offsets[:-1][lens > 0]] = False
-    keep[web.bridges_offsets[1:][lens > 0] - 1] = False
-    inner_cells = web.bridges_cells[keep]
+    place (KG04 §3.3 walks advance a row or a column per step; :func:`walk_graph` relies on it).
+    O(cells + bridges · log bridges)."""
+    n_webs = len(webs)
+    p_cells = np.array([len(w.paths_cells) for w in webs], np.int64)
+    n_paths = np.array([w.n_paths for w in webs], np.int64)
+    n_br = np.array([len(w.bridges) for w in webs], np.int64)
+    cell_base = np.concatenate([[0], np.cumsum(p_cells)])
+    path_base = np.concatenate([[0], np.cumsum(n_paths)])
+    n_cells = int(cell_base[-1])
+    # path offsets as global cell numbers, (paths + 1,)
+    offs = np.concatenate([w.paths_offsets[:-1].astype(np.int64) + cell_base[i] for i, w in enumerate(webs)]
+                          + [np.array([n_cells], np.int64)])
+    cells = np.concatenate([w.paths_cells for w in webs]).reshape(-1, 2)
+    nxt = np.arange(1, n_cells + 1, dtype=np.int64)
+    plen = np.diff(offs)
+    nxt[offs[1:][plen > 0] - 1] = -1
+    # bridges with global path numbers, (B, 4); their cells and offsets end to end
+    web_of_br = np.repeat(np.arange(n_webs), n_br)
+    br = np.concatenate([w.bridges.reshape(-1, 4) for w in webs]).astype(np.int64)
+    bcells = np.concatenate([w.bridges_cells for w in webs]).reshape(-1, 2)
+    blens = np.concatenate([np.diff(w.bridges_offsets) for w in webs]).astype(np.int64)
+    boffs = np.concatenate([[0], np.cumsum(blens)])
+    from_state = offs[path_base[web_of_br] + br[:, 0]] + br[:, 1]
+    to_state = offs[path_base[web_of_br] + br[:, 2]] + br[:, 3]
+    inner = np.maximum(blens - 2, 0)
+    inner_start = n_cells + np.cumsum(inner) - inner
+    keep = np.ones(len(bcells), bool)
+    keep[boffs[:-1][blens > 0]] = False
+    keep[boffs[1:][blens > 0] - 1] = False
+    # the interiors web by web: a web's bridges are consecutive, so this is web then bridge order
+    inner_cells = bcells[keep]
     n_inner = int(inner.sum())
-    inner_nxt = np.arange(base + n_cells + 1, base + n_cells + n_inner + 1, dtype=np.int64)
-    last_inner = (inner_start + inner - 1)[inner > 0] - (base + n_cells)
+    inner_nxt = np.arange(n_cells + 1, n_cells + n_inner + 1, dtype=np.int64)
+    last_inner = (inner_start + inner - 1)[inner > 0] - n_cells
     inner_nxt[last_inner] = to_state[inner > 0]
-    # a switch (bridge of < 2 cells) leads to what follows the joined cell: its path's next cell and
-    # the proper bridges leaving it
-    switch = (lens < 2) | (web.paths_cells[from_state - base] == web.paths_cells[to_state - base]).all(axis=1)
+    switch = (blens < 2) | (cells[from_state] == cells[to_state]).all(axis=1)
     proper = ~switch
     b_from, b_to = from_state[proper], np.where(inner > 0, inner_start, to_state)[proper]
     if switch.any():
         sw_from, sw_to = from_state[switch], to_state[switch]
-        after = nxt[sw_to - base]
+        after = nxt[sw_to]
         extra_from = [sw_from[after >= 0]]
         extra_to = [after[after >= 0]]
         order = np.argsort(b_from, kind="stable")
@@ -207,20 +227,56 @@ def _web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
         extra_to.append(b_to[order[np.repeat(lo, hi - lo) + _ranges(hi - lo)]])
         b_from = np.concatenate([b_from, *extra_from])
         b_to = np.concatenate([b_to, *extra_to])
+    i_count = np.bincount(web_of_br, weights=inner, minlength=n_webs).astype(np.int64)
     return {
-        "cells": np.concatenate([web.paths_cells, inner_cells]).astype(np.int32),
-        "values": np.concatenate([web.paths_values, web.bridges_values[keep]]).astype(np.float64),
+        "cells": np.concatenate([cells, inner_cells]).astype(np.int32),
+        "values": np.concatenate([w.paths_values for w in webs] + [w.bridges_values for w in webs])[
+            np.concatenate([np.ones(n_cells, bool), keep])].astype(np.float32),
         "nxt": np.concatenate([nxt, inner_nxt]),
+        "web_of": np.concatenate([np.repeat(np.arange(n_webs), p_cells), np.repeat(np.arange(n_webs), i_count)]),
         "branch_from": b_from.astype(np.int64),
         "branch_to": b_to.astype(np.int64),
-        "path_first": base + offs[:-1],
-        "path_last": base + offs[1:] - 1,
+        "path_first": offs[:-1],
+        "path_last": offs[1:] - 1,
     }
+
+
+def _check_webs(webs: Sequence[tuple[str, MatchWeb]]) -> None:
+    """:func:`_check_web` for every web, vectorised (the per-web check runs only to name the first
+    web that fails). O(cells + bridges)."""
+    fb = np.array([w.shape[1] for _, w in webs], np.int64)
+    fa = np.array([w.shape[0] for _, w in webs], np.int64)
+    ok = True
+    for attr, off in (("paths_cells", None), ("bridges_cells", None)):
+        counts = np.array([len(getattr(w, attr)) for _, w in webs], np.int64)
+        c = np.concatenate([getattr(w, attr) for _, w in webs]).reshape(-1, 2)
+        if len(c):
+            ok &= bool(c.min() >= 0) and bool(np.all(c[:, 0] < np.repeat(fa, counts))) \
+                and bool(np.all(c[:, 1] < np.repeat(fb, counts)))
+    nb = np.array([len(w.bridges) for _, w in webs], np.int64)
+    if ok and nb.sum():
+        npaths = np.array([w.n_paths for _, w in webs], np.int64)
+        base = np.concatenate([[0], np.cumsum(npaths)])
+        lens = np.concatenate([np.diff(w.paths_offsets) for _, w in webs]).astype(np.int64)
+        br = np.concatenate([w.bridges.reshape(-1, 4) for _, w in webs]).astype(np.int64)
+        web = np.repeat(np.arange(len(webs)), nb)
+        p, q, limit = br[:, 0], br[:, 2], npaths[web]
+        ok = bool(np.all((p >= 0) & (q >= 0) & (p < limit) & (q < limit) & (br[:, 1] >= 0) & (br[:, 3] >= 0)))
+        if ok:
+            ok = bool(np.all((br[:, 1] < lens[base[web] + p]) & (br[:, 3] < lens[base[web] + q])))
+    if not ok:
+        for other, w in webs:
+            try:
+                _check_web(w)
+            except ValueError as exc:
+                raise ValueError(f"match web with {other!r}: {exc}; run motionweb index to recompute it") from None
+        raise AssertionError("the vectorised web check and _check_web disagree")  # pragma: no cover
 
 
 def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     """Pack the webs of one clip (each with that clip as rows) into a :class:`WalkGraph`.
-    O(cells · log cells) (one sort into (web, row, col) order)."""
+    O(cells · log cells) (one sort into (web, row, col) order), vectorised over all webs at once
+    (``tests/naive.py`` ``ref_walk_graph`` packs them one web at a time)."""
     if not webs:
         raise ValueError("no match webs to search")
     rates = {float(w.rate) for _, w in webs}
@@ -228,20 +284,14 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     if len(rates) != 1 or len(frames) != 1:
         raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
     n_frames = frames.pop()
-    parts, base = [], 0
-    for other, w in webs:
-        try:
-            _check_web(w)
-        except ValueError as exc:
-            raise ValueError(f"match web with {other!r}: {exc}; run motionweb index to recompute it") from None
-        s = _web_states(w, base)
-        parts.append(s)
-        base += len(s["cells"])
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    web_of = np.concatenate([np.full(len(p["cells"]), i, np.int64) for i, p in enumerate(parts)])
+    _check_webs(webs)
+    cat = _packed_states([w for _, w in webs])
+    base = len(cat["cells"])
+    web_of = cat["web_of"]
     rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
-    # renumber the states by (web, row, col); ties keep the packing order
-    order = np.lexsort((cols, rows, web_of))
+    # renumber the states by (web, row, col); ties keep the packing order (one stable sort of one key)
+    width = int(cols.max(initial=0)) + 1
+    order = np.argsort((web_of * n_frames + rows) * width + cols, kind="stable")
     new = np.empty(base, np.int64)
     new[order] = np.arange(base)
     nxt = cat["nxt"][order]

@@ -15,6 +15,7 @@ from motionweb.store.web import MatchWeb
 from motionweb.tasks.distance import rigid_align_2d
 from motionweb.tasks.guided_warp import Track
 from motionweb.tasks.retime.objective import BakedObjective, sector
+from motionweb.tasks.search import WalkGraph, _check_web, _narrow, _ranges
 
 
 class TooManySequences(RuntimeError):
@@ -743,3 +744,129 @@ def webs_by_clip(webs: list[dict], categories: dict[str, str], category: str | N
             if w["b"] != w["a"]:
                 out.setdefault(w["b"], []).append(w)
     return out
+
+
+def ref_web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
+    """States, successors and branches of one web, numbered from ``base`` (``tasks.search.walk_graph``'s packing, one web).
+
+    A bridge of fewer than two cells (two paths that share a cell: the junction's cells coincide)
+    is a switch of path at that cell, not a step: its branches go from the shared cell of the
+    leaving path straight to the successors of the joined path's cell (the next cell of that path
+    and its bridges of two or more cells), so the shared cell is counted once and no step stays in
+    place (KG04 §3.3 walks advance a row or a column per step; :func:`walk_graph` relies on it)."""
+    n_cells = len(web.paths_cells)
+    offs = web.paths_offsets
+    nxt = np.arange(base + 1, base + n_cells + 1, dtype=np.int64)
+    nxt[offs[1:][np.diff(offs) > 0] - 1] = -1
+    lens = np.diff(web.bridges_offsets)
+    inner = np.maximum(lens - 2, 0)
+    inner_start = base + n_cells + np.cumsum(inner) - inner
+    from_state = base + offs[web.bridges[:, 0]] + web.bridges[:, 1]
+    to_state = base + offs[web.bridges[:, 2]] + web.bridges[:, 3]
+    keep = np.ones(len(web.bridges_cells), bool)
+    keep[web.bridges_offsets[:-1][lens > 0]] = False
+    keep[web.bridges_offsets[1:][lens > 0] - 1] = False
+    inner_cells = web.bridges_cells[keep]
+    n_inner = int(inner.sum())
+    inner_nxt = np.arange(base + n_cells + 1, base + n_cells + n_inner + 1, dtype=np.int64)
+    last_inner = (inner_start + inner - 1)[inner > 0] - (base + n_cells)
+    inner_nxt[last_inner] = to_state[inner > 0]
+    # a switch (bridge of < 2 cells) leads to what follows the joined cell: its path's next cell and
+    # the proper bridges leaving it
+    switch = (lens < 2) | (web.paths_cells[from_state - base] == web.paths_cells[to_state - base]).all(axis=1)
+    proper = ~switch
+    b_from, b_to = from_state[proper], np.where(inner > 0, inner_start, to_state)[proper]
+    if switch.any():
+        sw_from, sw_to = from_state[switch], to_state[switch]
+        after = nxt[sw_to - base]
+        extra_from = [sw_from[after >= 0]]
+        extra_to = [after[after >= 0]]
+        order = np.argsort(b_from, kind="stable")
+        lo = np.searchsorted(b_from[order], sw_to, "left")
+        hi = np.searchsorted(b_from[order], sw_to, "right")
+        extra_from.append(np.repeat(sw_from, hi - lo))
+        extra_to.append(b_to[order[np.repeat(lo, hi - lo) + _ranges(hi - lo)]])
+        b_from = np.concatenate([b_from, *extra_from])
+        b_to = np.concatenate([b_to, *extra_to])
+    return {
+        "cells": np.concatenate([web.paths_cells, inner_cells]).astype(np.int32),
+        "values": np.concatenate([web.paths_values, web.bridges_values[keep]]).astype(np.float64),
+        "nxt": np.concatenate([nxt, inner_nxt]),
+        "branch_from": b_from.astype(np.int64),
+        "branch_to": b_to.astype(np.int64),
+        "path_first": base + offs[:-1],
+        "path_last": base + offs[1:] - 1,
+    }
+
+
+def ref_walk_graph(webs: list[tuple[str, MatchWeb]]) -> WalkGraph:
+    """``tasks.search.walk_graph`` one web at a time: each web's states numbered from the count
+    so far (its path cells, then its bridge interiors), three-key sort into (web, row, col)
+    order, values as float64 (the vectorised packing's float32 values widen to these exactly)."""
+    if not webs:
+        raise ValueError("no match webs to search")
+    rates = {float(w.rate) for _, w in webs}
+    frames = {int(w.shape[0]) for _, w in webs}
+    if len(rates) != 1 or len(frames) != 1:
+        raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
+    n_frames = frames.pop()
+    parts, base = [], 0
+    for other, w in webs:
+        try:
+            _check_web(w)
+        except ValueError as exc:
+            raise ValueError(f"match web with {other!r}: {exc}; run motionweb index to recompute it") from None
+        s = ref_web_states(w, base)
+        parts.append(s)
+        base += len(s["cells"])
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    web_of = np.concatenate([np.full(len(p["cells"]), i, np.int64) for i, p in enumerate(parts)])
+    rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
+    # renumber the states by (web, row, col); ties keep the packing order
+    order = np.lexsort((cols, rows, web_of))
+    new = np.empty(base, np.int64)
+    new[order] = np.arange(base)
+    nxt = cat["nxt"][order]
+    nxt = np.where(nxt >= 0, new[np.maximum(nxt, 0)], -1)
+    # every step must go up and/or right (row + col grows: the walk's topological order, _collect;
+    # rows never fall: the band of rows a..b, _nearest): a step of a malformed web that does not is
+    # dropped, so the compiled walks only ever see a DAG within their bands
+    r_new, c_new = rows[order].astype(np.int64), cols[order].astype(np.int64)
+
+    def advances(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return (r_new[v] >= r_new[u]) & (c_new[v] >= c_new[u]) & (r_new[v] + c_new[v] > r_new[u] + c_new[u])
+
+    bad_nxt = (nxt >= 0) & ~advances(np.arange(base), np.maximum(nxt, 0))
+    nxt[bad_nxt] = -1
+    b_from, b_to = new[cat["branch_from"]], new[cat["branch_to"]]
+    good = advances(b_from, b_to)
+    dropped = int(bad_nxt.sum()) + int((~good).sum())
+    b_from, b_to = b_from[good], b_to[good]
+    by_from = np.argsort(b_from, kind="stable")  # bridges by new from-state, packing order kept
+    branch_off = np.zeros(base + 1, np.int64)
+    np.cumsum(np.bincount(b_from, minlength=base), out=branch_off[1:])
+    # the earliest row-r cell of each path crossing row r: a path cell whose predecessor on the path
+    # lies in a lower row (or that starts the path) starts the rows above that predecessor's up to its own
+    first, last = cat["path_first"], cat["path_last"]
+    first, last = first[last >= first], last[last >= first]
+    is_path = np.zeros(base, bool)
+    is_path[np.repeat(first, last - first + 1) + _ranges(last - first + 1)] = True
+    prev_row = np.full(base, -1, np.int64)
+    prev_row[1:] = rows[:-1]
+    prev_row[first] = rows[first] - 1
+    entry = np.nonzero(is_path & (rows > prev_row))[0]
+    n_rows = rows[entry] - prev_row[entry]
+    e_state = np.repeat(entry, n_rows)
+    e_row = rows[e_state] - _ranges(n_rows)
+    e_key = web_of[e_state] * n_frames + e_row
+    e_order = np.lexsort((e_state, e_key))  # by (web, row), then packing (= path) order
+    start_off = np.searchsorted(e_key[e_order], np.arange(len(webs) * n_frames + 1)).astype(np.int64)
+    key = web_of[order] * (n_frames + 1) + rows[order]
+    want = np.arange(len(webs))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
+    return WalkGraph(
+        rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs),
+        rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
+        values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off),
+        branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
+        start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
+    )

@@ -145,7 +145,7 @@ class _State:
         gen, gen_cfg, scopes, store = self.generation(gen_id)
         sc = scopes.get(category)
         if sc is None:
-            webs = StoreWebs(store, gen, category, self.cache)
+            webs = StoreWebs(store, gen, category, self.cache, keep_webs=False)  # the cache keeps graphs
             sc = scopes[category] = _Scope(webs, MatchSearch(webs, SearchParams(), gen_cfg.matchweb,
                                                              self.cache, (gen_id, category)))
         return sc

@@ -17,7 +17,7 @@ from motionweb.store.web import MatchWeb, transpose
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb.params import MatchWebParams
 from motionweb.tasks.search import MatchSearch, SearchParams, nearest_matches, walk_graph, walk_web
-from naive import TooManySequences, ref_matches, ref_walk_steps
+from naive import TooManySequences, ref_matches, ref_walk_graph, ref_walk_steps
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -182,6 +182,43 @@ def test_tiered_search_over_webs_of_very_different_lengths(data) -> None:
     for n in graph.nodes:
         f = frames[names.index(n.segment.clip)]
         assert 0 <= n.segment.start <= n.segment.end < f
+
+
+GRAPH_FIELDS = ("rows", "cols", "values", "nxt", "branch_off", "branch_to", "web_rows", "start_off", "starts",
+                "clip_rank")
+
+
+@SETTINGS
+@given(st.data())
+def test_packing_equals_the_per_web_reference(data) -> None:
+    """All webs of a clip packed at once (vectorised) give the graph the per-web packing gives:
+    every array equal, state for state (values: float32 that widen to the reference's float64),
+    on 1-6 webs of one row count with switches, two-cell bridges, empty webs and webs of one row."""
+    fa = data.draw(st.integers(1, 12))
+    webs_ = [(f"c{data.draw(st.integers(0, 3))}", data.draw(webs(rows=fa)))
+             for _ in range(data.draw(st.integers(1, 6)))]
+    got, ref = walk_graph(webs_), ref_walk_graph(webs_)
+    assert got.values.dtype == np.float32 and got.n_frames == ref.n_frames and got.others == ref.others
+    for name in GRAPH_FIELDS:
+        a, b = getattr(got, name), getattr(ref, name)
+        assert a.shape == b.shape and np.array_equal(a.astype(np.float64), b.astype(np.float64)), name
+    assert got.dropped_steps == ref.dropped_steps
+
+
+def test_packing_equals_the_reference_on_a_malformed_web() -> None:
+    """A step back, dropped the same way by both packings; a web outside its grid named by both."""
+    back = MatchWeb(rate=30.0, shape=(5, 5), paths_cells=[[0, 0], [2, 2], [1, 1], [3, 3]], paths_values=[0.1] * 4,
+                    paths_offsets=[0, 4])
+    good = MatchWeb(rate=30.0, shape=(5, 3), paths_cells=[[0, 0], [1, 1]], paths_values=[0.2, 0.3],
+                    paths_offsets=[0, 2])
+    got, ref = walk_graph([("g", good), ("x", back)]), ref_walk_graph([("g", good), ("x", back)])
+    assert got.dropped_steps == ref.dropped_steps == 1
+    for name in GRAPH_FIELDS:
+        assert np.array_equal(getattr(got, name).astype(np.float64), getattr(ref, name).astype(np.float64)), name
+    outside = MatchWeb(rate=30.0, shape=(5, 2), paths_cells=[[0, 0], [1, 2]], paths_values=[0.1] * 2,
+                       paths_offsets=[0, 2])
+    with pytest.raises(ValueError, match="'y'.*outside its 5x2 grid"):
+        walk_graph([("g", good), ("y", outside)])
 
 
 def test_malformed_webs_are_refused_or_cut_not_walked_out_of_bounds() -> None:
