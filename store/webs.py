@@ -10,6 +10,7 @@ default, so each web is read once; the service passes one bounded by bytes).
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
@@ -109,6 +110,21 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         if i is None:
             raise KeyError(clip)
         return [self.table[int(w)] for w in self._ids[self._ptr[i]:self._ptr[i + 1]]]
+
+    def others_of(self, clip: str) -> list[str]:
+        """The other clip of each web :meth:`__getitem__` gives for ``clip``, in its order (no
+        web read; KeyError: no webs)."""
+        return [r["b"] if r["a"] == clip else r["a"] for r in self.records_of(clip)]
+
+    def content_key(self, clip: str, salt: str) -> str:
+        """A hex key of what :meth:`__getitem__` gives for ``clip`` (no web read): the stored
+        webs' content keys in order, each with whether it is transposed, and ``salt`` (what is
+        computed from them, e.g. a packing's layout). Equal keys, equal webs: the keys name
+        content (``store.keys``), so a value computed from the webs can be kept under it."""
+        h = hashlib.sha256(salt.encode())
+        for r in self.records_of(clip):
+            h.update(f"\n{r['key']}:{int(r['a'] != clip)}".encode())
+        return h.hexdigest()
 
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
         out = []

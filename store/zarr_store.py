@@ -106,10 +106,12 @@ def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarra
     return parts, layout, start
 
 
-def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0) -> dict[str, np.ndarray]:
-    """Inverse of :func:`_pack` on ``buf`` holding the bytes from offset ``base`` on."""
-    return {name: buf[start - base:start - base + nbytes].view(np.dtype(dtype)).reshape(shape).copy()
-            for name, dtype, shape, start, nbytes in layout}
+def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0, copy: bool = True) -> dict[str, np.ndarray]:
+    """Inverse of :func:`_pack` on ``buf`` holding the bytes from offset ``base`` on (``copy``:
+    arrays of their own, else views of ``buf``)."""
+    out = {name: buf[start - base:start - base + nbytes].view(np.dtype(dtype)).reshape(shape)
+           for name, dtype, shape, start, nbytes in layout}
+    return {k: v.copy() for k, v in out.items()} if copy else out
 
 
 _SCRATCH = threading.local()

@@ -2,18 +2,27 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 from hypothesis import settings
 from motionweb.store.datasets import ENV_VAR, mocap_root
+from motionweb.store.filecache import CACHE_ENV
 
 # property-based tests draw the same examples on every run (CI included): a failure they find is
 # reproducible, never a one-off of a random seed; HYPOTHESIS_PROFILE=explore draws new ones
 settings.register_profile("repeatable", derandomize=True, database=None)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
+
+# motionweb's file caches (the app's packed walk graphs, store/filecache.py) in a folder of this
+# run, never the user's: a test that needs them empty makes its own
+os.environ[CACHE_ENV] = tempfile.mkdtemp(prefix="motionweb-test-cache-")
+atexit.register(shutil.rmtree, os.environ[CACHE_ENV], True)
 
 
 @pytest.fixture(scope="session")

@@ -20,6 +20,14 @@ class AppParams(Params):
     #: MiB of webs and packed walk graphs each search worker keeps, least recently used dropped
     #: first (the primary and its standby each hold up to this; design §5)
     cache_mb: float = Field(512.0, gt=0)
+    #: GiB of packed walk graphs the search workers keep in files, shared between them and across
+    #: runs (``store/filecache.py``: a search that reaches a graph no worker holds reads it back in
+    #: ~2 ms instead of reading and packing its webs in ~46 ms); 0: none
+    graph_files_gb: float = Field(4.0, ge=0)
+    #: their folder, on a local disk (None: $MOTIONWEB_CACHE_DIR/graphs, else
+    #: $XDG_CACHE_HOME/motionweb/graphs, else ~/.cache/motionweb/graphs); content-keyed, so
+    #: shared by every store and generation and safe to delete at any time
+    graph_files_dir: str | None = None
     #: prepared retime plans (one per clip × physics) the session worker keeps, at most
     session_plans: int = Field(8, ge=1, le=256)
     #: and their total size (bytes, numpy arrays counted), at most; the least recently used go first

@@ -112,11 +112,14 @@ class _State:
     """What a worker holds: per open generation, its scopes' webs and searches, and one cache of
     webs and walk graphs bounded by ``cache_bytes`` (None: no bound) that they all share."""
 
-    def __init__(self, url: str, cache_bytes: int | None = None):
+    def __init__(self, url: str, cache_bytes: int | None = None, files: tuple[str, int] | None = None):
         from motionweb.store.cache import LRU
+        from motionweb.store.filecache import FileCache
 
         self.url = url
         self.cache = LRU(max_bytes=cache_bytes)
+        #: packed walk graphs kept in files (``app.graph_files_gb``), shared with the other worker
+        self.files = FileCache(*files) if files is not None else None
         #: per open generation: (generation, its indexed config, its scopes, its store)
         self.gens: OrderedDict[str, tuple[Any, Any, dict[str | None, _Scope], Any]] = OrderedDict()
 
@@ -147,7 +150,7 @@ class _State:
         if sc is None:
             webs = StoreWebs(store, gen, category, self.cache, keep_webs=False)  # the cache keeps graphs
             sc = scopes[category] = _Scope(webs, MatchSearch(webs, SearchParams(), gen_cfg.matchweb,
-                                                             self.cache, (gen_id, category)))
+                                                             self.cache, (gen_id, category), self.files))
         return sc
 
     def warm(self, gen_id: str, category: str | None) -> int:
@@ -162,7 +165,8 @@ class _State:
     def stats(self) -> dict[str, Any]:
         """The cache's entries, bytes and bound, and the webs read from the store so far."""
         reads = sum(sc.webs.reads for _, _, scopes, _ in self.gens.values() for sc in scopes.values())
-        return {**self.cache.stats(), "webs_read": reads}
+        files = self.files.stats() if self.files is not None else None
+        return {**self.cache.stats(), "webs_read": reads, "graph_files": files}
 
     def search(self, job: SearchJob) -> tuple[Any, float | None]:
         from motionweb.tasks.ranking import search_query
@@ -274,13 +278,13 @@ def serve(fd: int, name: str, handlers: dict[str, Callable[[Any], Any]]) -> None
             return
 
 
-def child_main(fd: int, url: str, cache_bytes: int | None = None) -> None:
+def child_main(fd: int, url: str, cache_bytes: int | None = None, files: tuple[str, int] | None = None) -> None:
     """The search worker: ("search", job) / ("warm", (gen, category)) / ("register", (gen,
     graph)) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
-    graphs."""
+    graphs, ``files`` (folder, bytes) its file cache of graphs."""
     from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
 
-    state = _State(url, cache_bytes)
+    state = _State(url, cache_bytes, files)
     serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
                                 "register": lambda p: state.register(*p), "query_webs": lambda p: state.query_webs(*p),
                                 "stats": lambda _: state.stats()})
@@ -373,8 +377,9 @@ class SearchWorkers:
     ``standby``: keep a second warmed worker ready to take over after a crash; ``cache_bytes``:
     each worker's bound on the webs and graphs it keeps (None: none)."""
 
-    def __init__(self, url: str, standby: bool = True, cache_bytes: int | None = None):
-        self.url, self.standby, self.cache_bytes = url, standby, cache_bytes
+    def __init__(self, url: str, standby: bool = True, cache_bytes: int | None = None,
+                 files: tuple[str, int] | None = None):
+        self.url, self.standby, self.cache_bytes, self.files = url, standby, cache_bytes, files
         self._stats: dict[str, Any] | None = None  # the primary's cache, as last asked
         self._call = threading.Lock()  # one job at a time on the primary
         self._state = threading.Lock()  # guards the fields below
@@ -390,7 +395,8 @@ class SearchWorkers:
 
     # -------------------------------------------------------------- workers
     def _new_worker(self) -> Worker:
-        return Worker(self.url, str(self.cache_bytes or 0))
+        files = self.files or ("", 0)
+        return Worker(self.url, str(self.cache_bytes or 0), files[0], str(files[1]))
 
     def _warm(self, w: Worker, gen_id: str, scopes: list[str | None]) -> None:
         for cat in scopes:
@@ -581,4 +587,5 @@ class SearchWorkers:
 
 
 if __name__ == "__main__":
-    child_main(int(sys.argv[1]), sys.argv[2], int(sys.argv[3]) or None)
+    child_main(int(sys.argv[1]), sys.argv[2], int(sys.argv[3]) or None,
+               (sys.argv[4], int(sys.argv[5])) if len(sys.argv) > 5 and int(sys.argv[5]) > 0 else None)

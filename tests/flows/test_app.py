@@ -378,11 +378,15 @@ def test_a_query_that_matches_nothing_is_an_empty_result_with_a_message(client, 
     assert res["matches"] == [] and res["epsilon"] is None and res["message"] == NO_MATCH
 
 
-def test_opening_a_generation_reads_no_web(cfg) -> None:
+def _with_graph_files(cfg, folder) -> object:
+    return cfg.model_copy(update={"app": cfg.app.model_copy(update={"graph_files_dir": str(folder)})})
+
+
+def test_opening_a_generation_reads_no_web(cfg, tmp_path) -> None:
     """Issue 25: the service opens a generation whatever its size without reading its webs; a
-    search then reads only the webs it reaches (kept in the worker's cache) and answers as the
-    query flow does."""
-    engine = Engine(cfg)  # warm: the worker opens every category's scope before the generation serves
+    search then reads only the webs it reaches (their graphs kept in the worker's cache) and
+    answers as the query flow does."""
+    engine = Engine(_with_graph_files(cfg, tmp_path / "graphs"))  # warm: the worker opens every category's scope
     try:
         snap = engine.current()
         assert snap.warmed.wait(300)
@@ -393,9 +397,41 @@ def test_opening_a_generation_reads_no_web(cfg) -> None:
         assert res.rows == rows and len(rows) > 2
         stats = engine.workers.cache_stats(wait=60)
         walk_webs = sum(1 for w in snap.gen.webs if "walk/" in w["a"] and "walk/" in w["b"])
-        assert 0 < stats["webs_read"] <= walk_webs and stats["entries"] > 0
+        # the cache keeps graphs, not webs: a web is read for each of its two clips' graphs at most
+        assert 0 < stats["webs_read"] <= 2 * walk_webs and stats["entries"] > 0
         assert stats["max_bytes"] == int(cfg.app.cache_mb * 2**20) and stats["bytes"] <= stats["max_bytes"]
         assert engine.status()["cache"]["webs_read"] == stats["webs_read"]
+    finally:
+        engine.close()
+
+
+def test_a_new_service_reads_the_graphs_packed_before_from_files(cfg, tmp_path) -> None:
+    """Issue 25 part 5: the search workers keep each packed walk graph in files
+    (``app.graph_files_gb``); a service started later (new workers, empty memory caches) reads
+    them back instead of the webs and answers the same. With the files off, nothing is kept."""
+    eps, rows, _ = expected_search(cfg, **QUERY)
+    request = {**{k: v for k, v in QUERY.items() if k != "quantile"}, "threshold": eps}
+    with_files = _with_graph_files(cfg, tmp_path / "graphs")
+    for run in range(2):
+        engine = Engine(with_files, warm=False)
+        try:
+            assert engine.search(request).rows == rows
+            stats = engine.workers.cache_stats(wait=60)
+            files = stats["graph_files"]
+            assert files["folder"] == str(tmp_path / "graphs")
+            if run == 0:
+                assert stats["webs_read"] > 0 and files["writes"] > 0 and files["hits"] == 0
+            else:
+                assert stats["webs_read"] == 0 and files["hits"] > 0 and files["writes"] == 0
+        finally:
+            engine.close()
+    assert list((tmp_path / "graphs").rglob("*.mwc"))
+    off = cfg.model_copy(update={"app": cfg.app.model_copy(update={"graph_files_gb": 0.0,
+                                                                   "graph_files_dir": str(tmp_path / "off")})})
+    engine = Engine(off, warm=False)
+    try:
+        assert engine.search(request).rows == rows
+        assert engine.workers.cache_stats(wait=60)["graph_files"] is None and not (tmp_path / "off").exists()
     finally:
         engine.close()
 

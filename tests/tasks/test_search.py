@@ -282,6 +282,87 @@ def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> Non
         StoreWebs(MotionStore(str(tmp_path / "empty")))
 
 
+def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) -> None:
+    """Issue 25 part 5: a search keeps each packed graph in a file cache; a fresh search (another
+    process, another run) reads them back instead of its webs, checked, and finds the same graph;
+    a damaged, foreign or stale file is packed again."""
+    from motionweb.store.filecache import FileCache
+    from motionweb.tasks.search import MatchSearch, WalkGraph
+
+    pc, webs = chain
+    store = MotionStore(str(tmp_path / "store"))
+    keys = list(pc.clips)
+    recs = []
+    for i, a in enumerate(keys):
+        for b in keys[i:]:
+            key = web_key(f"{i:064x}", f"{keys.index(b):064x}", "test")
+            store.write_web(key, webs.web(a, b).to_arrays())
+            recs.append({"a": a, "b": b, "key": key, "chunk": "all"})
+    clips = [{"path": k, "category": pc.categories[k]} for k in keys]
+    commit(store, Generation(new_id(), now_iso(), clips=clips, webs=recs))
+    files = FileCache(tmp_path / "graphs", 1 << 30)
+
+    def fresh() -> tuple[StoreWebs, MatchSearch]:
+        src = StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), pc.query.clip)
+        return src, MatchSearch(src, SearchParams(), files=files)
+
+    src1, ms1 = fresh()
+    want = ms1.search(pc.query, 0.003)
+    assert files.writes == len(want.nodes) and src1.reads > 0
+    src2, ms2 = fresh()
+    got = ms2.search(pc.query, 0.003)
+    assert src2.reads == 0 and files.hits == len(want.nodes)  # every graph from its file, no web read
+    assert [(n.segment, n.distance, n.tier) for n in got.nodes] == [(n.segment, n.distance, n.tier) for n in want.nodes]
+    for clip in src1:
+        a, b = ms1.graph(clip), ms2.graph(clip)
+        assert a.others == b.others and b.values.dtype == np.float32
+        for name in (*WalkGraph.STORED, "clip_rank"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    # a file from another layout (or of other webs under a colliding key) is packed again, and replaced
+    fkey = src2.content_key(pc.query.clip, f"walk graph layout {WalkGraph.LAYOUT}")
+    arrays, meta = files.get(fkey)
+    files.put(fkey, arrays, {**meta, "layout": WalkGraph.LAYOUT + 1})
+    src3, ms3 = fresh()
+    assert ms3.graph(pc.query.clip).n_states == ms1.graph(pc.query.clip).n_states and src3.reads > 0
+    assert files.get(fkey)[1]["layout"] == WalkGraph.LAYOUT
+    # a source that does not name its webs' content (a plain mapping) keeps no files
+    assert MatchSearch(webs, files=files).files is None
+
+
+def test_a_packed_graph_from_outside_is_checked(chain) -> None:
+    """WalkGraph.from_arrays refuses what the compiled walks could index out of bounds with."""
+    from motionweb.tasks.search import WalkGraph
+
+    pc, webs = chain
+    g = walk_graph(webs[pc.query.clip])
+    arrays, meta = g.to_arrays()
+    ok = WalkGraph.from_arrays(arrays, meta, g.others)
+    assert ok.n_states == g.n_states and np.array_equal(ok.clip_rank, g.clip_rank)
+
+    def damaged(name: str, change) -> dict:
+        out = {k: v.copy() for k, v in arrays.items()}
+        change(out[name])
+        return out
+
+    n = g.n_states
+    cases = {
+        "a next state out of range": damaged("nxt", lambda a: a.__setitem__(0, n)),
+        "a branch state out of range": damaged("branch_to", lambda a: a.__setitem__(0, -1)),
+        "a start state out of range": damaged("starts", lambda a: a.__setitem__(0, n + 5)),
+        "a cell out of range": damaged("rows", lambda a: a.__setitem__(0, g.n_frames)),
+        "offsets out of order": damaged("branch_off", lambda a: a.__setitem__(slice(1, 3), [5, 2])),
+        "web row table": damaged("web_rows", lambda a: a.__setitem__((0, 1), n + 1)),
+        "does not advance": damaged("cols", lambda a: a.__setitem__(slice(None), 0)),
+    }
+    for what, bad in cases.items():
+        with pytest.raises(ValueError, match=what):
+            WalkGraph.from_arrays(bad, meta, g.others)
+    with pytest.raises(ValueError, match="differ in length"):
+        WalkGraph.from_arrays({**arrays, "values": arrays["values"][:-1]}, meta, g.others)
+    with pytest.raises(ValueError, match="layout"):
+        WalkGraph.from_arrays(arrays, meta, g.others[:-1])
+
+
 # ---------------------------------------------------------------------------- graph dedup
 
 
