@@ -19,9 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.app.params import graph_files
 from motionweb.flows.commands.requests import QueryRequest
 from motionweb.flows.config import Config, load_config
 from motionweb.flows.runtime.lazy_prefect import call, flow, run_logger, task
+from motionweb.store.filecache import FileCache
 from motionweb.store.formats import read_motion, write_motion
 from motionweb.store.generations import Generation, current_generation, package_versions
 from motionweb.store.kinematics import sample_motion
@@ -286,7 +288,8 @@ def search_task(q: PreparedQuery, cfg: Config, request: QueryRequest) -> tuple[M
     default rule and no nearest match ε is None and the graph holds the query alone
     (``tasks.ranking.NO_MATCH`` says why)."""
     scfg = cfg.search if request.tiers is None else cfg.search.model_copy(update={"max_tiers": request.tiers})
-    ms = MatchSearch(q.webs, scfg, q.gen_cfg.matchweb)
+    files = graph_files(cfg.app)  # the service's file cache of packed graphs: a later search reads them back
+    ms = MatchSearch(q.webs, scfg, q.gen_cfg.matchweb, files=FileCache(*files) if files else None)
     return search_query(ms, q.segment, request.threshold, request.quantile)
 
 

@@ -126,6 +126,15 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
             h.update(f"\n{r['key']}:{int(r['a'] != clip)}".encode())
         return h.hexdigest()
 
+    def scope_key(self, salt: str) -> str:
+        """A hex key of every web of the restriction (:meth:`records`'s, by their content keys, in
+        the manifest's order) and ``salt``: e.g. a quantile of their values kept under it. O(webs)
+        in numpy, no web read."""
+        values, codes = self.table.strings("key")
+        h = hashlib.sha256(salt.encode())
+        h.update("\n".join(values[c] for c in codes[np.unique(self._ids)]).encode())
+        return h.hexdigest()
+
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
         out = []
         for rec in self.records_of(clip):

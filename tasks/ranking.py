@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.matchweb.params import min_chain_extent
-from motionweb.tasks.search import INF, MatchSearch, epsilon_from_quantile, nearest_by_clip, nearest_matches
+from motionweb.tasks.search import INF, MatchSearch, nearest_by_clip, nearest_matches
 
 
 def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
@@ -55,14 +55,13 @@ def choose_epsilon(ms: MatchSearch, query: Segment, threshold: float | None, qua
                    quantile_value: Callable[[float], float] | None = None) -> float | None:
     """ε of one search (KG04 §3.3; design §5), the one rule every front door uses: ``threshold``
     when given; else the ``quantile`` of the searched webs' path values (``quantile_value(q)``
-    when the caller keeps them computed, else :func:`epsilon_from_quantile` over ``ms.webs``);
+    when the caller keeps them computed, else :meth:`MatchSearch.quantile` over ``ms.webs``);
     else :func:`default_epsilon` with ``ms.cfg.eps_nearest_ratio``. None: no nearest match, the
     query matches nothing at any threshold (:data:`NO_MATCH`)."""
     if threshold is not None:
         return float(threshold)
     if quantile is not None:
-        return float(quantile_value(quantile) if quantile_value is not None
-                     else epsilon_from_quantile(ms.webs.all_webs(), quantile))
+        return float(quantile_value(quantile) if quantile_value is not None else ms.quantile(quantile))
     return default_epsilon(nearest_costs(ms, query), ms.cfg.eps_nearest_ratio)
 
 

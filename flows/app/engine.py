@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from motionweb.flows.app.params import graph_files
 from motionweb.flows.app.worker import SearchJob, SearchWorkers, WorkerCrashed
 from motionweb.flows.commands.requests import QueryRequest, SearchQuery, parse
 from motionweb.flows.config import Config
@@ -56,7 +57,6 @@ from motionweb.flows.query import (
 )
 from motionweb.store.bvh import format_bvh
 from motionweb.store.cache import LRU
-from motionweb.store.filecache import default_folder
 from motionweb.store.generations import Generation, current_generation, load_generation, pointer_signature
 from motionweb.store.gltf import glb_bytes
 from motionweb.store.motion import Motion
@@ -256,9 +256,8 @@ class Engine:
         self.uploads: Any = None
         self._plot_lock = threading.Lock()  # one figure drawn at a time (they share font caches)
         self.switches = 0
-        files = ((cfg.app.graph_files_dir or str(default_folder()), int(cfg.app.graph_files_gb * 2**30))
-                 if cfg.app.graph_files_gb > 0 else None)
-        self.workers = SearchWorkers(self.url, standby=warm, cache_bytes=int(cfg.app.cache_mb * 2**20), files=files)
+        self.workers = SearchWorkers(self.url, standby=warm, cache_bytes=int(cfg.app.cache_mb * 2**20),
+                                     files=graph_files(cfg.app))
         self._finalize = weakref.finalize(self, self.workers.close)
         if warm:
             threading.Thread(target=prime_plots, name="prime-plots", daemon=True).start()

@@ -50,3 +50,14 @@ class AppParams(Params):
     #: §3.3), its features and its webs against the indexed clips (built on demand, kept per
     #: generation); the least recently used upload goes first (the newest is kept even alone over it)
     upload_mb: float = Field(256.0, gt=0)
+
+
+def graph_files(app: AppParams) -> tuple[str, int] | None:
+    """(folder, bytes) of the file cache of packed walk graphs (``graph_files_dir`` or
+    ``store.filecache.default_folder()``, ``graph_files_gb``), None when it is off: what the
+    service's search workers and ``motionweb search`` open (``store.filecache.FileCache``)."""
+    if app.graph_files_gb <= 0:
+        return None
+    from motionweb.store.filecache import default_folder
+
+    return app.graph_files_dir or str(default_folder()), int(app.graph_files_gb * 2**30)

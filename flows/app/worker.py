@@ -170,7 +170,7 @@ class _State:
 
     def search(self, job: SearchJob) -> tuple[Any, float | None]:
         from motionweb.tasks.ranking import search_query
-        from motionweb.tasks.search import SearchParams, epsilon_from_quantile
+        from motionweb.tasks.search import SearchParams
 
         if job.query is not None:
             return self.search_file(job)
@@ -182,7 +182,7 @@ class _State:
 
         def quantile_value(q: float) -> float:  # a scope's quantiles, computed once
             if q not in sc.quantiles:
-                sc.quantiles[q] = epsilon_from_quantile(sc.webs.iter_webs(), q)  # one pass, not kept
+                sc.quantiles[q] = sc.search.quantile(q, stream=True)  # one pass, not kept (or its file)
             return sc.quantiles[q]
 
         return search_query(sc.search, job.segment, job.threshold, job.quantile, quantile_value)

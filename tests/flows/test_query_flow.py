@@ -91,6 +91,26 @@ def test_search_cli_table_export_and_tiers(demo, tmp_path: Path) -> None:
     assert len(rows2) >= len(rows)
 
 
+def test_search_cli_reads_back_the_graphs_it_packed(demo, tmp_path: Path, monkeypatch) -> None:
+    """``motionweb search`` keeps the walk graphs it packs in the file cache (``app.graph_files_*``,
+    here $MOTIONWEB_CACHE_DIR/graphs), and a later search reads them back and finds the same matches."""
+    work, _ = demo
+    monkeypatch.setenv("MOTIONWEB_CACHE_DIR", str(tmp_path / "cache"))
+    base = ["search", str(work / "config.yaml"), "--clip", "walk_00", "--start", "1", "--end", "2.5",
+            "--quantile", "0.8"]
+    first = runner.invoke(app, [*base, "--out", str(tmp_path / "o1")])
+    assert first.exit_code == 0, first.output
+    kept = sorted((tmp_path / "cache" / "graphs").rglob("*.mwc"))
+    assert kept
+    stamps = [p.stat().st_mtime_ns for p in kept]
+    second = runner.invoke(app, [*base, "--out", str(tmp_path / "o2")])
+    assert second.exit_code == 0, second.output
+    assert sorted((tmp_path / "cache" / "graphs").rglob("*.mwc")) == kept  # none packed again
+    assert [p.stat().st_mtime_ns for p in kept] != stamps  # read: their use time refreshed
+    got = [json.loads((tmp_path / o / "matches.json").read_text()) for o in ("o1", "o2")]
+    assert got[0]["matches"] == got[1]["matches"] and got[0]["epsilon"] == got[1]["epsilon"]
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--clip", "nope", "--start", "0", "--end", "1", "--quantile", "0.5"], "unknown clip 'nope'"),
     (["--clip", "walk_00", "--start", "0", "--end", "99", "--quantile", "0.5"], "outside clip"),

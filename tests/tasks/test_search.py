@@ -325,6 +325,14 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     src3, ms3 = fresh()
     assert ms3.graph(pc.query.clip).n_states == ms1.graph(pc.query.clip).n_states and src3.reads > 0
     assert files.get(fkey)[1]["layout"] == WalkGraph.LAYOUT
+    # a scope's quantile of web values is kept too: a later search of the scope reads no web for it
+    src4, ms4 = fresh()
+    want_q = epsilon_from_quantile(list(src4.iter_webs()), 0.3)
+    reads = src4.reads
+    assert ms4.quantile(0.3, stream=True) == want_q and src4.reads == 2 * reads
+    src5, ms5 = fresh()
+    assert ms5.quantile(0.3) == want_q and src5.reads == 0
+    assert ms5.quantile(0.7) == epsilon_from_quantile(src5.all_webs(), 0.7)  # another quantile: its own key
     # a source that does not name its webs' content (a plain mapping) keeps no files
     assert MatchSearch(webs, files=files).files is None
 
