@@ -174,14 +174,10 @@ class WalkGraph:
              "branch or start offsets out of order")
         need(bool(np.all((self.web_rows >= 0) & (self.web_rows <= n))) and bool(np.all(np.diff(self.web_rows, axis=1) >= 0)),
              "web row table out of range")
-        need(n == 0 or (self.rows.min() >= 0 and self.rows.max() < f and self.cols.min() >= 0), "a cell out of range")
-        for name, to, lo in (("next", self.nxt, -1), ("branch", self.branch_to, 0), ("start", self.starts, 0)):
-            need(to.size == 0 or (to.min() >= lo and to.max() < n), f"a {name} state out of range")
-        src = np.concatenate([np.flatnonzero(self.nxt >= 0), np.repeat(np.arange(n), np.diff(self.branch_off))])
-        dst = np.concatenate([self.nxt[self.nxt >= 0], self.branch_to]).astype(np.int64)
-        r0, c0, r1, c1 = self.rows[src], self.cols[src], self.rows[dst], self.cols[dst]
-        need(bool(np.all((r1 >= r0) & (c1 >= c0) & (r1.astype(np.int64) + c1 > r0.astype(np.int64) + c0))),
-             "a step that does not advance")
+        need(self.starts.size == 0 or (self.starts.min() >= 0 and self.starts.max() < n), "a start state out of range")
+        bad = _steps_ok(self.rows, self.cols, self.nxt, self.branch_off, self.branch_to, f)
+        need(bad == 0, ("", "a cell out of range", "a next state out of range", "a branch state out of range",
+                        "a step that does not advance")[min(bad, 4)])
 
     @property
     def work(self) -> tuple[np.ndarray, ...]:
@@ -399,6 +395,35 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
         branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
         start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
     )
+
+
+@njit(cache=True)
+def _steps_ok(rows, cols, nxt, boff, bto, n_frames) -> int:
+    """What :meth:`WalkGraph.check` asks of the states, in one pass: 0 when every cell lies in rows
+    0..n_frames−1 and columns ≥ 0 and every step (``nxt``, the branches ``bto[boff[s]:boff[s+1]]``)
+    goes to a state in range and advances (row and column never fall, their sum grows); else 1 (a
+    cell), 2 (a next state), 3 (a branch state) or 4 (a step that does not advance). Bounds: the
+    caller checks ``len(cols) == len(nxt) == len(rows)``, ``len(boff) == len(rows) + 1`` and that
+    ``boff`` rises from 0 to ``len(bto)``; every other index is checked here before it is read.
+    O(states + branches)."""
+    n = len(rows)
+    for s in range(n):
+        if rows[s] < 0 or rows[s] >= n_frames or cols[s] < 0:
+            return 1
+    for s in range(n):
+        r, c = np.int64(rows[s]), np.int64(cols[s])
+        t = nxt[s]
+        if t < -1 or t >= n:
+            return 2
+        if t >= 0 and (rows[t] < r or cols[t] < c or np.int64(rows[t]) + cols[t] <= r + c):
+            return 4
+        for k in range(boff[s], boff[s + 1]):
+            t = bto[k]
+            if t < 0 or t >= n:
+                return 3
+            if rows[t] < r or cols[t] < c or np.int64(rows[t]) + cols[t] <= r + c:
+                return 4
+    return 0
 
 
 def _narrow(a: np.ndarray) -> np.ndarray:

@@ -205,6 +205,35 @@ def test_packing_equals_the_per_web_reference(data) -> None:
     assert got.dropped_steps == ref.dropped_steps
 
 
+@SETTINGS
+@given(st.data())
+def test_a_damaged_packed_graph_is_refused_or_walks_in_bounds(data) -> None:
+    """Issue 25 part 5: a graph read back from a file (``WalkGraph.from_arrays``) with any one
+    entry of any array set to an extreme or random value is refused with a ValueError, or passes
+    the check and then walks (every row band, ε huge) without an index out of bounds (CI runs this
+    under NUMBA_BOUNDSCHECK=1)."""
+    from motionweb.tasks.search import WalkGraph, find_matches
+
+    fa = data.draw(st.integers(1, 10))
+    webs_ = [("x", data.draw(webs(rows=fa))) for _ in range(data.draw(st.integers(1, 3)))]
+    g = walk_graph(webs_)
+    arrays, meta = g.to_arrays()
+    name = data.draw(st.sampled_from([k for k in WalkGraph.STORED if arrays[k].size]))
+    bad = {k: v.copy() for k, v in arrays.items()}
+    flat = bad[name].reshape(-1)
+    i = data.draw(st.integers(0, flat.size - 1))
+    big = np.iinfo(flat.dtype).max if flat.dtype.kind == "i" else np.inf
+    flat[i] = data.draw(st.sampled_from([-1, -2, 0, 1, g.n_states, g.n_states + 1, fa, big,
+                                         data.draw(st.integers(-5, g.n_states + 5))]))
+    try:
+        h = WalkGraph.from_arrays(bad, meta, g.others)
+    except ValueError:
+        return
+    for a in range(fa):
+        for b in range(a, fa):
+            find_matches(h, a, b, 1e30)
+
+
 def test_packing_equals_the_reference_on_a_malformed_web() -> None:
     """A step back, dropped the same way by both packings; a web outside its grid named by both."""
     back = MatchWeb(rate=30.0, shape=(5, 5), paths_cells=[[0, 0], [2, 2], [1, 1], [3, 3]], paths_values=[0.1] * 4,
