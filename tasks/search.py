@@ -273,17 +273,7 @@ def _packed_states(webs: Sequence[MatchWeb]) -> dict[str, np.ndarray]:
     proper = ~switch
     b_from, b_to = from_state[proper], np.where(inner > 0, inner_start, to_state)[proper]
     if switch.any():
-        sw_from, sw_to = from_state[switch], to_state[switch]
-        after = nxt[sw_to]
-        extra_from = [sw_from[after >= 0]]
-        extra_to = [after[after >= 0]]
-        order = np.argsort(b_from, kind="stable")
-        lo = np.searchsorted(b_from[order], sw_to, "left")
-        hi = np.searchsorted(b_from[order], sw_to, "right")
-        extra_from.append(np.repeat(sw_from, hi - lo))
-        extra_to.append(b_to[order[np.repeat(lo, hi - lo) + _ranges(hi - lo)]])
-        b_from = np.concatenate([b_from, *extra_from])
-        b_to = np.concatenate([b_to, *extra_to])
+        b_from, b_to = _with_switches(b_from, b_to, from_state[switch], to_state[switch], nxt[to_state[switch]])
     i_count = np.bincount(web_of_br, weights=inner, minlength=n_webs).astype(np.int64)
     return {
         "cells": np.concatenate([cells, inner_cells]).astype(np.int32),
@@ -296,6 +286,18 @@ def _packed_states(webs: Sequence[MatchWeb]) -> dict[str, np.ndarray]:
         "path_first": offs[:-1],
         "path_last": offs[1:] - 1,
     }
+
+
+def _with_switches(b_from: np.ndarray, b_to: np.ndarray, sw_from: np.ndarray, sw_to: np.ndarray,
+                   after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The branches ``b_from → b_to`` (proper bridges) and, for each switch ``sw_from → sw_to``
+    (a bridge of < 2 cells), branches from ``sw_from`` to what follows the joined cell: its path's
+    next cell ``after`` (when ≥ 0) and the proper bridges leaving ``sw_to``, in that order."""
+    order = np.argsort(b_from, kind="stable")
+    lo = np.searchsorted(b_from[order], sw_to, "left")
+    hi = np.searchsorted(b_from[order], sw_to, "right")
+    return (np.concatenate([b_from, sw_from[after >= 0], np.repeat(sw_from, hi - lo)]),
+            np.concatenate([b_to, after[after >= 0], b_to[order[np.repeat(lo, hi - lo) + _ranges(hi - lo)]]]))
 
 
 def _check_webs(webs: Sequence[tuple[str, MatchWeb]]) -> None:
@@ -343,12 +345,22 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     n_frames = frames.pop()
     _check_webs(webs)
     cat = _packed_states([w for _, w in webs])
-    base = len(cat["cells"])
     web_of = cat["web_of"]
     rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
     # renumber the states by (web, row, col); ties keep the packing order (one stable sort of one key)
     width = int(cols.max(initial=0)) + 1
     order = np.argsort((web_of * n_frames + rows) * width + cols, kind="stable")
+    return _graph_of(cat, order, n_frames, rates.pop(), tuple(o for o, _ in webs))
+
+
+def _graph_of(cat: dict[str, np.ndarray], order: np.ndarray, n_frames: int, rate: float,
+              others: tuple[str, ...]) -> WalkGraph:
+    """The :class:`WalkGraph` of packed states ``cat`` (:func:`_packed_states`'s arrays) renumbered
+    by ``order`` (the states in (web, row, col) order): successors and branches renumbered (steps
+    that do not advance dropped), the branch offsets, the row-start table. O(states · log states)."""
+    base = len(cat["cells"])
+    web_of = cat["web_of"]
+    rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
     new = np.empty(base, np.int64)
     new[order] = np.arange(base)
     nxt = cat["nxt"][order]
@@ -385,11 +397,11 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     e_row = rows[e_state] - _ranges(n_rows)
     e_key = web_of[e_state] * n_frames + e_row
     e_order = np.lexsort((e_state, e_key))  # by (web, row), then packing (= path) order
-    start_off = np.searchsorted(e_key[e_order], np.arange(len(webs) * n_frames + 1)).astype(np.int64)
+    start_off = np.searchsorted(e_key[e_order], np.arange(len(others) * n_frames + 1)).astype(np.int64)
     key = web_of[order] * (n_frames + 1) + rows[order]
-    want = np.arange(len(webs))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
+    want = np.arange(len(others))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
     return WalkGraph(
-        rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs),
+        rate=rate, n_frames=n_frames, others=others,
         rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
         values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off),
         branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),

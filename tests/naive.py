@@ -15,7 +15,7 @@ from motionweb.store.web import MatchWeb
 from motionweb.tasks.distance import rigid_align_2d
 from motionweb.tasks.guided_warp import Track
 from motionweb.tasks.retime.objective import BakedObjective, sector
-from motionweb.tasks.search import WalkGraph, _check_web, _narrow, _ranges
+from motionweb.tasks.search import WalkGraph, _check_web, _graph_of, _with_switches
 
 
 class TooManySequences(RuntimeError):
@@ -777,17 +777,8 @@ def ref_web_states(web: MatchWeb, base: int) -> dict[str, np.ndarray]:
     proper = ~switch
     b_from, b_to = from_state[proper], np.where(inner > 0, inner_start, to_state)[proper]
     if switch.any():
-        sw_from, sw_to = from_state[switch], to_state[switch]
-        after = nxt[sw_to - base]
-        extra_from = [sw_from[after >= 0]]
-        extra_to = [after[after >= 0]]
-        order = np.argsort(b_from, kind="stable")
-        lo = np.searchsorted(b_from[order], sw_to, "left")
-        hi = np.searchsorted(b_from[order], sw_to, "right")
-        extra_from.append(np.repeat(sw_from, hi - lo))
-        extra_to.append(b_to[order[np.repeat(lo, hi - lo) + _ranges(hi - lo)]])
-        b_from = np.concatenate([b_from, *extra_from])
-        b_to = np.concatenate([b_to, *extra_to])
+        sw_to = to_state[switch]
+        b_from, b_to = _with_switches(b_from, b_to, from_state[switch], sw_to, nxt[sw_to - base])
     return {
         "cells": np.concatenate([web.paths_cells, inner_cells]).astype(np.int32),
         "values": np.concatenate([web.paths_values, web.bridges_values[keep]]).astype(np.float64),
@@ -803,13 +794,7 @@ def ref_walk_graph(webs: list[tuple[str, MatchWeb]]) -> WalkGraph:
     """``tasks.search.walk_graph`` one web at a time: each web's states numbered from the count
     so far (its path cells, then its bridge interiors), three-key sort into (web, row, col)
     order, values as float64 (the vectorised packing's float32 values widen to these exactly)."""
-    if not webs:
-        raise ValueError("no match webs to search")
-    rates = {float(w.rate) for _, w in webs}
-    frames = {int(w.shape[0]) for _, w in webs}
-    if len(rates) != 1 or len(frames) != 1:
-        raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
-    n_frames = frames.pop()
+    n_frames, rate = webs[0][1].shape[0], float(webs[0][1].rate)  # the webs of one clip: checked by walk_graph
     parts, base = [], 0
     for other, w in webs:
         try:
@@ -823,50 +808,5 @@ def ref_walk_graph(webs: list[tuple[str, MatchWeb]]) -> WalkGraph:
     web_of = np.concatenate([np.full(len(p["cells"]), i, np.int64) for i, p in enumerate(parts)])
     rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
     # renumber the states by (web, row, col); ties keep the packing order
-    order = np.lexsort((cols, rows, web_of))
-    new = np.empty(base, np.int64)
-    new[order] = np.arange(base)
-    nxt = cat["nxt"][order]
-    nxt = np.where(nxt >= 0, new[np.maximum(nxt, 0)], -1)
-    # every step must go up and/or right (row + col grows: the walk's topological order, _collect;
-    # rows never fall: the band of rows a..b, _nearest): a step of a malformed web that does not is
-    # dropped, so the compiled walks only ever see a DAG within their bands
-    r_new, c_new = rows[order].astype(np.int64), cols[order].astype(np.int64)
-
-    def advances(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return (r_new[v] >= r_new[u]) & (c_new[v] >= c_new[u]) & (r_new[v] + c_new[v] > r_new[u] + c_new[u])
-
-    bad_nxt = (nxt >= 0) & ~advances(np.arange(base), np.maximum(nxt, 0))
-    nxt[bad_nxt] = -1
-    b_from, b_to = new[cat["branch_from"]], new[cat["branch_to"]]
-    good = advances(b_from, b_to)
-    dropped = int(bad_nxt.sum()) + int((~good).sum())
-    b_from, b_to = b_from[good], b_to[good]
-    by_from = np.argsort(b_from, kind="stable")  # bridges by new from-state, packing order kept
-    branch_off = np.zeros(base + 1, np.int64)
-    np.cumsum(np.bincount(b_from, minlength=base), out=branch_off[1:])
-    # the earliest row-r cell of each path crossing row r: a path cell whose predecessor on the path
-    # lies in a lower row (or that starts the path) starts the rows above that predecessor's up to its own
-    first, last = cat["path_first"], cat["path_last"]
-    first, last = first[last >= first], last[last >= first]
-    is_path = np.zeros(base, bool)
-    is_path[np.repeat(first, last - first + 1) + _ranges(last - first + 1)] = True
-    prev_row = np.full(base, -1, np.int64)
-    prev_row[1:] = rows[:-1]
-    prev_row[first] = rows[first] - 1
-    entry = np.nonzero(is_path & (rows > prev_row))[0]
-    n_rows = rows[entry] - prev_row[entry]
-    e_state = np.repeat(entry, n_rows)
-    e_row = rows[e_state] - _ranges(n_rows)
-    e_key = web_of[e_state] * n_frames + e_row
-    e_order = np.lexsort((e_state, e_key))  # by (web, row), then packing (= path) order
-    start_off = np.searchsorted(e_key[e_order], np.arange(len(webs) * n_frames + 1)).astype(np.int64)
-    key = web_of[order] * (n_frames + 1) + rows[order]
-    want = np.arange(len(webs))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
-    return WalkGraph(
-        rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs),
-        rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
-        values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off),
-        branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
-        start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
-    )
+    order = np.lexsort((cols, rows, web_of))  # three keys, where walk_graph sorts one
+    return _graph_of({**cat, "web_of": web_of}, order, n_frames, rate, tuple(o for o, _ in webs))

@@ -17,9 +17,11 @@ class AppParams(Params):
     sessions (design §8, §10; MPS06 §3: a clip's polygons are prepared once per physics and reused
     for every timing)."""
 
-    #: MiB of webs and packed walk graphs each search worker keeps, least recently used dropped
-    #: first (the primary and its standby each hold up to this; design §5)
-    cache_mb: float = Field(512.0, gt=0)
+    #: MiB of packed walk graphs each search worker keeps in memory, least recently used dropped
+    #: first (the primary and its standby each hold up to this; design §5). 256: with the graph
+    #: files below, a graph not in memory costs ~3 ms; on the 381k-frame store the service then
+    #: peaks under 2 GB (512: 2.1 GB) at the same latency (bench/app_scale.py)
+    cache_mb: float = Field(256.0, gt=0)
     #: GiB of packed walk graphs the search workers keep in files, shared between them and across
     #: runs (``store/filecache.py``: a search that reaches a graph no worker holds reads it back in
     #: ~2 ms instead of reading and packing its webs in ~46 ms); 0: none

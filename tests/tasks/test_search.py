@@ -252,9 +252,9 @@ def test_far_variants_found_only_through_tiers(chain) -> None:
     assert [n.segment.clip for n in two.nodes[1:]] == ["kick/variant_1", "kick/variant_2"]
 
 
-def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> None:
-    pc, webs = chain
-    store = MotionStore(str(tmp_path / "store"))
+def _commit_chain(pc: PlantedCorpus, webs: CorpusWebs, folder) -> list[str]:
+    """A store at ``folder`` whose committed generation holds every web of ``pc`` (its clips' keys)."""
+    store = MotionStore(str(folder))
     keys = list(pc.clips)
     recs = []
     for i, a in enumerate(keys):
@@ -264,6 +264,12 @@ def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> Non
             recs.append({"a": a, "b": b, "key": key, "chunk": "all"})
     clips = [{"path": k, "category": pc.categories[k]} for k in keys]
     commit(store, Generation(new_id(), now_iso(), clips=clips, webs=recs))
+    return keys
+
+
+def test_store_adapter_searches_the_committed_generation(chain, tmp_path) -> None:
+    pc, webs = chain
+    keys = _commit_chain(pc, webs, tmp_path / "store")
     ro = MotionStore(str(tmp_path / "store"), read_only=True)
     src = StoreWebs.for_query(ro, pc.query.clip)
     assert set(src) == {k for k in keys if pc.categories[k] == "kick"}
@@ -290,16 +296,7 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     from motionweb.tasks.search import MatchSearch, WalkGraph
 
     pc, webs = chain
-    store = MotionStore(str(tmp_path / "store"))
-    keys = list(pc.clips)
-    recs = []
-    for i, a in enumerate(keys):
-        for b in keys[i:]:
-            key = web_key(f"{i:064x}", f"{keys.index(b):064x}", "test")
-            store.write_web(key, webs.web(a, b).to_arrays())
-            recs.append({"a": a, "b": b, "key": key, "chunk": "all"})
-    clips = [{"path": k, "category": pc.categories[k]} for k in keys]
-    commit(store, Generation(new_id(), now_iso(), clips=clips, webs=recs))
+    _commit_chain(pc, webs, tmp_path / "store")
     files = FileCache(tmp_path / "graphs", 1 << 30)
 
     def fresh() -> tuple[StoreWebs, MatchSearch]:
