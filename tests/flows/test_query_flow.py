@@ -187,16 +187,20 @@ def test_a_killed_index_run_leaves_the_last_generation_readable(demo, tmp_path: 
     before = current_id(store)
     clip = work / "corpus" / "run" / "run_00.bvh"
     clip.write_text(clip.read_text() + "\n")  # new content: its pairs must be recomputed
-    objects = Path(cfg.store.path) / "webs"
-    seen = {p for p in objects.rglob("*") if p.is_file()}
+    root = Path(cfg.store.path)
+
+    def objects() -> set[Path]:  # features are written before any web, webs well before the commit
+        return {p for d in ("features", "webs") for p in (root / d).rglob("*") if p.is_file()}
+
+    seen = objects()
     proc = subprocess.Popen([sys.executable, "-m", "motionweb.flows.commands.cli", "index", str(work / "config.yaml"), "--no-progress"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         deadline = time.monotonic() + 240
         while time.monotonic() < deadline and proc.poll() is None:
-            if {p for p in objects.rglob("*") if p.is_file()} - seen:
+            if objects() - seen:
                 break  # the run has started writing objects of the new generation
-            time.sleep(0.05)
+            time.sleep(0.02)
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(60)
