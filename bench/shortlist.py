@@ -8,7 +8,7 @@ categories asked for, all loading, and at least ``--min-frames`` frames. Both in
 the index flow (Prefect, a local Dask cluster of ``--workers`` worker processes), unsplit
 (``index.chunk_by: none``), features at 10, 20 and ``--rate`` Hz:
   * exact: every pair of clips (KG04 §3);
-  * shortlist: ``index.shortlist.enabled`` with the given k, stride, min_hits, headings.
+  * shortlist: ``index.shortlist.enabled`` with the given k, stride, min_hits, headings, hub_ratio.
 Each into its own fresh store (``--keep DIR`` reuses stores and corpus built there before, with the
 run summary recorded beside each store; a reused index is checked to be of that corpus and config).
 
@@ -30,7 +30,7 @@ the run (CorpusError). ``--cache-gb`` bounds all the web and graph caches of the
 (split evenly among them); the peak resident memory is printed at the end.
 
     nice -n 10 .venv/bin/python -m bench.shortlist [--variants 60] [--keep DIR] [--queries 100]
-        [--k 24] [--stride 1] [--min-hits 1] [--headings 16] [--tiers 3] [--also JSON ...]
+        [--k 24] [--stride 1] [--min-hits 1] [--headings 16] [--hub-ratio 4] [--tiers 3] [--also JSON ...]
 """
 
 from __future__ import annotations
@@ -219,6 +219,7 @@ def main() -> None:
     ap.add_argument("--stride", type=int, default=None)
     ap.add_argument("--min-hits", type=int, default=None)
     ap.add_argument("--headings", type=int, default=None)
+    ap.add_argument("--hub-ratio", type=float, default=None, help="index.shortlist.hub_ratio (0: no hub rule)")
     ap.add_argument("--also", nargs="*", default=[], metavar="JSON",
                     help='more shortlist parameters (e.g. \'{"k": 48, "k_windows": 128}\'), measured without an '
                          'index run: the exact index\'s webs restricted to their shortlist (the webs a shortlist '
@@ -237,7 +238,7 @@ def main() -> None:
     print(f"corpus: {clips} clips, {frames} frames at 60 Hz, {len(CATEGORIES)} categories, unsplit; "
           f"webs at {args.rate:g} Hz; {os.cpu_count()} cores, {args.workers} Dask workers", flush=True)
     sl = {k: v for k, v in (("k", args.k), ("stride", args.stride), ("min_hits", args.min_hits),
-                            ("headings", args.headings)) if v is not None}
+                            ("headings", args.headings), ("hub_ratio", args.hub_ratio)) if v is not None}
     exact_cfg = index_config(corpus, work / f"store-exact-{args.rate:g}", args.rate, args.workers, None)
     tag = "-".join(f"{k}{v}" for k, v in sorted(sl.items())) or "default"
     short_cfg = index_config(corpus, work / f"store-shortlist-{args.rate:g}-{tag}", args.rate, args.workers, sl)

@@ -21,11 +21,30 @@ distance is the least over the headings, within a factor ``cos(π/headings)`` of
 distance's cross term. No canonical heading is guessed from the pose (a principal axis of the
 cloud flips or spins when the cloud is nearly round, e.g. standing still).
 
-Neighbours → pairs. Each window keeps its ``k`` nearest windows of other clips (its own clip is
-excluded from the search); ``hits(a, b)`` counts the windows of ``a`` with a neighbour in ``b``
-plus the windows of ``b`` with a neighbour in ``a``. A pair is shortlisted when ``hits ≥
-min_hits``; every self pair is kept, as the exact index keeps them (KG04 §3.3 finds repeats
-within a clip).
+Neighbours → pairs. Each window keeps its ``k`` nearest other clips (each at its nearest window
+over the headings; its own clip is excluded from the search) and, hubs (below), every other clip
+within ``hub_ratio`` × the nearest one's distance; ``hits(a, b)`` counts the windows of ``a`` with
+a neighbour in ``b`` plus the windows of ``b`` with a neighbour in ``a``. A pair is shortlisted
+when ``hits ≥ min_hits``; every self pair is kept, as the exact index keeps them (KG04 §3.3 finds
+repeats within a clip).
+
+Hubs (issue 25, part 4). The search's default ε is ``eps_nearest_ratio`` (2) × the query's
+nearest match in another clip (``tasks.ranking.default_epsilon``), so it returns every clip about
+as close as the nearest one, however many: a standing pose, or a window whose nearest clip is far
+while hundreds of clips are about as far (distances concentrate), matches hundreds of clips, more
+than ``k``. The descriptor distance is the coarsest level's frame distance, the web's cell value
+at that level, so the rule in the search's own form is: a window keeps every other clip within
+``hub_ratio`` × the distance to its nearest other clip. ``hub_ratio`` (4) is
+``eps_nearest_ratio``²: ε is 2 × a query's nearest *average* over its rows, and that nearest
+average over a 1.5 s query is at least the mean of its windows' own nearest distances, about twice
+the least of them on the bench corpus; so a clip the search admits may be ~2 × 2 a window's nearest
+away. The
+radius r = ``hub_ratio`` × d₁ is taken from the window's own nearest, so it scales with the
+skeleton, the motion's speed and the library, and a window with a near copy (d₁ ≈ 0) keeps the
+copy only, as ε does. It costs a second pass only where the ``k`` nearest do not settle it: the
+windows whose ``k``-th nearest clip is still within r (the hub windows; elsewhere every clip within
+r is among the ``k``) get an exhaustive pass over every window at every heading
+(:func:`_within_radius`), which also recomputes d₁ exactly.
 
 Library: faiss (``faiss-cpu``, ``IndexHNSWFlat``). Chosen over hnswlib and pynndescent because on
 Python 3.11+ with numpy 2 it installs as a binary wheel that needs numpy alone (hnswlib 0.8.0,
@@ -40,7 +59,12 @@ itself.
 
 Cost: descriptors O(W·P) for W windows; the HNSW build O(W·log W·M·P); the search
 O(W·headings·ef_search·log W·P) — grows about as W log W, against O(W²) web grid cells of the
-exact all-pairs index at the same rate. Memory O(W·P) for the database plus O(M·W) links.
+exact all-pairs index at the same rate; the hub pass O(Wₕ·W·headings·P) for Wₕ hub windows
+(matrix products in blocks of ``_BLOCK_CELLS`` cells): it grows as W² times the fraction of hub
+windows, a fraction the library sets (on the bench corpus see ``bench/shortlist.py``). Memory
+O(W·P) for the database plus O(M·W) links plus one block. Pairs: the k-NN part keeps ≤ W·k
+(window, clip) hits; the hub part as many as the windows within r, which is what the search at
+the default ε needs.
 """
 
 from __future__ import annotations

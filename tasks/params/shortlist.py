@@ -25,10 +25,11 @@ class ShortlistParams(Params):
     #: windows: every ``stride``-th frame of the lowest feature rate (each frame's cloud is a
     #: window of ``features.window`` frames, 0.5 s at 10 Hz)
     stride: int = Field(1, ge=1)
-    #: hubs (issue 25): a window also keeps every other clip within this × the distance to its nearest
-    #: other clip (the default ε rule's form, ε = ``search.eps_nearest_ratio`` × the nearest match, with
-    #: room for a window's nearest being closer than a query's); looked for beyond the ``k`` nearest
-    #: only when the ``k``-th is still within it (a standing pose near hundreds of clips). 0: off
+    #: hubs (issue 25, part 4): a window also keeps every other clip within this × the distance to its
+    #: nearest other clip, the default ε rule's form (ε = ``search.eps_nearest_ratio`` × the query's
+    #: nearest match); 4 = that ratio (2) squared, room for a window's own nearest being closer than a
+    #: query's average. Looked for past the ``k`` nearest only when the ``k``-th is still within it
+    #: (a standing pose near hundreds of clips). 0: off (the rule before issue 25 part 4)
     hub_ratio: float = Field(4.0, ge=0)
     #: a pair is kept when at least this many windows of either clip have a neighbour in the other
     min_hits: int = Field(1, ge=1)
