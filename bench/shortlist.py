@@ -30,7 +30,7 @@ the run (CorpusError). ``--cache-gb`` bounds all the web and graph caches of the
 (split evenly among them); the peak resident memory is printed at the end.
 
     nice -n 10 .venv/bin/python -m bench.shortlist [--variants 60] [--keep DIR] [--queries 100]
-        [--k 24] [--stride 1] [--min-hits 1] [--headings 16] [--hub-ratio 4] [--tiers 3] [--also JSON ...]
+        [--k 24] [--stride 1] [--min-hits 1] [--headings 16] [--hub-ratio 8] [--tiers 3] [--also JSON ...]
 """
 
 from __future__ import annotations
@@ -200,7 +200,8 @@ def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, w
     keep = set(sl.pairs)
     sub = replace(gen, webs=[w for w in gen.webs if (w["a_sha"], w["b_sha"]) in keep])
     name = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
-    print(f"{name}: {len(sub.webs)} pairs, shortlist in {seconds:.0f} s", flush=True)
+    print(f"{name}: {len(sub.webs)} pairs, {sl.hub_windows} hub windows of {sl.windows}, shortlist in "
+          f"{seconds:.0f} s", flush=True)
     return {"name": name, "pairs": len(sub.webs), "seconds": seconds, "hit": 0,
             "search": MatchSearch(StoreWebs(store, sub, None, webs), sp, graphs=LRU(max_bytes=cap)),
             "per_query": [], "search_s": 0.0}
@@ -228,6 +229,8 @@ def main() -> None:
     ap.add_argument("--cache-gb", type=float, default=4.0,
                     help="bound of all the web and graph caches together (split evenly among them)")
     ap.add_argument("--keep", help="work folder (corpus, stores), reused when present")
+    ap.add_argument("--per-query", help="write one JSON line per query (ε, exact matches and their clips and tiers, "
+                                        "matches recalled by the shortlist index and by each variant) to this file")
     args = ap.parse_args()
     if args.queries < 1:
         raise SystemExit("--queries must be at least 1")
@@ -256,7 +259,7 @@ def main() -> None:
                       sp, graphs=LRU(max_bytes=cap))
     variants = [restricted(exact_store, ge, exact_cfg, json.loads(a), exact_webs, cap, sp) for a in args.also]
     n_exact = n_hit = n_short = same_eps = cached = 0
-    per_query, t_exact, t_short = [], 0.0, 0.0
+    per_query, t_exact, t_short, per_query_lines = [], 0.0, 0.0, []
     t0 = time.perf_counter()
     for i, q in enumerate(queries):
         key = exact_key(ge, sp, q)
@@ -283,13 +286,19 @@ def main() -> None:
         sh = [n.segment for n in msh.search(q, eps).nodes[1:]]
         t_short += time.perf_counter() - t
         hit = recalled(ex, sh)
+        line = {"query": [q.clip, q.start, q.end], "eps": eps, "exact": len(ex),
+                "clips": len({m.clip for m in ex}), "tiers": [int(m[3]) for m in rec["matches"]],
+                "shortlist": hit, "variants": {}}
         for v in variants:
             t = time.perf_counter()
             got = recalled(ex, [n.segment for n in v["search"].search(q, eps).nodes[1:]])
+            line["variants"][v["name"]] = got
             v["search_s"] += time.perf_counter() - t
             v["hit"] += got
             if ex:
                 v["per_query"].append(got / len(ex))
+        if args.per_query:
+            per_query_lines.append(line)
         n_exact, n_hit, n_short = n_exact + len(ex), n_hit + hit, n_short + len(sh)
         if ex:
             per_query.append(hit / len(ex))
@@ -300,6 +309,8 @@ def main() -> None:
                   f"{min(per_query, default=float('nan')):.4f} least"
                   + "".join(f"; {v['name']}: {v['hit'] / max(1, n_exact):.4f}" for v in variants)
                   + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
+    if args.per_query:
+        Path(args.per_query).write_text("".join(json.dumps(x) + "\n" for x in per_query_lines))
     recall = n_hit / n_exact if n_exact else float("nan")
     pq = np.array(per_query) if per_query else np.array([np.nan])
     sh_stats = ss.get("shortlist", {})

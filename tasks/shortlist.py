@@ -34,11 +34,12 @@ as close as the nearest one, however many: a standing pose, or a window whose ne
 while hundreds of clips are about as far (distances concentrate), matches hundreds of clips, more
 than ``k``. The descriptor distance is the coarsest level's frame distance, the web's cell value
 at that level, so the rule in the search's own form is: a window keeps every other clip within
-``hub_ratio`` × the distance to its nearest other clip. ``hub_ratio`` (4) is
-``eps_nearest_ratio``²: ε is 2 × a query's nearest *average* over its rows, and that nearest
-average over a 1.5 s query is at least the mean of its windows' own nearest distances, about twice
-the least of them on the bench corpus; so a clip the search admits may be ~2 × 2 a window's nearest
-away. The
+``hub_ratio`` × the distance to its nearest other clip. ``hub_ratio`` (8) is measured, not
+derived: ``eps_nearest_ratio``² = 4 would follow if a query's nearest average were about twice its
+windows' least nearest, but a match's cost is a path average at the finest rate under the chain
+rules, often 10-100 × its windows' descriptor distances (bench corpus: a sitting query's windows
+are at 0.06 ε on average, some at 0: exact copies of a still pose), so 4 leaves the bench's sitting
+hubs at recall 0 and 8 recovers them (``bench/shortlist.py``; 4, 8 and 12 measured there). The
 radius r = ``hub_ratio`` × d₁ is taken from the window's own nearest, so it scales with the
 skeleton, the motion's speed and the library, and a window with a near copy (d₁ ≈ 0) keeps the
 copy only, as ε does. It costs a second pass only where the ``k`` nearest do not settle it: the
@@ -110,12 +111,14 @@ class Shortlist:
 
     ``pairs``: sorted unordered pairs ``(a, b)`` with ``a <= b`` of clip keys, every self pair
     included; ``hits[(a, b)]``: the neighbour hits of each cross pair kept (see the module notes);
-    ``windows``: windows indexed; ``candidates``: the pairs of the clips (self pairs included)."""
+    ``windows``: windows indexed; ``candidates``: the pairs of the clips (self pairs included);
+    ``hub_windows``: the windows given the radius pass (see the module notes)."""
 
     pairs: list[tuple[str, str]]
     hits: dict[tuple[str, str], int] = field(default_factory=dict)
     windows: int = 0
     candidates: int = 0
+    hub_windows: int = 0
 
     def keeps(self, a: str, b: str) -> bool:
         return (min(a, b), max(a, b)) in self._set
@@ -252,6 +255,7 @@ def shortlist_pairs(clips: Mapping[str, tuple[np.ndarray, np.ndarray]],
     kw = min(max(params.k, params.k_windows), len(db) - int(sizes.min()))
     dist, ids = _knn(db, [(int(bounds[c]), int(bounds[c + 1])) for c in range(len(keys))], queries, kw, params)
     rows, b, near = _nearest_clips(dist, ids, owner, params.k)
+    full = np.zeros(0, np.int64)
     if params.hub_ratio > 0:  # hubs: every clip within hub_ratio × the nearest, past the k nearest
         full = _full_rows(rows, near, params.k, params.hub_ratio)
         hr, hb = _within_radius(db, bounds, owner, full, angles, params.hub_ratio)
@@ -265,4 +269,4 @@ def shortlist_pairs(clips: Mapping[str, tuple[np.ndarray, np.ndarray]],
     hits = {(keys[int(p // len(keys))], keys[int(p % len(keys))]): int(n)
             for p, n in zip(pair_ids, counts, strict=True) if n >= params.min_hits}
     pairs = sorted(self_pairs + list(hits))
-    return Shortlist(pairs, hits, len(db), n_cand)
+    return Shortlist(pairs, hits, len(db), n_cand, len(full))

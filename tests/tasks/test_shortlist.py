@@ -78,14 +78,16 @@ def test_same_input_same_pairs(planted):
 
 
 def test_hnsw_gives_the_brute_force_pairs():
-    """On a small corpus faiss's approximate search finds the exact neighbours (tests/naive.py)."""
+    """On a small corpus faiss's approximate search finds the exact neighbours (tests/naive.py),
+    with the hub rule (on 7 clips with k = 2 nearly every window is a hub window) and without it."""
     pc = planted_corpus(seed=0, n_copies=3, distractors=("walk", "sit", "punch"))
     clips = lowest(pc)
-    got = shortlist_pairs(clips, ShortlistParams(k=2, k_windows=6, min_hits=2, headings=8, stride=2))
-    ref = ref_shortlist(clips, k=2, k_windows=6, min_hits=2, headings=8, stride=2,
-                        hub_ratio=ShortlistParams().hub_ratio)
-    assert got.pairs == ref
-    assert len(ref) < got.candidates  # something was left out
+    for ratio in (ShortlistParams().hub_ratio, 0.0):
+        got = shortlist_pairs(clips, ShortlistParams(k=2, k_windows=6, min_hits=2, headings=8, stride=2,
+                                                     hub_ratio=ratio))
+        ref = ref_shortlist(clips, k=2, k_windows=6, min_hits=2, headings=8, stride=2, hub_ratio=ratio)
+        assert got.pairs == ref, ratio
+    assert len(ref) < got.candidates  # without the hub rule something was left out
 
 
 def test_one_clip_and_mixed_skeletons(planted):
@@ -138,6 +140,7 @@ def test_a_hub_keeps_every_clip_within_range():
     assert set(old.pairs) <= set(new.pairs)
     assert len(new.pairs) < new.candidates
     assert all(new.hits[p] >= 1 for p in clique)
+    assert new.hub_windows == len(hub) and old.hub_windows == 0  # the hub frames only: twins settle the rest
 
 
 def test_hnsw_gives_the_brute_force_pairs_with_a_hub():
