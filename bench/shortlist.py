@@ -8,7 +8,7 @@ categories asked for, all loading, and at least ``--min-frames`` frames. Both in
 the index flow (Prefect, a local Dask cluster of ``--workers`` worker processes), unsplit
 (``index.chunk_by: none``), features at 10, 20 and ``--rate`` Hz:
   * exact: every pair of clips (KG04 §3);
-  * shortlist: ``index.shortlist.enabled`` with the given k, stride, min_hits, headings.
+  * shortlist: ``index.shortlist.enabled`` with the given k, stride, min_hits, headings, hub_ratio.
 Each into its own fresh store (``--keep DIR`` reuses stores and corpus built there before, with the
 run summary recorded beside each store; a reused index is checked to be of that corpus and config).
 
@@ -20,15 +20,26 @@ excluded) that the shortlist index also returns, a match counting as returned wh
 shortlist's result lies in the same clip with an overlapping interval; pooled over queries, and
 the median and least per query. Printed in a table with the pairs each index built and its wall time.
 
+Exact results are cached (``--keep`` only): each query's ε and exact matches (clip, start, end,
+tier) with the edges between them go to ``DIR/exact-results/<generation>/<digest>.json``, the
+digest of (the exact store's generation id, the search parameters, the query). A re-run or a run
+with other ``--also`` variants reads them instead of redoing the exact search (minutes for a
+"hub" query whose windows match hundreds of clips); a rebuilt exact store has a new generation id,
+so nothing stale is read. A cached file whose recorded key differs from the one asked for stops
+the run (CorpusError). ``--cache-gb`` bounds all the web and graph caches of the run together
+(split evenly among them); the peak resident memory is printed at the end.
+
     nice -n 10 .venv/bin/python -m bench.shortlist [--variants 60] [--keep DIR] [--queries 100]
-        [--k 24] [--stride 1] [--min-hits 1] [--headings 16]
+        [--k 24] [--stride 1] [--min-hits 1] [--headings 16] [--hub-ratio 8] [--tiers 3] [--also JSON ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
+import resource
 import shutil
 import tempfile
 import time
@@ -130,6 +141,44 @@ def recalled(exact: list[Segment], short: list[Segment]) -> int:
     return sum(any(m.start <= s.end and s.start <= m.end for s in by_clip.get(m.clip, [])) for m in exact)
 
 
+def exact_key(gen: Generation, sp: SearchParams, query: Segment) -> dict:
+    """What an exact result depends on: the exact store's generation, the search parameters, the query."""
+    return {"generation": gen.id, "search": sp.model_dump(mode="json"),
+            "query": [query.clip, int(query.start), int(query.end)]}
+
+
+def cache_path(work: Path, key: dict) -> Path:
+    """``work/exact-results/<generation>/<sha256 of the key>.json``."""
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:24]
+    return work / "exact-results" / key["generation"] / f"{digest}.json"
+
+
+def read_exact(path: Path, key: dict) -> dict | None:
+    """The cached exact result of ``key`` at ``path`` (None when absent); CorpusError when the
+    file records another key (a digest collision or a hand-edited file: never read silently)."""
+    if not path.is_file():
+        return None
+    rec = json.loads(path.read_text())
+    if rec.get("key") != key:
+        raise CorpusError(f"{path} records the exact result of {rec.get('key')}, not of {key}")
+    return rec
+
+
+def write_exact(path: Path, key: dict, eps: float | None, graph, seconds: float) -> dict:
+    """Cache one exact result (written to a temporary file, then renamed: a stopped run leaves no
+    half file): ε, the matches (the query node excluded) as (clip, start, end, tier), the edges
+    (u, v, cost) between node numbers (0: the query) and the search's seconds."""
+    rec = {"key": key, "eps": eps, "seconds": seconds,
+           "matches": [] if graph is None else [[n.segment.clip, n.segment.start, n.segment.end, n.tier]
+                                                for n in graph.nodes[1:]],
+           "edges": [] if graph is None else [[e.u, e.v, e.cost] for e in graph.edges]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(rec))
+    tmp.replace(path)
+    return rec
+
+
 def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, webs: LRU, cap: int,
                sp: SearchParams) -> dict:
     """A search over the exact index's webs restricted to the shortlist of ``params`` (computed
@@ -151,9 +200,11 @@ def restricted(store: MotionStore, gen: Generation, cfg: Config, params: dict, w
     keep = set(sl.pairs)
     sub = replace(gen, webs=[w for w in gen.webs if (w["a_sha"], w["b_sha"]) in keep])
     name = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
-    print(f"{name}: {len(sub.webs)} pairs, shortlist in {seconds:.0f} s", flush=True)
+    print(f"{name}: {len(sub.webs)} pairs, {sl.hub_windows} hub windows of {sl.windows}, shortlist in "
+          f"{seconds:.0f} s", flush=True)
     return {"name": name, "pairs": len(sub.webs), "seconds": seconds, "hit": 0,
-            "search": MatchSearch(StoreWebs(store, sub, None, webs), sp, graphs=LRU(max_bytes=cap))}
+            "search": MatchSearch(StoreWebs(store, sub, None, webs), sp, graphs=LRU(max_bytes=cap)),
+            "per_query": [], "search_s": 0.0}
 
 
 def main() -> None:
@@ -169,13 +220,17 @@ def main() -> None:
     ap.add_argument("--stride", type=int, default=None)
     ap.add_argument("--min-hits", type=int, default=None)
     ap.add_argument("--headings", type=int, default=None)
+    ap.add_argument("--hub-ratio", type=float, default=None, help="index.shortlist.hub_ratio (0: no hub rule)")
     ap.add_argument("--also", nargs="*", default=[], metavar="JSON",
                     help='more shortlist parameters (e.g. \'{"k": 48, "k_windows": 128}\'), measured without an '
                          'index run: the exact index\'s webs restricted to their shortlist (the webs a shortlist '
                          'index builds are the exact ones, tests/flows/test_index_flow.py)')
     ap.add_argument("--tiers", type=int, default=None, help="search.max_tiers (default: the search's own, 10)")
-    ap.add_argument("--cache-gb", type=float, default=2.0, help="bound of each web and graph cache per index")
+    ap.add_argument("--cache-gb", type=float, default=4.0,
+                    help="bound of all the web and graph caches together (split evenly among them)")
     ap.add_argument("--keep", help="work folder (corpus, stores), reused when present")
+    ap.add_argument("--per-query", help="write one JSON line per query (ε, exact matches and their clips and tiers, "
+                                        "matches recalled by the shortlist index and by each variant) to this file")
     args = ap.parse_args()
     if args.queries < 1:
         raise SystemExit("--queries must be at least 1")
@@ -186,7 +241,7 @@ def main() -> None:
     print(f"corpus: {clips} clips, {frames} frames at 60 Hz, {len(CATEGORIES)} categories, unsplit; "
           f"webs at {args.rate:g} Hz; {os.cpu_count()} cores, {args.workers} Dask workers", flush=True)
     sl = {k: v for k, v in (("k", args.k), ("stride", args.stride), ("min_hits", args.min_hits),
-                            ("headings", args.headings)) if v is not None}
+                            ("headings", args.headings), ("hub_ratio", args.hub_ratio)) if v is not None}
     exact_cfg = index_config(corpus, work / f"store-exact-{args.rate:g}", args.rate, args.workers, None)
     tag = "-".join(f"{k}{v}" for k, v in sorted(sl.items())) or "default"
     short_cfg = index_config(corpus, work / f"store-shortlist-{args.rate:g}-{tag}", args.rate, args.workers, sl)
@@ -194,7 +249,8 @@ def main() -> None:
     ss, gs = run_or_reuse(short_cfg, clips, "shortlist")
 
     queries = random_queries(ge, args.queries, args.rate, np.random.default_rng(args.seed), args.query_s)
-    cap = int(args.cache_gb * 1e9)
+    n_caches = 4 + len(args.also)  # exact webs (shared by the variants) and graphs, shortlist webs and
+    cap = int(args.cache_gb * 1e9 / n_caches)  # graphs, one graph cache per variant
     exact_store = MotionStore(exact_cfg.store.path, read_only=True)
     exact_webs = LRU(max_bytes=cap)
     sp = SearchParams() if args.tiers is None else SearchParams(max_tiers=args.tiers)
@@ -202,31 +258,59 @@ def main() -> None:
     msh = MatchSearch(StoreWebs(MotionStore(short_cfg.store.path, read_only=True), gs, None, LRU(max_bytes=cap)),
                       sp, graphs=LRU(max_bytes=cap))
     variants = [restricted(exact_store, ge, exact_cfg, json.loads(a), exact_webs, cap, sp) for a in args.also]
-    n_exact = n_hit = n_short = same_eps = 0
-    per_query, t_exact, t_short = [], 0.0, 0.0
+    n_exact = n_hit = n_short = same_eps = cached = 0
+    per_query, t_exact, t_short, per_query_lines = [], 0.0, 0.0, []
     t0 = time.perf_counter()
     for i, q in enumerate(queries):
-        eps = default_epsilon(nearest_costs(me, q), me.cfg.eps_nearest_ratio)
+        key = exact_key(ge, sp, q)
+        path = cache_path(work, key)
+        rec = read_exact(path, key) if args.keep else None
+        if rec is None:
+            t = time.perf_counter()
+            eps = default_epsilon(nearest_costs(me, q), me.cfg.eps_nearest_ratio)
+            graph = None if eps is None else me.search(q, eps)
+            rec = {"eps": eps, "seconds": time.perf_counter() - t, "matches": [] if graph is None else
+                   [[n.segment.clip, n.segment.start, n.segment.end, n.tier] for n in graph.nodes[1:]]}
+            if args.keep:
+                rec = write_exact(path, key, eps, graph, rec["seconds"])
+        else:
+            cached += 1
+        t_exact += rec["seconds"]
+        eps = rec["eps"]
         eps_s = default_epsilon(nearest_costs(msh, q), msh.cfg.eps_nearest_ratio)
         same_eps += eps == eps_s
         if eps is None:
             continue
-        t = time.perf_counter()
-        ex = [n.segment for n in me.search(q, eps).nodes[1:]]
-        t_exact += time.perf_counter() - t
+        ex = [Segment(c, a, b) for c, a, b, _ in rec["matches"]]
         t = time.perf_counter()
         sh = [n.segment for n in msh.search(q, eps).nodes[1:]]
         t_short += time.perf_counter() - t
         hit = recalled(ex, sh)
+        line = {"query": [q.clip, q.start, q.end], "eps": eps, "exact": len(ex),
+                "clips": len({m.clip for m in ex}), "tiers": [int(m[3]) for m in rec["matches"]],
+                "shortlist": hit, "variants": {}}
         for v in variants:
-            v["hit"] += recalled(ex, [n.segment for n in v["search"].search(q, eps).nodes[1:]])
+            t = time.perf_counter()
+            got = recalled(ex, [n.segment for n in v["search"].search(q, eps).nodes[1:]])
+            line["variants"][v["name"]] = got
+            v["search_s"] += time.perf_counter() - t
+            v["hit"] += got
+            if ex:
+                v["per_query"].append(got / len(ex))
+        if args.per_query:
+            per_query_lines.append(line)
         n_exact, n_hit, n_short = n_exact + len(ex), n_hit + hit, n_short + len(sh)
         if ex:
             per_query.append(hit / len(ex))
         if (i + 1) % 10 == 0:
-            print(f"  {i + 1}/{len(queries)} queries, recall so far {n_hit / max(1, n_exact):.4f} pooled, "
+            print(f"  {i + 1}/{len(queries)} queries ({cached} exact results cached), recall so far "
+                  f"{n_hit / max(1, n_exact):.4f} pooled, "
                   f"{np.median(per_query) if per_query else float('nan'):.4f} median per query, "
-                  f"{min(per_query, default=float('nan')):.4f} least ({time.perf_counter() - t0:.0f} s)", flush=True)
+                  f"{min(per_query, default=float('nan')):.4f} least"
+                  + "".join(f"; {v['name']}: {v['hit'] / max(1, n_exact):.4f}" for v in variants)
+                  + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
+    if args.per_query:
+        Path(args.per_query).write_text("".join(json.dumps(x) + "\n" for x in per_query_lines))
     recall = n_hit / n_exact if n_exact else float("nan")
     pq = np.array(per_query) if per_query else np.array([np.nan])
     sh_stats = ss.get("shortlist", {})
@@ -238,14 +322,20 @@ def main() -> None:
     print(f"{'shortlist':>10} {ss['pairs']:11d} {ss['pairs'] / se['pairs']:7.3f} {ss['wall_s']:8.1f} "
           f"{sh_stats.get('seconds', float('nan')):11.1f} {sh_stats.get('windows', 0):8d} {n_short:8d} {t_short:8.1f}")
     for v in variants:
+        vq = np.array(v["per_query"]) if v["per_query"] else np.array([np.nan])
         print(f"  {v['name']}: {v['pairs']} pairs ({v['pairs'] / se['pairs']:.3f} of all), shortlist "
-              f"{v['seconds']:.1f} s, recall {v['hit'] / max(1, n_exact):.4f} (exact webs restricted, no index run)")
+              f"{v['seconds']:.1f} s, recall {v['hit'] / max(1, n_exact):.4f} pooled, per query median "
+              f"{np.median(vq):.3f}, least {vq.min():.3f}, {np.mean(vq >= 0.95):.0%} ≥ 0.95; search "
+              f"{v['search_s']:.1f} s (exact webs restricted, no index run)")
     print(f"saved: {se['pairs'] - ss['pairs']} pairs ({1 - ss['pairs'] / se['pairs']:.1%}), "
           f"{se['wall_s'] - ss['wall_s']:.0f} s of index wall time ({1 - ss['wall_s'] / se['wall_s']:.1%})")
     print(f"recall over {len(queries)} queries ({len(per_query)} with matches, {n_exact} exact matches): "
           f"{recall:.4f} pooled; per query median {np.median(pq):.3f}, least {pq.min():.3f}, "
           f"{np.mean(pq >= 0.95):.0%} of queries ≥ 0.95; the default ε equal on both indexes for "
           f"{same_eps}/{len(queries)} queries")
+    print(f"exact results: {cached}/{len(queries)} read from the cache, search seconds above include the "
+          f"cached runs' recorded seconds; peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6:.1f} GB; "
+          f"web/graph caches {cap / 1e9:.2f} GB each × {n_caches}")
     print(f"target recall ≥ 0.95: {'met' if recall >= 0.95 else 'NOT met'}; load average {os.getloadavg()[0]:.1f}")
     if not args.keep:
         shutil.rmtree(work, ignore_errors=True)

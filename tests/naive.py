@@ -696,13 +696,16 @@ def ref_timing_distances(polys, fps: float, p: np.ndarray, pd: np.ndarray, pdd: 
 
 
 def ref_shortlist(clips: dict, k: int, k_windows: int, min_hits: int, headings: int,
-                  stride: int = 1) -> list[tuple[str, str]]:
+                  stride: int = 1, hub_ratio: float = 0.0) -> list[tuple[str, str]]:
     """``tasks.shortlist.shortlist_pairs`` by brute force: every window's squared distance to every
     window of every other clip with the query turned to each of ``headings`` headings (point by
     point, with explicit centroids and weights); per heading its ``k_windows`` nearest windows
     (ties by window order); over their union, each clip at its nearest window, the ``k`` nearest
-    clips (ties by window order); the pairs of clips with ≥ ``min_hits`` (window, other clip) hits
-    in either direction, every self pair included. O(W²·headings·P)."""
+    clips (ties by window order). Hubs (issue 25, part 4; ``hub_ratio`` > 0): when the window has
+    ``k`` such clips and the ``k``-th is within ``hub_ratio`` × the nearest, also every other clip
+    whose nearest window over all its windows and headings is within ``hub_ratio`` × the nearest.
+    The pairs of clips with ≥ ``min_hits`` (window, other clip) hits in either direction, every
+    self pair included. O(W²·headings·P)."""
     keys = sorted(clips)
     wins = []  # (clip index, centred cloud (P, 3), weights)
     for ci, key in enumerate(keys):
@@ -715,6 +718,7 @@ def ref_shortlist(clips: dict, k: int, k_windows: int, min_hits: int, headings: 
     hits: dict[tuple[int, int], int] = defaultdict(int)
     for ca, p, w in wins:
         seen: dict[int, tuple[float, int]] = {}  # window -> (least distance over the headings, window)
+        every: dict[int, float] = {}  # other clip -> least distance over all its windows and headings
         for h in range(headings):
             a = 2 * np.pi * h / headings
             x = np.cos(a) * p[:, 0] + np.sin(a) * p[:, 2]
@@ -723,11 +727,17 @@ def ref_shortlist(clips: dict, k: int, k_windows: int, min_hits: int, headings: 
                           for di, (cb, q, _) in enumerate(wins) if cb != ca)
             for d, di in cand[:k_windows]:
                 seen[di] = min(seen.get(di, (np.inf, di)), (d, di))
+            for d, di in cand:
+                every[wins[di][0]] = min(every.get(wins[di][0], np.inf), d)
         nearest: dict[int, tuple[float, int]] = {}
         for d, di in seen.values():
             cb = wins[di][0]
             nearest[cb] = min(nearest.get(cb, (np.inf, di)), (d, di))
-        for cb in sorted(nearest, key=lambda c: nearest[c])[:k]:
+        kept = set(sorted(nearest, key=lambda c: nearest[c])[:k])
+        ranked = sorted(nearest[c][0] for c in nearest)
+        if hub_ratio > 0 and len(ranked) >= k and ranked[k - 1] <= hub_ratio * ranked[0]:
+            kept |= {cb for cb, d in every.items() if d <= hub_ratio * min(every.values())}
+        for cb in kept:
             hits[(min(ca, cb), max(ca, cb))] += 1
     pairs = [(keys[i], keys[i]) for i in range(len(keys))]
     pairs += [(keys[a], keys[b]) for (a, b), n in hits.items() if n >= min_hits]

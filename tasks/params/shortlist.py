@@ -25,6 +25,13 @@ class ShortlistParams(Params):
     #: windows: every ``stride``-th frame of the lowest feature rate (each frame's cloud is a
     #: window of ``features.window`` frames, 0.5 s at 10 Hz)
     stride: int = Field(1, ge=1)
+    #: hubs (issue 25, part 4): a window also keeps every other clip within this × the distance to its
+    #: nearest other clip, the default ε rule's form (ε = ``search.eps_nearest_ratio`` × the query's
+    #: nearest match). Measured: 4 (that ratio squared) misses the bench corpus's sitting hubs, whose
+    #: match costs are many times their windows' distances; 8 keeps them (tasks/shortlist.py notes).
+    #: Looked for past the ``k`` nearest only when the ``k``-th is still within it. 0: off (the rule
+    #: before issue 25 part 4)
+    hub_ratio: float = Field(8.0, ge=0)
     #: a pair is kept when at least this many windows of either clip have a neighbour in the other
     min_hits: int = Field(1, ge=1)
     #: headings the query windows are turned to (the frame distance minimises over a rotation about

@@ -280,7 +280,10 @@ def test_shortlist_index_keeps_exact_webs_of_its_pairs(prefect_harness, tmp_path
     corpus = write_corpus(tmp_path / "corpus")
     exact = make_config(tmp_path, corpus, str(tmp_path / "exact"), index={"chunk_by": "none"})
     short = make_config(tmp_path, corpus, str(tmp_path / "short"),
-                        index={"chunk_by": "none", "shortlist": {"enabled": True, "k": 1, "min_hits": 6}})
+                        # hub_ratio 0: on 5 clips every pair is within 4 × a window's nearest; this test
+                        # is about the flow (exact webs of the pairs kept), so a rule that leaves pairs out
+                        index={"chunk_by": "none", "shortlist": {"enabled": True, "k": 1, "min_hits": 6,
+                                                                 "hub_ratio": 0}})
     se, ss = index_library(exact), index_library(short)
     # 5 clips of one skeleton (15 pairs) + odd with itself
     assert se["pairs"] == 16 and [b["path"] for b in ss["broken"]] == ["run/broken.bvh"]
