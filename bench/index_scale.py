@@ -180,7 +180,7 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int) -> None:
 
     from motionweb.flows.runtime.workers import clip_operands, pin_blas_threads, web_counts
     from motionweb.store.keys import feature_digest
-    from motionweb.store.zarr_store import _pack, checksum
+    from motionweb.store.zarr_store import checksum, pack_arrays
     from motionweb.tasks.distance import _cells_kernel, distance_grid_prepared, prepare_operands_pair
     from motionweb.tasks.matchweb import refine as R
     from motionweb.tasks.matchweb.build import build_web_full
@@ -248,7 +248,7 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int) -> None:
                 cells["evaluated"][r] += int(np.count_nonzero(~np.isnan(pool)))
         t4 = time.perf_counter()
         arrays = web.to_arrays()
-        parts, _, _ = _pack(arrays)
+        parts, _, _ = pack_arrays(arrays)
         checksum(parts)
         web_counts(arrays)
         sec["arrays, pack, checksum"] += time.perf_counter() - t4

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from motionweb.store.zarr_store import _pack, _unpack
+from motionweb.store.zarr_store import pack_arrays, unpack_arrays
 from numcodecs import Blosc
 
 __all__ = ["FileCache", "default_folder"]
@@ -116,14 +116,14 @@ class FileCache:
         buf = np.empty(header["nbytes"], np.uint8)
         if header["nbytes"]:
             _CODEC.decode(payload, out=buf)
-        return _unpack(buf, header["layout"], copy=False), header["meta"]
+        return unpack_arrays(buf, header["layout"], copy=False), header["meta"]
 
     def put(self, key: str, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> bool:
         """Keep ``arrays`` (flat numeric arrays) and ``meta`` (JSON) under ``key``; False when it
         was not kept (too large, or the folder cannot be written: a cache never fails its
         caller)."""
         path = self._path(key)
-        parts, layout, nbytes = _pack(arrays)
+        parts, layout, nbytes = pack_arrays(arrays)
         if nbytes > MAX_VALUE_BYTES:
             return False
         payload = _CODEC.encode(np.concatenate(parts)) if nbytes else b""

@@ -95,7 +95,7 @@ def _close_sessions() -> None:
 atexit.register(_close_sessions)
 
 
-def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
+def pack_arrays(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
     """Byte views of arrays and their layout rows ``[name, dtype, shape, start, nbytes]``."""
     layout, parts = [], []
     for name, value in arrays.items():
@@ -106,8 +106,8 @@ def _pack(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarra
     return parts, layout, start
 
 
-def _unpack(buf: np.ndarray, layout: list[list[Any]], base: int = 0, copy: bool = True) -> dict[str, np.ndarray]:
-    """Inverse of :func:`_pack` on ``buf`` holding the bytes from offset ``base`` on (``copy``:
+def unpack_arrays(buf: np.ndarray, layout: list[list[Any]], base: int = 0, copy: bool = True) -> dict[str, np.ndarray]:
+    """Inverse of :func:`pack_arrays` on ``buf`` holding the bytes from offset ``base`` on (``copy``:
     arrays of their own, else views of ``buf``)."""
     out = {name: buf[start - base:start - base + nbytes].view(np.dtype(dtype)).reshape(shape)
            for name, dtype, shape, start, nbytes in layout}
@@ -243,7 +243,7 @@ class MotionStore:
         per array created, plus one per write) dominates such objects, so one array each costs
         a fraction of a group of arrays. Marked complete last.
         """
-        parts, layout, _ = _pack(arrays)
+        parts, layout, _ = pack_arrays(arrays)
         self._write_bytes(key, parts, PACKED_CHUNK, {**attrs, "layout": layout})
 
     def _write_bytes(self, key: str, parts: list[np.ndarray], chunk: int, attrs: dict[str, Any],
@@ -270,7 +270,7 @@ class MotionStore:
             raise KeyError(f"{self.url}: no complete object {key!r}")
         attrs = dict(z.attrs)
         buf = self._read_range(z, key, 0, z.shape[0], attrs.get("checksum"))
-        return _unpack(buf, attrs.pop("layout")), attrs
+        return unpack_arrays(buf, attrs.pop("layout")), attrs
 
     def _read_range(self, z: zarr.Array, key: str, start: int, nbytes: int, expected: str | None) -> np.ndarray:
         """Bytes ``start:start+nbytes`` of a packed array, checked against their recorded checksum."""
@@ -393,7 +393,7 @@ class MotionStore:
         for wdig, items in by_digest.items():
             parts, entries, start = [], {}, 0
             for key, arrays, attrs in items:
-                p, layout, end = _pack(arrays, start)
+                p, layout, end = pack_arrays(arrays, start)
                 parts += p
                 entries[key] = {"start": start, "nbytes": end - start, "layout": layout, "attrs": attrs,
                                 "checksum": checksum(p)}
@@ -513,7 +513,7 @@ class MotionStore:
         buf = self._read_local(found[0], e["start"], e["nbytes"])
         if buf is None or (e.get("checksum") is not None and checksum(buf) != e["checksum"]):
             buf = self._read_range(z, key, e["start"], e["nbytes"], e.get("checksum"))  # zarr tells what is wrong
-        return _unpack(buf, e["layout"], e["start"]), dict(e["attrs"])
+        return unpack_arrays(buf, e["layout"], e["start"]), dict(e["attrs"])
 
     def _read_local(self, shard: str, start: int, nbytes: int) -> np.ndarray | None:
         """Bytes ``start:start+nbytes`` of a reader's shard on a local disk, read from its one file
