@@ -95,13 +95,27 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         self.reads += 1
         return web
 
-    def _read(self, rec: dict[str, Any], keep: bool = True) -> MatchWeb:
-        web = self.cache.get(("web", rec["key"]))
-        if web is None:
-            web = self._load(rec)
+    def _read_many(self, recs: list[dict[str, Any]], keep: bool = True) -> dict[str, MatchWeb]:
+        """The webs of ``recs`` by key: from the cache, else read in one pass in the store's order
+        (``MotionStore.iter_web_arrays``: a chunk holding several of them decompressed once), a
+        web that pass does not give read alone (:meth:`_load`, naming a missing or damaged one)."""
+        webs, missing = {}, {}
+        for rec in recs:
+            web = self.cache.get(("web", rec["key"]))
+            if web is None:
+                missing[rec["key"]] = rec
+            else:
+                webs[rec["key"]] = web
+        for key, arrays in self.store.iter_web_arrays(missing):
+            if arrays is None:
+                web = self._load(missing[key])
+            else:
+                web = MatchWeb.from_arrays(arrays)
+                self.reads += 1
             if keep:
-                self.cache.put(("web", rec["key"]), web, web.nbytes)
-        return web
+                self.cache.put(("web", key), web, web.nbytes)
+            webs[key] = web
+        return webs
 
     def records_of(self, clip: str) -> list[dict[str, Any]]:
         """The manifest records of the webs touching ``clip`` in the restriction, in the
@@ -136,9 +150,11 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         return h.hexdigest()
 
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
+        recs = self.records_of(clip)
+        webs = self._read_many(recs, self.keep_webs)
         out = []
-        for rec in self.records_of(clip):
-            web = self._read(rec, self.keep_webs)
+        for rec in recs:
+            web = webs[rec["key"]]
             if rec["a"] == clip:
                 out.append((rec["b"], web))
             else:
@@ -166,11 +182,24 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     def all_webs(self) -> list[MatchWeb]:
         """Every web of the restriction once (e.g. for :func:`epsilon_from_quantile`), kept in
         the cache."""
-        return [self._read(r) for r in self.records()]
+        recs = self.records()
+        webs = self._read_many(recs)
+        return [webs[r["key"]] for r in recs]
 
     def iter_webs(self) -> Iterator[MatchWeb]:
         """Every web of the restriction once, those not in the cache read and not kept: one pass
-        over the scope (e.g. a quantile of its values) in the memory of one web."""
+        over the scope (e.g. a quantile of its values) in the memory of one web, in the store's
+        order (``MotionStore.iter_web_arrays``: each shard's chunks decompressed once)."""
+        missing = {}
         for r in self.records():
             web = self.cache.get(("web", r["key"]))
-            yield web if web is not None else self._load(r)
+            if web is not None:
+                yield web
+            else:
+                missing[r["key"]] = r
+        for key, arrays in self.store.iter_web_arrays(missing):
+            if arrays is None:
+                yield self._load(missing[key])  # read alone: a missing or damaged web named
+            else:
+                self.reads += 1
+                yield MatchWeb.from_arrays(arrays)

@@ -37,6 +37,7 @@ import json
 import os
 import threading
 import uuid
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -515,7 +516,30 @@ class MotionStore:
             buf = self._read_range(z, key, e["start"], e["nbytes"], e.get("checksum"))  # zarr tells what is wrong
         return unpack_arrays(buf, e["layout"], e["start"]), dict(e["attrs"])
 
-    def _read_local(self, shard: str, start: int, nbytes: int) -> np.ndarray | None:
+    def iter_web_arrays(self, keys: Iterable[str]) -> Iterator[tuple[str, dict[str, np.ndarray] | None]]:
+        """``(key, flat arrays)`` of each web of ``keys`` on a local reader's shards, checked
+        against its checksum, in the order the store holds them: by shard, then by offset, so
+        that each inner chunk of a shard is decompressed once per pass (a 256 kB chunk holds
+        several webs; read one by one, each web decompressed its chunks again). ``(key, None)``
+        for a web not read so (missing, on an object store, or its bytes differ from their
+        checksum): the caller reads it alone (:meth:`read_web_arrays`, which names what is
+        wrong), first. O(bytes of the webs)."""
+        local: dict[str, list[tuple[int, str, dict[str, Any]]]] = {}
+        for key in keys:
+            found = self._web_entry(key) if self.read_only and self._local else None
+            if found is None or found[0] not in self._local_layouts:
+                yield key, None
+            else:
+                local.setdefault(found[0], []).append((found[1]["start"], key, found[1]))
+        for shard, items in local.items():
+            held: dict[int, np.ndarray] = {}
+            for start, key, e in sorted(items, key=lambda t: t[0]):
+                buf = self._read_local(shard, start, e["nbytes"], held)
+                ok = buf is not None and (e.get("checksum") is None or checksum(buf) == e["checksum"])
+                yield key, unpack_arrays(buf, e["layout"], start) if ok else None
+
+    def _read_local(self, shard: str, start: int, nbytes: int,
+                    held: dict[int, np.ndarray] | None = None) -> np.ndarray | None:
         """Bytes ``start:start+nbytes`` of a reader's shard on a local disk, read from its one file
         without zarr: the inner chunks they span located by the shard's index (read once per
         shard: (offset, nbytes) little-endian uint64 per chunk, at the end of the file, as the
@@ -524,7 +548,10 @@ class MotionStore:
         asynchronous machinery). None when the shard is not laid out so (another codec chain, an
         object store) or the bytes cannot be had: the caller reads through zarr, which checks.
         The bytes are a view of this thread's scratch buffers (no allocation per read, which
-        fragmented the heap by gigabytes over a day of searches): valid until its next read."""
+        fragmented the heap by gigabytes over a day of searches): valid until its next read.
+        ``held``: decompressed chunks kept across the reads of one pass in increasing ``start``
+        (:meth:`iter_web_arrays`), those before this read's first chunk dropped, so a chunk
+        holding several webs is decompressed once."""
         layout = self._local_layouts.get(shard) if self.read_only and self._local else None
         if layout is None:
             return None
@@ -539,18 +566,26 @@ class MotionStore:
             size = inner[0]
             first, last = start // size, (start + nbytes - 1) // size
             flat = _scratch("chunks", (last - first + 1) * size)
+            if held is not None:
+                for c in [c for c in held if c < first]:
+                    del held[c]
             with open(path, "rb") as fh:
                 for i, c in enumerate(range(first, last + 1)):
-                    off, n = (int(x) for x in index[c])
                     dest = flat[i * size:(i + 1) * size]
+                    if held is not None and c in held:
+                        dest[:] = held[c]
+                        continue
+                    off, n = (int(x) for x in index[c])
                     if off == 2**64 - 1:
                         dest[:] = 0  # never written: the fill value
-                        continue
-                    fh.seek(off)
-                    comp = _scratch("compressed", n)
-                    if fh.readinto(comp) != n:
-                        return None
-                    _BLOSC.decode(comp, out=dest)
+                    else:
+                        fh.seek(off)
+                        comp = _scratch("compressed", n)
+                        if fh.readinto(comp) != n:
+                            return None
+                        _BLOSC.decode(comp, out=dest)
+                    if held is not None:
+                        held[c] = dest.copy()
             lo = start - first * size
             out = flat[lo:lo + nbytes]
             return out if len(out) == nbytes else None

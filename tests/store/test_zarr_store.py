@@ -184,6 +184,55 @@ def test_a_reader_reads_local_shards_directly_as_zarr_does(tmp_path):
         damaged.read_web_arrays(keys[0])
 
 
+def test_a_pass_over_many_webs_reads_each_chunk_once_and_gives_each_web(tmp_path, monkeypatch):
+    """``iter_web_arrays`` gives every asked web once, equal to a read alone, over shards and
+    chunk boundaries, in the store's order, each inner chunk decompressed once; a web whose bytes
+    differ from their checksum, or that no shard holds, comes back as None (read alone, it names
+    the damage); a writer (not a reader) gives None for every web."""
+    from motionweb.store import zarr_store
+    from motionweb.store.zarr_store import SHARD_CHUNK, StoreIntegrityError
+
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(5)
+    big = {"paths_cells": rng.integers(0, 1000, (SHARD_CHUNK // 5, 2)).astype(np.int32)}  # spans chunks
+    written = {}
+    for s in range(3):  # three shards
+        batch = [(web_key(f"{s}{i:x}" * 32, "ee" * 32, "wd"), big if i == 4 else ragged_web(rng)) for i in range(9)]
+        store.write_webs([(k, w, {}) for k, w in batch])
+        written.update(batch)
+    ask = list(written)[::-1][:20] + [web_key("dd" * 32, "dd" * 32, "wd")]  # and one never written
+    reader = MotionStore(str(tmp_path / "s"), read_only=True)
+    decodes = []
+    real = zarr_store._BLOSC.decode
+    monkeypatch.setattr(zarr_store, "_BLOSC", type("B", (), {"decode": lambda self, c, out: decodes.append(1) or real(c, out=out)})())
+    got = list(reader.iter_web_arrays(ask))
+    assert sorted(k for k, _ in got) == sorted(ask)
+    assert dict(got)[ask[-1]] is None
+    for k, arrays in got:
+        if k == ask[-1]:
+            continue
+        for name, arr in written[k].items():
+            np.testing.assert_array_equal(arrays[name], arr)
+    assert sum(a is not None for _, a in got) == 20
+    chunks = sum(len(lay[2]) for lay in reader._local_layouts.values())  # the chunks of the 3 shards
+    assert len(decodes) <= chunks, (len(decodes), chunks)
+    order = [(reader._web_entry(k)[0], reader._web_entry(k)[1]["start"]) for k, a in got if a is not None]
+    runs = [sh for i, (sh, _) in enumerate(order) if i == 0 or order[i - 1][0] != sh]
+    assert len(runs) == len(set(runs)) == 3  # shard by shard
+    assert all(a[1] < b[1] for a, b in zip(order, order[1:]) if a[0] == b[0])  # by offset in each
+    monkeypatch.undo()
+    chunk = sorted((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))[0]
+    data = bytearray(chunk.read_bytes())
+    data[40:60] = bytes(20)
+    chunk.write_bytes(bytes(data))
+    damaged = MotionStore(str(tmp_path / "s"), read_only=True)
+    bad = [k for k, a in damaged.iter_web_arrays(list(written)) if a is None]
+    assert bad
+    with pytest.raises(StoreIntegrityError, match=bad[0]):
+        damaged.read_web_arrays(bad[0])
+    assert all(a is None for _, a in MotionStore(str(tmp_path / "s")).iter_web_arrays(list(written)[:3]))
+
+
 def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
     from motionweb.store.zarr_store import StoreIntegrityError
 
