@@ -358,7 +358,7 @@ def build_generation(
             meta = res if res is not None else cached_meta.get(job.key, {})
             rec = job.record()
             rec["computed"] = res is not None
-            rec.update({k: meta[k] for k in ("n_chains", "n_bridges", "rate", "shape") if k in meta})
+            rec.update({k: meta[k] for k in ("n_chains", "n_bridges", "rate", "shape", "shard") if k in meta})
             webs.append(rec)
     clips = [asdict(e) | {"chunk": p.chunk.name} for p in plans for e in p.chunk.clips
              if e.sha256 not in bad_sha]
@@ -704,6 +704,9 @@ def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkP
     cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
     for key in cached_keys - set(cached_meta):
         cached_meta[key] = store.web_attrs(key)
+    for key, meta in cached_meta.items():  # where each web is (a manifest written before recorded none)
+        if "shard" not in meta and (shard := store.web_shard(key)) is not None:
+            cached_meta[key] = {**meta, "shard": shard}
     gen = build_generation(cfg, catalog, plans, results, failed, parent, timings, cached_meta=cached_meta,
                            shortlists=None if shortlists is None else list(shortlists.values()))
     keys = [w["key"] for w in gen.webs] + sorted({k for rs in gen.features.values() for k in rs.values()})

@@ -85,7 +85,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         """Read the web of ``rec`` from the store (a StoreError naming the pair when it is missing
         or damaged)."""
         try:
-            web = self.store.read_web(rec["key"])
+            web = self.store.read_web(rec["key"], rec.get("shard"))
         except KeyError:
             raise StoreError(self.store.url, rec["key"], f"(web {rec['a']} x {rec['b']}) is missing; "
                              "run motionweb index to recompute it") from None
@@ -106,7 +106,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
                 missing[rec["key"]] = rec
             else:
                 webs[rec["key"]] = web
-        for key, arrays in self.store.iter_web_arrays(missing):
+        for key, arrays in self.store.iter_web_arrays(missing, {k: r.get("shard") for k, r in missing.items()}):
             if arrays is None:
                 web = self._load(missing[key])
             else:
@@ -197,7 +197,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
                 yield web
             else:
                 missing[r["key"]] = r
-        for key, arrays in self.store.iter_web_arrays(missing):
+        for key, arrays in self.store.iter_web_arrays(missing, {k: r.get("shard") for k, r in missing.items()}):
             if arrays is None:
                 yield self._load(missing[key])  # read alone: a missing or damaged web named
             else:

@@ -155,11 +155,13 @@ class _State:
 
     def warm(self, gen_id: str, category: str | None) -> int:
         """Open the scope: index its web records by clip (O(webs of the generation)), reading no
-        web, and take in the store's shards (their keys; once per store); the number of clips.
+        web, and take in a shard of the store (the one its first web is in when the generation
+        records it, else all: their keys, once per store); the number of clips.
         Searches read the webs they reach."""
         sc = self.scope(gen_id, category)
         if len(sc.webs.table):
-            self.generation(gen_id)[3].web_shard(sc.webs.table[0]["key"])
+            rec = sc.webs.table[0]
+            self.generation(gen_id)[3].web_shard(rec["key"], rec.get("shard"))
         return len(sc.webs)
 
     def stats(self) -> dict[str, Any]:

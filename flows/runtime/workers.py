@@ -155,5 +155,8 @@ def compute_web_batch(pairs: list[tuple[str, str, str, bool]], cfg: Config, stor
             out.append({"key": key, "seconds": time.perf_counter() - t, **meta})
         except Exception as exc:  # noqa: BLE001 - a failed pair is recorded, the run goes on
             out.append({"key": key, "error": f"{type(exc).__name__}: {exc}"})
-    store.write_webs(done)
+    shards = store.write_webs(done)
+    for rec in out:  # where each web is: the generation records it for readers (MotionStore.web_shard)
+        if rec["key"] in shards:
+            rec["shard"] = shards[rec["key"]]
     return out

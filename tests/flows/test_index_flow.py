@@ -193,6 +193,8 @@ def test_flow_end_to_end(indexed):
     web = store.read_web(rec["key"])
     assert tuple(int(x) for x in np.ravel(web.shape)) == tuple(rec["shape"])
     assert gen.web_for("walk/w1.bvh", "run/r1.bvh") is None  # chunks are not crossed
+    writer = MotionStore(cfg.store.path)  # each web's record names the shard it is in (readers take in that one)
+    assert all(w["shard"] == writer.web_shard(w["key"]) for w in gen.webs)
     assert gen.web_for("walk/w1.bvh", "walk/odd.bvh") is None  # incompatible skeletons
     assert "run/broken.bvh" in format_summary(s)
 
@@ -213,6 +215,9 @@ def test_incremental_rerun_change_remove_and_params(indexed):
     assert s3["pairs"] == 8 and s3["pairs_cached"] == 5
     gen = load_generation(store)
     assert all("run/r2.bvh" not in (w["a"], w["b"]) for w in gen.webs)
+    assert all(w["shard"] == store.web_shard(w["key"]) for w in gen.webs)  # cached ones and new ones
+    before = {w["shard"] for w in load_generation(store, first["generation"]).webs}
+    assert sum(w["shard"] not in before for w in gen.webs) == 3  # the 3 computed now are in new shards
     assert gen.parent == s2["generation"]
     # another matchweb config: a new parameter hash, nothing mixed with the old webs
     cfg2 = cfg.model_copy(update={"matchweb": replace_mw(cfg, valid_a=0.3)})

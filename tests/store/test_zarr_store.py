@@ -253,3 +253,41 @@ def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
         fresh.read_web_arrays(wk)
     assert fresh.verify(wk).startswith("is unreadable") and fresh.verify(fk).startswith("is damaged")
     assert fresh.verify(web_key(SHA_B, SHA_B, "wd")) == "missing"
+
+
+def test_a_reader_given_the_recorded_shard_takes_in_that_shard_alone(tmp_path):
+    """write_webs says where each web went; a reader given it (a generation's record) takes in
+    that shard only, not every shard of the digest; a hint that is wrong, gone, damaged or not a
+    shard of the key's digest is ignored (the reader lists the shards, as without one)."""
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(11)
+    written, where = {}, {}
+    for s in range(4):
+        batch = {web_key(f"{s}{i:063d}", SHA_B, "wd"): ragged_web(rng) for i in range(5)}
+        shards = store.write_webs([(k, w, {}) for k, w in batch.items()])
+        assert set(shards) == set(batch) and len(set(shards.values())) == 1
+        assert all(sh.startswith("webs/shards/wd/") for sh in shards.values())
+        written |= batch
+        where |= shards
+    assert len(set(where.values())) == 4
+    key = sorted(written)[7]
+    reader = MotionStore(str(tmp_path / "s"), read_only=True)
+    got, _ = reader.read_web_arrays(key, where[key])
+    np.testing.assert_array_equal(got["paths_cells"], written[key]["paths_cells"])
+    assert list(reader._seen_shards) == [where[key]]  # one shard taken in
+    same = [k for k in written if where[k] == where[key]]
+    assert {k for k, a in reader.iter_web_arrays(same, where) if a is not None} == set(same)
+    assert list(reader._seen_shards) == [where[key]]
+    other = sorted(written)[-1]
+    for hint in (where[key], "webs/shards/wd/none", "webs/shards/other/" + where[other].rsplit("/", 1)[1],
+                 "webs/shards/wd/../wd/" + where[other].rsplit("/", 1)[1], "/etc", ""):
+        fresh = MotionStore(str(tmp_path / "s"), read_only=True)
+        got, _ = fresh.read_web_arrays(other, hint)  # a wrong hint: found by listing the shards
+        np.testing.assert_array_equal(got["paths_cells"], written[other]["paths_cells"])
+        assert len(fresh._seen_shards) == 4
+    damaged = tmp_path / "s" / where[other] / "zarr.json"
+    damaged.write_text("{not json")
+    fresh = MotionStore(str(tmp_path / "s"), read_only=True)
+    with pytest.raises(KeyError, match=other):
+        fresh.read_web_arrays(other, where[other])
+    assert where[other] in fresh._bad_hints and len(fresh._seen_shards) == 3
