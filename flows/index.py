@@ -572,7 +572,8 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
 
     Every object reused is verified first (read whole, checksum against the one recorded with
     it and in the current manifest): a missing or damaged one is recomputed, never committed
-    again. Cost: one read of every reused object, O(store bytes used by this generation).
+    again. The webs are verified in one pass in the store's order (``MotionStore.verify_webs``).
+    Cost: one read of every reused object, O(store bytes used by this generation).
     A shortlist run plans twice: ``stage="features"`` the clips lacking features (no pairs),
     then ``stage="pairs"`` the pairs of each chunk's shortlist (``keep``, by chunk name).
     """
@@ -583,13 +584,19 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
     stored = store.web_keys(web_digest(cfg))  # one listing of the web shards, not a lookup per pair
     logger = run_logger()
 
+    verified: dict[str, str | None] = {}  # the stored webs of the chunks' pairs, verified in one pass
+
     def sound(key: str) -> bool:
-        problem = store.verify(key, expected.get(key))
+        problem = verified[key] if key in verified else store.verify(key, expected.get(key))
         if problem is not None and (key in stored or key in expected):
             logger.warning("store object %s %s: recomputing it", key, problem)
         return problem is None
 
     def web_ok(key: str) -> bool:
+        if key in stored and not verified:
+            wdig, rate = web_digest(cfg), working_rate(cfg)
+            verified.update(store.verify_webs(sorted({j.key for c in chunks for j in plan_pairs(c, wdig, rate)}
+                                                     & stored), expected))
         return key in stored and sound(key)
 
     def features_ok(sha: str) -> bool:
@@ -712,7 +719,9 @@ def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkP
     keys = [w["key"] for w in gen.webs] + sorted({k for rs in gen.features.values() for k in rs.values()})
     gen.checksums = {k: c for k in keys if (c := store.recorded_checksum(k)) is not None}
     gen.timings["before_commit_s"] = time.perf_counter() - t0
-    if prev is not None and same_content(prev, gen) and not (damage and damage.manifest_damaged):
+    # a manifest written before records named each web's shard is written again once, with them
+    unplaced = prev is not None and any("shard" not in w for w in prev.webs) and all("shard" in w for w in gen.webs)
+    if prev is not None and same_content(prev, gen) and not unplaced and not (damage and damage.manifest_damaged):
         logger.info("nothing changed: generation %s stays current", prev.id)
         gen.id = prev.id  # no manifest repeating the current one
     else:

@@ -109,13 +109,15 @@ class Generation:
 
 def same_content(a: Generation, b: Generation) -> bool:
     """Whether two manifests list the same content (clips, objects, checksums, config), whatever
-    their ids, times and per-run counts."""
-    def content(g: Generation) -> dict[str, Any]:
-        d = {k: v for k, v in g.to_dict().items() if k not in RUN_FIELDS}
-        d["webs"] = [{k: v for k, v in w.items() if k != "computed"} for w in g.webs]
-        return d
+    their ids, times, per-run counts and the shards their webs are in."""
+    def content(g: Generation) -> dict[str, Any]:  # the fields as they are (no deep copy: O(webs) dicts)
+        return {k: getattr(g, k) for k in g.__dataclass_fields__ if k not in RUN_FIELDS and k != "webs"}
 
-    return content(a) == content(b)
+    def record(w: dict[str, Any]) -> dict[str, Any]:  # where a web is (its shard) is not what it is
+        return {k: v for k, v in w.items() if k not in ("computed", "shard")}
+
+    return (len(a.webs) == len(b.webs) and content(a) == content(b)
+            and all(record(x) == record(y) for x, y in zip(a.webs, b.webs, strict=True)))
 
 
 #: how ``motionweb index`` repairs a damaged pointer or current manifest (in messages)

@@ -323,6 +323,21 @@ class MotionStore:
             return "checksum differs from the manifest's"
         return None
 
+    def verify_webs(self, keys: Iterable[str], expected: Mapping[str, str] | None = None) -> dict[str, str | None]:
+        """:meth:`verify` of many webs (``expected``: checksums by key): on a local disk read in
+        one pass in the store's order (:meth:`iter_web_arrays`, each chunk decompressed once,
+        ~0.2 ms a web; :meth:`verify` reads one through zarr, ~1.5 ms), a web that pass does not
+        give (missing, damaged, an object store) verified alone, which says why. O(bytes of the
+        webs)."""
+        expected = expected or {}
+        out: dict[str, str | None] = {}
+        for key, arrays in self.iter_web_arrays(keys):
+            if arrays is not None and (key not in expected or expected[key] == self.recorded_checksum(key)):
+                out[key] = None
+            else:
+                out[key] = self.verify(key, expected.get(key))
+        return out
+
     def _write_group(self, key: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None:
         """Write arrays into a fresh group; mark it complete last (a crash leaves it incomplete)."""
         g = zarr.open_group(store=self.zstore, path=key, mode="w")
@@ -439,7 +454,7 @@ class MotionStore:
             if found is None:
                 return None
             rs = self._reader_shards[found[0]]
-            return rs.name, json.loads(rs.blob[rs.ends[found[1]]:rs.ends[found[1] + 1]])
+            return rs.name, orjson.loads(rs.blob[rs.ends[found[1]]:rs.ends[found[1] + 1]])
         if key not in self._webs:
             self._load_shards(web_digest_of(key))
         return self._webs.get(key)
@@ -473,6 +488,12 @@ class MotionStore:
         self._reader_shards.append(_ReaderShard(shard, z, b"".join(texts), ends))
         self._key_entry.update({k: (n, i) for i, k in enumerate(attrs["webs"])})
         self._seen_shards[shard] = n
+        self._note_layout(shard, meta)
+        return True
+
+    def _note_layout(self, shard: str, meta: dict[str, Any]) -> None:
+        """Remember a local shard's file and inner chunks when its metadata (``zarr.json``, without
+        the attributes) is laid out as :meth:`write_webs` lays it out, for :meth:`_read_local`."""
         if self._local and meta.get("codecs") and meta["codecs"][0].get("name") == "sharding_indexed":
             cfg = meta["codecs"][0].get("configuration", {})
             outer = meta.get("chunk_grid", {}).get("configuration", {}).get("chunk_shape", [0])[0]
@@ -484,7 +505,6 @@ class MotionStore:
                     and inner > 0 and outer >= meta["shape"][0] and outer % inner == 0):
                 sep = meta.get("chunk_key_encoding", {}).get("configuration", {}).get("separator", "/")
                 self._local_layouts[shard] = (os.path.join(self.path(shard), f"c{sep}0"), (inner, outer // inner), None)
-        return True
 
     def _load_shards(self, wdig: str) -> None:
         """Take in the complete shards of web digest ``wdig`` not seen yet (one listing; each new
@@ -511,6 +531,8 @@ class MotionStore:
                 continue  # being written, its writer died, or damaged: its webs are not seen
             self._shards[shard] = z
             self._webs.update({key: (shard, e) for key, e in z.attrs["webs"].items()})
+            if self._local:  # a writer verifying many webs reads them as a reader does (verify_webs)
+                self._note_layout(shard, {k: v for k, v in z.metadata.to_dict().items() if k != "attributes"})
 
     def web_shard(self, key: str, hint: str | None = None) -> str | None:
         """The shard that serves a web key (the newest complete one holding it; for a reader, the
@@ -543,7 +565,7 @@ class MotionStore:
 
     def iter_web_arrays(self, keys: Iterable[str], shards: Mapping[str, str | None] | None = None
                         ) -> Iterator[tuple[str, dict[str, np.ndarray] | None]]:
-        """``(key, flat arrays)`` of each web of ``keys`` on a local reader's shards, checked
+        """``(key, flat arrays)`` of each web of ``keys`` on local shards, checked
         against its checksum, in the order the store holds them: by shard, then by offset, so
         that each inner chunk of a shard is decompressed once per pass (a 256 kB chunk holds
         several webs; read one by one, each web decompressed its chunks again). ``(key, None)``
@@ -554,7 +576,7 @@ class MotionStore:
         local: dict[str, list[tuple[int, str, dict[str, Any]]]] = {}
         shards = shards or {}
         for key in keys:
-            found = self._web_entry(key, shards.get(key)) if self.read_only and self._local else None
+            found = self._web_entry(key, shards.get(key)) if self._local else None
             if found is None or found[0] not in self._local_layouts:
                 yield key, None
             else:
@@ -568,7 +590,7 @@ class MotionStore:
 
     def _read_local(self, shard: str, start: int, nbytes: int,
                     held: dict[int, np.ndarray] | None = None) -> np.ndarray | None:
-        """Bytes ``start:start+nbytes`` of a reader's shard on a local disk, read from its one file
+        """Bytes ``start:start+nbytes`` of a shard on a local disk, read from its one file
         without zarr: the inner chunks they span located by the shard's index (read once per
         shard: (offset, nbytes) little-endian uint64 per chunk, at the end of the file, as the
         Zarr v3 sharding codec lays it out) and each decompressed (Blosc). A web read is then one
@@ -580,7 +602,7 @@ class MotionStore:
         ``held``: decompressed chunks kept across the reads of one pass in increasing ``start``
         (:meth:`iter_web_arrays`), those before this read's first chunk dropped, so a chunk
         holding several webs is decompressed once."""
-        layout = self._local_layouts.get(shard) if self.read_only and self._local else None
+        layout = self._local_layouts.get(shard) if self._local else None
         if layout is None:
             return None
         path, inner, index = layout

@@ -229,6 +229,30 @@ def test_incremental_rerun_change_remove_and_params(indexed):
     assert all(store.has(w["key"]) for w in old.webs)  # the old generation stays readable
 
 
+def test_a_manifest_without_web_shards_gets_them_on_the_next_run(prefect_harness, tmp_path):
+    """A store indexed before web records named their shard: the next run with nothing changed
+    commits one generation that names them (readers then take in only those shards), the run
+    after it commits nothing."""
+    from motionweb.store.generations import Generation, commit
+    from motionweb.store.zarr_store import new_id
+
+    corpus = write_corpus(tmp_path / "corpus")
+    cfg = make_config(tmp_path, corpus, str(tmp_path / "store"))
+    first = index_library(cfg)
+    store = MotionStore(cfg.store.path)
+    old = load_generation(store)
+    d = old.to_dict() | {"id": new_id()}
+    d["webs"] = [{k: v for k, v in w.items() if k != "shard"} for w in old.webs]
+    commit(store, Generation.from_dict(d))
+    assert all("shard" not in w for w in load_generation(store).webs)
+    s2 = index_library(cfg)
+    assert s2["pairs_computed"] == 0 and s2["generation"] != d["id"] and s2["generation"] != first["generation"]
+    gen = load_generation(store)
+    assert gen.id == s2["generation"] and all(w["shard"] == store.web_shard(w["key"]) for w in gen.webs)
+    s3 = index_library(cfg)
+    assert s3["pairs_computed"] == 0 and s3["generation"] == s2["generation"]
+
+
 def replace_mw(cfg: Config, **kw):
     return cfg.matchweb.model_copy(update=kw)
 
