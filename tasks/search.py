@@ -847,17 +847,30 @@ def remove_redundant(matches: Iterable[WebMatch], overlap: float) -> list[WebMat
     return [ms[u] for u in keep]
 
 
+def sorted_path_values(webs: Iterable[MatchWeb]) -> np.ndarray:
+    """The finite path values of ``webs``, sorted ``(N,)`` (their dtype, float32 as stored): any
+    quantile of them is then a lookup (:func:`quantile_of_sorted`; design §5). O(N log N)."""
+    vals = [w.paths_values for w in webs]
+    allv = np.concatenate(vals) if vals else np.zeros(0)
+    return np.sort(allv[np.isfinite(allv)])
+
+
+def quantile_of_sorted(values: np.ndarray, q: float) -> float:
+    """ε as the ``q`` quantile (0..1) of ``values`` (:func:`sorted_path_values`; numpy's linear
+    rule, which reads only the order statistics: the same as of the values unsorted)."""
+    if not 0.0 <= q <= 1.0:
+        raise ValueError(f"quantile must be within [0, 1], got {q}")
+    if not len(values):
+        raise ValueError("no match web values to take a quantile of (empty index or chunk)")
+    return float(np.quantile(values, q))
+
+
 def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
     """ε as the ``q`` quantile (0..1) of the path values of ``webs`` (design §5: absolute distances
     mean little to a user, a quantile of the chunk's web values does)."""
     if not 0.0 <= q <= 1.0:
         raise ValueError(f"quantile must be within [0, 1], got {q}")
-    vals = [w.paths_values for w in webs]
-    allv = np.concatenate(vals) if vals else np.zeros(0)
-    allv = allv[np.isfinite(allv)]
-    if not len(allv):
-        raise ValueError("no match web values to take a quantile of (empty index or chunk)")
-    return float(np.quantile(allv, q))
+    return quantile_of_sorted(sorted_path_values(webs), q)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -916,22 +929,57 @@ class MatchSearch:
         return g
 
     def quantile(self, q: float, stream: bool = False) -> float:
-        """ε as the ``q`` quantile of the searched webs' path values (:func:`epsilon_from_quantile`;
-        one pass over every web of the scope), kept in the file cache under the scope's content
-        key when the source names it (a later process of the same scope reads it back: about 18 s
-        for a 16,290-web category of the 381k-frame demo store, against a file read). ``stream``:
-        the webs read and not kept (``StoreWebs.iter_webs``), else kept in the source's cache."""
-        key = None
-        if self.files is not None and hasattr(self.webs, "scope_key"):
-            key = self.webs.scope_key(f"path value quantile {float(q)!r}")
+        """ε as the ``q`` quantile of the searched webs' path values (:func:`epsilon_from_quantile`).
+        The scope's sorted values (:meth:`path_values`) are kept in the file cache when the source
+        names its content, so any quantile of a scope costs one pass over its webs, once for every
+        process (about 3 s for a 16,290-web category of the 381k-frame demo store), then a file
+        read; each quantile's value is kept too (a few bytes). ``stream``: see :meth:`path_values`."""
+        if not 0.0 <= q <= 1.0:
+            raise ValueError(f"quantile must be within [0, 1], got {q}")
+        key = self._scope_file(f"path value quantile {float(q)!r}")
+        if key is not None:
             kept = self.files.get(key)
             if kept is not None and isinstance(kept[1].get("value"), float):
                 return kept[1]["value"]
-        webs = self.webs.iter_webs() if stream and hasattr(self.webs, "iter_webs") else self.webs.all_webs()
-        value = epsilon_from_quantile(webs, q)
+        value = quantile_of_sorted(self.path_values(stream), q)
         if key is not None:
             self.files.put(key, {}, {"value": value})
         return value
+
+    def path_values(self, stream: bool = False) -> np.ndarray:
+        """The scope's finite path values sorted ``(N,)`` float32 (:func:`sorted_path_values`),
+        from the file cache, else one pass over every web of the scope (then kept there).
+        ``stream``: the webs read and not kept (``StoreWebs.iter_webs``), else kept in the
+        source's cache. O(N log N) the first time, O(N) read back."""
+        key = self._scope_file("path values sorted")
+        if key is not None:
+            kept = self.files.get(key)
+            if kept is not None and set(kept[0]) == {"values"} and kept[0]["values"].ndim == 1:
+                values = kept[0]["values"]
+                if (len(values) == kept[1].get("n") and np.isfinite(values).all()
+                        and not (len(values) > 1 and np.any(values[1:] < values[:-1]))):
+                    return values
+        webs = self.webs.iter_webs() if stream and hasattr(self.webs, "iter_webs") else self.webs.all_webs()
+        values = sorted_path_values(webs)
+        if key is not None:
+            self.files.put(key, {"values": values}, {"n": len(values)})
+        return values
+
+    def keep_path_values(self) -> int:
+        """Have the scope's sorted values in the file cache (:meth:`path_values`, streamed), read
+        back for none when a file is there: the number of values computed (0 when kept before,
+        or without a file cache)."""
+        key = self._scope_file("path values sorted")
+        if key is None or self.files.has(key):
+            return 0
+        return len(self.path_values(stream=True))
+
+    def _scope_file(self, salt: str) -> str | None:
+        """The file cache's key of a value of this scope (None: no file cache, or a source that
+        does not name its webs' content)."""
+        if self.files is None or not hasattr(self.webs, "scope_key"):
+            return None
+        return self.webs.scope_key(salt)
 
     def check(self, query: Segment) -> WalkGraph:
         """Validate a user query: known clip, range inside it, at least the minimum chain length."""

@@ -330,6 +330,18 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     src5, ms5 = fresh()
     assert ms5.quantile(0.3) == want_q and src5.reads == 0
     assert ms5.quantile(0.7) == epsilon_from_quantile(src5.all_webs(), 0.7)  # another quantile: its own key
+    # any other quantile of the scope from its sorted values, kept by the first pass: no web read
+    src6, ms6 = fresh()
+    for q in (0.0, 0.05, 0.123, 0.5, 0.99, 1.0):
+        assert ms6.quantile(q) == epsilon_from_quantile(list(src4.iter_webs()), q)
+    assert src6.reads == 0
+    vkey = src6.scope_key("path values sorted")
+    values = files.get(vkey)[0]["values"]
+    assert values.dtype == np.float32 and np.all(np.diff(values) >= 0)
+    files.put(vkey, {"values": values[::-1].copy()}, {"n": len(values)})  # not sorted: taken again
+    src7, ms7 = fresh()
+    assert np.array_equal(ms7.path_values(), values) and src7.reads > 0
+    assert np.array_equal(files.get(vkey)[0]["values"], values)
     # a source that does not name its webs' content (a plain mapping) keeps no files
     assert MatchSearch(webs, files=files).files is None
 
