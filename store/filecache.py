@@ -79,10 +79,6 @@ class FileCache:
             raise ValueError(f"a file cache key is a lowercase hex digest, got {key!r}")
         return self.folder / key[:2] / f"{key}.mwc"
 
-    def has(self, key: str) -> bool:
-        """Whether a file is kept under ``key`` (not read: :meth:`get` checks it)."""
-        return self._path(key).is_file()
-
     def get(self, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]] | None:
         """The arrays and metadata kept under ``key``, or None (missing, damaged or unreadable;
         a damaged file is removed)."""

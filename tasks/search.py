@@ -965,15 +965,6 @@ class MatchSearch:
             self.files.put(key, {"values": values}, {"n": len(values)})
         return values
 
-    def keep_path_values(self) -> int:
-        """Have the scope's sorted values in the file cache (:meth:`path_values`, streamed), read
-        back for none when a file is there: the number of values computed (0 when kept before,
-        or without a file cache)."""
-        key = self._scope_file("path values sorted")
-        if key is None or self.files.has(key):
-            return 0
-        return len(self.path_values(stream=True))
-
     def _scope_file(self, salt: str) -> str | None:
         """The file cache's key of a value of this scope (None: no file cache, or a source that
         does not name its webs' content)."""

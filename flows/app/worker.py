@@ -164,13 +164,6 @@ class _State:
             self.generation(gen_id)[3].web_shard(rec["key"], rec.get("shard"))
         return len(sc.webs)
 
-    def values(self, gen_id: str, category: str | None) -> int:
-        """Have the scope's sorted web values in the file cache (``MatchSearch.keep_path_values``:
-        one pass over its webs, once for every process), so that the first search of the scope
-        with an ε given as any quantile reads them back instead; the number of values computed
-        (0: kept before, or no file cache)."""
-        return self.scope(gen_id, category).search.keep_path_values()
-
     def stats(self) -> dict[str, Any]:
         """The cache's entries, bytes and bound, and the webs read from the store so far."""
         reads = sum(sc.webs.reads for _, _, scopes, _ in self.gens.values() for sc in scopes.values())
@@ -289,14 +282,14 @@ def serve(fd: int, name: str, handlers: dict[str, Callable[[Any], Any]]) -> None
 
 def child_main(fd: int, url: str, cache_bytes: int | None = None, files: tuple[str, int] | None = None) -> None:
     """The search worker: ("search", job) / ("warm", (gen, category)) / ("register", (gen,
-    graph)) / ("values", (gen, category)) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
+    graph)) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
     graphs, ``files`` (folder, bytes) its file cache of graphs."""
     from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
 
     state = _State(url, cache_bytes, files)
     serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
                                 "register": lambda p: state.register(*p), "query_webs": lambda p: state.query_webs(*p),
-                                "stats": lambda _: state.stats(), "values": lambda p: state.values(*p)})
+                                "stats": lambda _: state.stats()})
 
 
 # --------------------------------------------------------------------------------- the parent
@@ -429,11 +422,6 @@ class SearchWorkers:
                     self._warm(w, *scopes)
                 self._rehearse(w, list(self._examples.values()))
                 w.rehearsed = True
-                if scopes is not None and self.files is not None:
-                    for cat in scopes[1]:  # each scope's sorted values, for the primary's first quantile
-                        if w.closing:
-                            break
-                        w.call("values", (scopes[0], cat))
                 while not w.closing:
                     job = w.lessons.get()
                     try:

@@ -452,27 +452,3 @@ def test_a_cache_smaller_than_a_web_answers_the_same(cfg) -> None:
         assert stats["bytes"] <= stats["max_bytes"] or stats["entries"] == 1
     finally:
         engine.close()
-
-
-def test_a_worker_keeps_each_scopes_sorted_values_once(cfg, tmp_path) -> None:
-    """The standby's "values" job: a scope's sorted web values kept in the file cache (one pass
-    over its webs), not computed again by a later process; a search with ε as a quantile in a
-    new process then reads no web for it and gets the quantile the webs give."""
-    from motionweb.flows.app.worker import _State
-    from motionweb.store.generations import load_generation
-    from motionweb.tasks.search import epsilon_from_quantile
-
-    store = MotionStore(cfg.store.path, read_only=True)
-    gen = load_generation(store)
-    files = (str(tmp_path / "graphs"), 2**30)
-    cats = sorted({c["category"] for c in gen.clips})
-    first = _State(cfg.store.path, None, files)
-    counts = {c: first.values(gen.id, c) for c in cats}
-    assert all(n > 0 for n in counts.values())
-    again = _State(cfg.store.path, None, files)
-    assert [again.values(gen.id, c) for c in cats] == [0] * len(cats)
-    assert sum(sc.webs.reads for _, _, scopes, _ in again.gens.values() for sc in scopes.values()) == 0
-    sc = again.scope(gen.id, cats[0])
-    assert sc.search.quantile(0.37) == epsilon_from_quantile(list(first.scope(gen.id, cats[0]).webs.iter_webs()), 0.37)
-    assert sc.webs.reads == 0
-    assert _State(cfg.store.path, None, None).values(gen.id, cats[0]) == 0  # no file cache: nothing to keep
