@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import zarr
@@ -219,9 +221,9 @@ def test_a_pass_over_many_webs_reads_each_chunk_once_and_gives_each_web(tmp_path
     order = [(reader._web_entry(k)[0], reader._web_entry(k)[1]["start"]) for k, a in got if a is not None]
     runs = [sh for i, (sh, _) in enumerate(order) if i == 0 or order[i - 1][0] != sh]
     assert len(runs) == len(set(runs)) == 3  # shard by shard
-    assert all(a[1] < b[1] for a, b in zip(order, order[1:]) if a[0] == b[0])  # by offset in each
+    assert all(a[1] < b[1] for a, b in itertools.pairwise(order) if a[0] == b[0])  # by offset in each
     monkeypatch.undo()
-    chunk = sorted((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))[0]
+    chunk = min((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))
     data = bytearray(chunk.read_bytes())
     data[40:60] = bytes(20)
     chunk.write_bytes(bytes(data))
@@ -279,7 +281,7 @@ def test_a_reader_given_the_recorded_shard_takes_in_that_shard_alone(tmp_path):
     same = [k for k in written if where[k] == where[key]]
     assert {k for k, a in reader.iter_web_arrays(same, where) if a is not None} == set(same)
     assert list(reader._seen_shards) == [where[key]]
-    other = sorted(written)[-1]
+    other = max(written)
     for hint in (where[key], "webs/shards/wd/none", "webs/shards/other/" + where[other].rsplit("/", 1)[1],
                  "webs/shards/wd/../wd/" + where[other].rsplit("/", 1)[1], "/etc", ""):
         fresh = MotionStore(str(tmp_path / "s"), read_only=True)
