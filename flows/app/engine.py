@@ -261,6 +261,9 @@ class Engine:
         self._finalize = weakref.finalize(self, self.workers.close)
         if warm:
             threading.Thread(target=prime_plots, name="prime-plots", daemon=True).start()
+            # the primary search worker opens the current generation meanwhile (its manifest parsed
+            # on the other core while this process parses its own)
+            threading.Thread(target=self.workers.start, name="search-start", daemon=True).start()
 
     def close(self) -> None:
         """End the search workers."""

@@ -141,6 +141,24 @@ class _State:
         self.gens.move_to_end(gen_id)
         return self.gens[gen_id]
 
+    def open_current(self) -> str | None:
+        """Open the store's current generation before the service names it (its manifest parsed
+        while the service parses its own, on the other core); its id, None when there is none
+        (never indexed, or damaged: the service says so)."""
+        from motionweb.store.generations import current_generation
+        from motionweb.store.zarr_store import MotionStore
+
+        gen = current_generation(MotionStore(self.url, read_only=True), lean=True)
+        if gen is None:
+            return None
+        if gen.id not in self.gens:
+            from motionweb.flows.query import indexed_config
+
+            self.gens[gen.id] = (gen, indexed_config(gen), {}, MotionStore(self.url, read_only=True))
+            while len(self.gens) > KEEP_GENERATIONS:
+                self.gens.popitem(last=False)
+        return gen.id
+
     def scope(self, gen_id: str, category: str | None) -> _Scope:
         from motionweb.store.webs import StoreWebs
         from motionweb.tasks.search import MatchSearch, SearchParams
@@ -282,14 +300,14 @@ def serve(fd: int, name: str, handlers: dict[str, Callable[[Any], Any]]) -> None
 
 def child_main(fd: int, url: str, cache_bytes: int | None = None, files: tuple[str, int] | None = None) -> None:
     """The search worker: ("search", job) / ("warm", (gen, category)) / ("register", (gen,
-    graph)) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
+    graph)) / ("open", _) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
     graphs, ``files`` (folder, bytes) its file cache of graphs."""
     from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
 
     state = _State(url, cache_bytes, files)
     serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
                                 "register": lambda p: state.register(*p), "query_webs": lambda p: state.query_webs(*p),
-                                "stats": lambda _: state.stats()})
+                                "stats": lambda _: state.stats(), "open": lambda _: state.open_current()})
 
 
 # --------------------------------------------------------------------------------- the parent
@@ -514,6 +532,17 @@ class SearchWorkers:
         with self._call:
             if not self._closed:
                 self._primary_worker()
+
+    def start(self) -> None:
+        """Start the primary and have it open the store's current generation now, while the
+        service opens its own (:meth:`prepare` then finds it open). Errors are logged: the
+        requests after it start a worker again and say what is wrong."""
+        try:
+            with self._call:
+                if self._primary is None:
+                    self._primary_worker(spare=False).call("open", None)
+        except (WorkerCrashed, RuntimeError, ValueError, OSError) as exc:
+            log.warning("search worker: opening the current generation: %s", exc)
 
     def prepare(self, gen_id: str, scopes: list[str | None]) -> None:
         """Open ``gen_id``'s ``scopes`` (category names; ``None`` for all categories) for searching

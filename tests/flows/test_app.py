@@ -452,3 +452,26 @@ def test_a_cache_smaller_than_a_web_answers_the_same(cfg) -> None:
         assert stats["bytes"] <= stats["max_bytes"] or stats["entries"] == 1
     finally:
         engine.close()
+
+
+def test_the_primary_worker_opens_the_current_generation_at_start(cfg) -> None:
+    """``SearchWorkers.start`` (the service's first step, beside its own manifest parse): the
+    primary is up with the current generation open, which the warm-up and searches then use."""
+    from motionweb.flows.app.worker import SearchWorkers, _State
+    from motionweb.store.generations import load_generation
+
+    gen = load_generation(MotionStore(cfg.store.path, read_only=True))
+    state = _State(cfg.store.path)
+    assert state.open_current() == gen.id
+    opened = state.gens[gen.id][0]
+    assert state.generation(gen.id)[0] is opened  # not parsed again
+    workers = SearchWorkers(cfg.store.path, standby=False)
+    try:
+        workers.start()
+        pid = workers.info()["pid"]
+        assert pid is not None
+        workers.prepare(gen.id, sorted({c["category"] for c in gen.clips}))
+        assert workers.info()["pid"] == pid  # the same worker, warmed
+    finally:
+        workers.close()
+    assert not workers.info()["pid"]
