@@ -106,16 +106,22 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
                 missing[rec["key"]] = rec
             else:
                 webs[rec["key"]] = web
-        for key, arrays in self.store.iter_web_arrays(missing, {k: r.get("shard") for k, r in missing.items()}):
-            if arrays is None:
-                web = self._load(missing[key])
-            else:
-                web = MatchWeb.from_arrays(arrays)
-                self.reads += 1
+        for key, web in self._read_pass(missing):
             if keep:
                 self.cache.put(("web", key), web, web.nbytes)
             webs[key] = web
         return webs
+
+    def _read_pass(self, recs: dict[str, dict[str, Any]]) -> Iterator[tuple[str, MatchWeb]]:
+        """``(key, web)`` of each record of ``recs`` (by key) read from the store in one pass in
+        its order (``MotionStore.iter_web_arrays``, with each record's shard), a web that pass
+        does not give read alone (:meth:`_load`, naming a missing or damaged one)."""
+        for key, arrays in self.store.iter_web_arrays(recs, {k: r.get("shard") for k, r in recs.items()}):
+            if arrays is None:
+                yield key, self._load(recs[key])
+            else:
+                self.reads += 1
+                yield key, MatchWeb.from_arrays(arrays)
 
     def records_of(self, clip: str) -> list[dict[str, Any]]:
         """The manifest records of the webs touching ``clip`` in the restriction, in the
@@ -197,9 +203,5 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
                 yield web
             else:
                 missing[r["key"]] = r
-        for key, arrays in self.store.iter_web_arrays(missing, {k: r.get("shard") for k, r in missing.items()}):
-            if arrays is None:
-                yield self._load(missing[key])  # read alone: a missing or damaged web named
-            else:
-                self.reads += 1
-                yield MatchWeb.from_arrays(arrays)
+        for _, web in self._read_pass(missing):
+            yield web

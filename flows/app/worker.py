@@ -125,21 +125,25 @@ class _State:
 
     def generation(self, gen_id: str) -> tuple[Any, Any, dict[str | None, _Scope], Any]:
         """(generation, its indexed config, its scopes, its store), opened once."""
-        from motionweb.flows.query import indexed_config
         from motionweb.store.generations import load_generation
         from motionweb.store.zarr_store import MotionStore
 
         if gen_id not in self.gens:
-            # one store per generation, shared by its scopes and registrations: a store holds the
-            # index of every web's bytes once read (O(webs of the store)), so one per scope would
-            # hold it once per category searched
             store = MotionStore(self.url, read_only=True)
-            gen = load_generation(store, gen_id, lean=True)
-            self.gens[gen_id] = (gen, indexed_config(gen), {}, store)
-            while len(self.gens) > KEEP_GENERATIONS:
-                self.gens.popitem(last=False)
+            self._keep(load_generation(store, gen_id, lean=True), store)
         self.gens.move_to_end(gen_id)
         return self.gens[gen_id]
+
+    def _keep(self, gen: Any, store: Any) -> None:
+        """Hold ``gen`` opened on ``store`` (the last :data:`KEEP_GENERATIONS`). One store per
+        generation, shared by its scopes and registrations: a store holds the index of every
+        web's bytes once read (O(webs of the store)), so one per scope would hold it once per
+        category searched."""
+        from motionweb.flows.query import indexed_config
+
+        self.gens[gen.id] = (gen, indexed_config(gen), {}, store)
+        while len(self.gens) > KEEP_GENERATIONS:
+            self.gens.popitem(last=False)
 
     def open_current(self) -> str | None:
         """Open the store's current generation before the service names it (its manifest parsed
@@ -148,15 +152,12 @@ class _State:
         from motionweb.store.generations import current_generation
         from motionweb.store.zarr_store import MotionStore
 
-        gen = current_generation(MotionStore(self.url, read_only=True), lean=True)
+        store = MotionStore(self.url, read_only=True)
+        gen = current_generation(store, lean=True)
         if gen is None:
             return None
         if gen.id not in self.gens:
-            from motionweb.flows.query import indexed_config
-
-            self.gens[gen.id] = (gen, indexed_config(gen), {}, MotionStore(self.url, read_only=True))
-            while len(self.gens) > KEEP_GENERATIONS:
-                self.gens.popitem(last=False)
+            self._keep(gen, store)
         return gen.id
 
     def scope(self, gen_id: str, category: str | None) -> _Scope:
