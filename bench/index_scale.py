@@ -173,8 +173,9 @@ def commit_tail(store_dir: str) -> None:
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
-def breakdown(store: Path, entries: list, cfg: Config, n: int) -> None:
-    """Per-pair cost by stage on ``n`` random pairs of the category (see the module notes)."""
+def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[str, int] = ("the 381k corpus", 146_610)) -> None:
+    """Per-pair cost by stage on ``n`` random pairs of the category (see the module notes);
+    ``scale_to``: (what, pairs) the per-pair cost is multiplied out to at the end."""
     import math
     import random
 
@@ -306,12 +307,39 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int) -> None:
           f"path's (coarsest) {floor_cells * 1e3:.3f} ms; every level's whole grid by the GEMM path "
           f"{floor_gemm * 1e3:.3f} ms; measured {total * 1e3:.3f} ms = {total / floor_cells:.1f}x / "
           f"{total / floor_gemm:.1f}x")
-    pairs381 = 146_610
-    print(f"for the 381k corpus ({pairs381} pairs of such categories) on 2 workers: "
-          f"{pairs381 * total / 2:.0f} s at this cost; floors {pairs381 * floor_cells / 2:.0f} s (per-cell values) "
-          f"and {pairs381 * floor_gemm / 2:.0f} s (whole grids by GEMM)")
+    what, n_pairs = scale_to
+    print(f"for {what} ({n_pairs} pairs of such categories) on 2 workers: "
+          f"{n_pairs * total / 2:.0f} s at this cost; floors {n_pairs * floor_cells / 2:.0f} s (per-cell values) "
+          f"and {n_pairs * floor_gemm / 2:.0f} s (whole grids by GEMM)")
     if not math.isfinite(total) or m == 0:
         raise SystemExit("nothing measured")
+
+
+def store_breakdown(store: Path, corpus: Path, category: str | None, n: int) -> None:
+    """:func:`breakdown` on a category of an indexed store (e.g. bench/scale.py's long takes, whose
+    grids are ~100x a demo clip's), with the config of its current generation; stops unless every
+    clip of the category has its features there."""
+    from motionweb.store.generations import current_generation
+
+    gen = current_generation(MotionStore(str(store), read_only=True))
+    if gen is None:
+        raise CorpusError(f"{store}: no current generation (index it first)")
+    cfg = Config.model_validate({**gen.config, "corpus": {**gen.config["corpus"], "path": str(corpus)}})
+    cat = scan_corpus(corpus, cfg.corpus)
+    by_cat = cat.by_category()
+    rate = working_rate(cfg)
+    if category is None:
+        category = max(by_cat, key=lambda c: (len(plan_pairs(Chunk(c, tuple(by_cat[c])), web_digest(cfg), rate)), c))
+    if category not in by_cat:
+        raise CorpusError(f"{corpus}: no category {category!r} (has {sorted(by_cat)})")
+    entries = by_cat[category]
+    indexed = {c["sha256"] for c in gen.clips}
+    if missing := [e.path for e in entries if e.sha256 not in indexed]:
+        raise CorpusError(f"{store} did not index {len(missing)} clips of {category}: {missing[:3]}")
+    frames = sum(frames60(e.duration) for e in entries)
+    print(f"category {category}: {len(entries)} clips, {frames} frames at 60 Hz; rates {cfg.features.rates} "
+          f"(store {store}, {len(gen.webs)} webs)")
+    breakdown(store, entries, cfg, n, (f"the store's {len(gen.webs)} webs", len(gen.webs)))
 
 
 def main() -> None:
@@ -321,11 +349,19 @@ def main() -> None:
     ap.add_argument("--keep", help="work folder (corpus, features, base code), reused when present")
     ap.add_argument("--commit-store", help="measure the commit task's Prefect overhead on this store instead")
     ap.add_argument("--breakdown", type=int, default=0, help="measure where the time of N random pairs goes instead")
+    ap.add_argument("--store", help="with --breakdown: pairs of a category of this indexed store (its config) instead")
+    ap.add_argument("--corpus", help="with --store: the corpus it indexed")
+    ap.add_argument("--category", help="with --store: the category (default: the one of most pairs)")
     ap.add_argument("--base", default=None, help="the previous revision measured in the same run "
                                                  "(default: where this branch left main)")
     args = ap.parse_args()
     if args.commit_store:
         commit_tail(args.commit_store)
+        return
+    if args.store:
+        if not (args.breakdown and args.corpus):
+            raise SystemExit("--store needs --breakdown N and --corpus DIR")
+        store_breakdown(Path(args.store), Path(args.corpus), args.category, args.breakdown)
         return
     work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,11 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 # run, never the user's: a test that needs them empty makes its own
 os.environ[CACHE_ENV] = tempfile.mkdtemp(prefix="motionweb-test-cache-")
 atexit.register(shutil.rmtree, os.environ[CACHE_ENV], True)
+# Prefect's home (its local database, ~6 MB) for the flow runs made in this process: one folder of
+# this run, removed at its end (a test that runs a CLI in a child gives it a tmp_path of its own)
+if "PREFECT_HOME" not in os.environ:  # a home the caller set is theirs, used and kept
+    os.environ["PREFECT_HOME"] = tempfile.mkdtemp(prefix="motionweb-test-prefect-")
+    atexit.register(shutil.rmtree, os.environ["PREFECT_HOME"], True)
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import replace
 
 import numpy as np
@@ -311,7 +310,6 @@ def test_bad_inputs_raise(walkjump):
 # ------------------------------------------------------------------------------------ flow + CLI
 def test_cli_warp_end_to_end(walkjump, tmp_path):
     """One real flow run through the CLI: BVH and plot written; then errors without a flow run."""
-    os.environ.setdefault("PREFECT_HOME", tempfile.mkdtemp(prefix="prefect-home-"))
     for key, value in {"PREFECT_SERVER_ANALYTICS_ENABLED": "false", "PREFECT_LOGGING_LEVEL": "WARNING",
                        "PREFECT_LOGGING_TO_API_WHEN_MISSING_FLOW": "ignore",
                        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "90"}.items():
