@@ -104,9 +104,42 @@ def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, fl
 
 
 @njit(cache=True, nogil=True)
+def _keep_path(paths, lengths, slot, path, L):
+    """Copy ``path`` (n, 2) into ``paths[slot]``, growing ``paths`` (cap, L, 2) by doubling until
+    ``slot`` is inside it; returns the buffer holding it (``lengths[u]``: the cells kept in slot u).
+
+    Bounds: a bridge search's path starts at its search's start cell and moves by unit steps up
+    or right inside the triangle of Manhattan length < L, so it has at most L cells (checked:
+    a longer one raises instead of writing past the row); the buffer is grown past ``slot``, and
+    ``lengths`` (≥ slot + 1 entries) bounds the rows copied."""
+    n = path.shape[0]
+    if n > L:
+        raise ValueError("find_bridges: a bridge path longer than its search triangle")
+    if slot >= paths.shape[0]:
+        cap = paths.shape[0]
+        while cap <= slot:
+            cap *= 2
+        grown = np.empty((cap, L, 2), np.int64)
+        for u in range(paths.shape[0]):
+            for r in range(lengths[u]):
+                grown[u, r, 0] = paths[u, r, 0]
+                grown[u, r, 1] = paths[u, r, 1]
+        paths = grown
+    for r in range(n):
+        paths[slot, r, 0] = path[r, 0]
+        paths[slot, r, 1] = path[r, 1]
+    lengths[slot] = n
+    return paths
+
+
+@njit(cache=True, nogil=True)
 def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
     """Bounds: each search's band (:func:`_triangle`) holds at most L·(L+1)/2 cells, the size of
-    its DP buffers; at most one bridge per target chain and start chain (``touched``: nch)."""
+    its DP buffers; at most one bridge per target chain and start chain (``touched``, ``slot`` and
+    ``lengths``: nch); each kept path has at most L cells (:func:`_keep_path`).
+
+    A target's best path is backtracked when it is found (the DP of its start is at hand then),
+    so no search runs twice: each start's triangle and DP once, O(L) per improvement."""
     nch = offsets.shape[0] - 1
     ncell = L * (L + 1) // 2 + 1
     ns = 2 * mrun + 1
@@ -127,6 +160,9 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
     best_start = np.full(nch, -1, np.int64)
     best_end = np.full(nch, -1, np.int64)  # global chain-cell index of the junction on the target
     touched = np.empty(nch, np.int64)
+    slot = np.empty(nch, np.int64)  # where a touched target's best path is kept
+    lengths = np.zeros(nch, np.int64)
+    paths = np.empty((max(1, min(nch, 16)), max(1, L), 2), np.int64)
     junctions = []
     out_i = []
     out_j = []
@@ -154,27 +190,21 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
                     if a < best_avg[d]:
                         if best_start[d] < 0:
                             touched[nt_touched] = d
+                            slot[d] = nt_touched
                             nt_touched += 1
                         best_avg[d] = a
                         best_start[d] = p
                         best_end[d] = q
+                        path = band_backtrack(i0, lo[:nt], hi[:nt], off[: nt + 1], ptr, t, j, s, mrun)
+                        paths = _keep_path(paths, lengths, slot[d], path, L)
         for u in range(nt_touched):
             d = touched[u]
             p = best_start[d]
             q = best_end[d]
-            i0 = cells[p, 0]
-            j0 = cells[p, 1]
-            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags,
-                                  src_a, src_b, row_v, row_f)
-            band_dp(lo[:nt], hi[:nt], off[: nt + 1], vals, init, flags, mrun, cost, length, ptr)
-            t = cells[q, 0] - i0
-            k = off[t] + cells[q, 1] - lo[t]
-            s, a = best_state_avg(cost, length, k)
-            path = band_backtrack(i0, lo[:nt], hi[:nt], off[: nt + 1], ptr, t, cells[q, 1], s, mrun)
             junctions.append((c, p - offsets[c], d, q - offsets[d]))
-            for r in range(path.shape[0]):
-                out_i.append(path[r, 0])
-                out_j.append(path[r, 1])
+            for r in range(lengths[u]):
+                out_i.append(paths[u, r, 0])
+                out_j.append(paths[u, r, 1])
             out_off.append(len(out_i))
             best_avg[d] = INF
             best_start[d] = -1
@@ -206,7 +236,8 @@ def find_bridges(grid: np.ndarray, valid: np.ndarray, chain_cells: np.ndarray, c
     Each search runs on the cells reachable from its start inside the valid region only (see
     :func:`_triangle`; KG04 §3.2: the valid region "makes bridge calculation more efficient"), and
     starts that reach no other chain skip the DP: cost O(chain cells · reached cells · k), at most
-    O(chain cells · L² · k) where the valid region is wide.
+    O(chain cells · L² · k) where the valid region is wide; each start's search runs once (a
+    target's best path is backtracked when found, O(L) per improvement).
     """
     g = as_grid(grid)
     fa, fb = g.shape

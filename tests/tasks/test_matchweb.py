@@ -124,6 +124,30 @@ def test_bridges_on_a_holed_valid_region_match_brute_force() -> None:
     assert found > 0
 
 
+def test_a_chain_bridged_to_many_chains_keeps_each_bridge_path() -> None:
+    """A chain with bridges to more chains than the kept-path buffer first holds (16): each
+    bridge's path is the one found for it (it starts at its junction on the from-chain, ends at
+    its junction on the to-chain, moves up or right by unit steps under the slope rule, inside
+    the valid region) whatever the buffer's growth."""
+    rng = np.random.default_rng(3)
+    n = 48
+    g = (0.5 + rng.random((n, n))).astype(np.float32)
+    diag = np.stack([np.arange(n)] * 2, axis=1)
+    pits = np.array([[i, i + 3] for i in range(0, n - 3, 2)])  # one-cell chains beside the diagonal
+    cells = np.concatenate([diag, pits])
+    offs = np.concatenate([[0, n], n + np.arange(1, len(pits) + 1)])
+    valid = np.ones_like(g, dtype=bool)
+    br, bc, bo = find_bridges(g, valid, cells, offs, 3, 9)
+    from_diag = br[br[:, 0] == 0]
+    assert len(from_diag) > 16 and len(set(from_diag[:, 2].tolist())) == len(from_diag)
+    for b, (c, ia, d, ic) in enumerate(br.tolist()):
+        x = bc[bo[b]:bo[b + 1]]
+        assert tuple(x[0]) == tuple(cells[offs[c] + ia]) and tuple(x[-1]) == tuple(cells[offs[d] + ic])
+        step = np.diff(x, axis=0)
+        assert ((step >= 0) & (step <= 1)).all() and (step.sum(axis=1) >= 1).all() and slope_ok(x, 3)
+        assert len(x) <= 9
+
+
 def test_chains_found_and_short_ones_dropped() -> None:
     g = valleys((50, 50), [0], slope=0.05)
     for i in range(5, 10):  # an isolated pit of 5 cells along j = i + 25
