@@ -14,7 +14,7 @@ from motionweb.store.catalog import scan_corpus
 from motionweb.store.demo.takes import write_take_corpus
 
 from bench.corpus import CorpusError
-from bench.scale import check_scale_corpus, expected_pairs, fit_power, predict
+from bench.scale import check_scale_corpus, expected_pairs, fit_power, fit_work, predict
 
 
 def test_fit_power_recovers_exponent_and_refuses_few_sizes() -> None:
@@ -29,6 +29,18 @@ def test_fit_power_recovers_exponent_and_refuses_few_sizes() -> None:
         fit_power([1, 1, 2, 3], [1, 1, 2, 3])  # distinct sizes only
     with pytest.raises(ValueError, match="positive"):
         fit_power(x, [0.0, *y[1:]])
+
+
+def test_fit_work_recovers_fixed_cost_and_cost_per_cell() -> None:
+    cells = [4e7, 1e8, 4e8, 1.7e9]
+    a, b = fit_work(cells, [6.0 + 7e-8 * c for c in cells])
+    assert a == pytest.approx(6.0) and b == pytest.approx(7e-8)
+    a, b = fit_work([1.0, 2.0, 3.0], [0.0, 3.0, 5.0])  # a negative intercept: through the origin
+    assert a == 0.0 and b == pytest.approx(21 / 14)  # Σxy / Σx²
+    with pytest.raises(ValueError, match="at least 2"):
+        fit_work([1.0, 1.0], [2.0, 3.0])
+    with pytest.raises(ValueError, match="never negative"):
+        fit_work([1.0, 2.0], [-1.0, 3.0])
 
 
 def test_expected_pairs_counts_per_category_and_skeleton() -> None:
