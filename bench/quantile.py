@@ -83,8 +83,7 @@ def main() -> None:
           f"floor (numpy's quantile of the values in memory) {first['floor_s'] * 1000:.0f} ms; "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     print(f"{'process':>8} {'q':>6} " + " ".join(f"{n + ' s':>12}" for n in results) + "  value")
-    rows = [list(zip(*(res["asks"] for res in results.values()), strict=True))][0]
-    for asks in rows:
+    for asks in zip(*(res["asks"] for res in results.values()), strict=True):
         run, q, value = asks[0][0], asks[0][1], asks[0][3]
         if any(a[3] != value for a in asks):
             raise CorpusError(f"q={q}: the codes disagree: {[a[3] for a in asks]}")

@@ -855,11 +855,16 @@ def sorted_path_values(webs: Iterable[MatchWeb]) -> np.ndarray:
     return np.sort(allv[np.isfinite(allv)])
 
 
+def check_quantile(q: float) -> None:
+    """Refuse a quantile outside [0, 1] (ValueError naming it): asked before any pass over webs."""
+    if not 0.0 <= q <= 1.0:
+        raise ValueError(f"quantile must be within [0, 1], got {q}")
+
+
 def quantile_of_sorted(values: np.ndarray, q: float) -> float:
     """ε as the ``q`` quantile (0..1) of ``values`` (:func:`sorted_path_values`; numpy's linear
     rule, which reads only the order statistics: the same as of the values unsorted)."""
-    if not 0.0 <= q <= 1.0:
-        raise ValueError(f"quantile must be within [0, 1], got {q}")
+    check_quantile(q)
     if not len(values):
         raise ValueError("no match web values to take a quantile of (empty index or chunk)")
     return float(np.quantile(values, q))
@@ -868,8 +873,7 @@ def quantile_of_sorted(values: np.ndarray, q: float) -> float:
 def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
     """ε as the ``q`` quantile (0..1) of the path values of ``webs`` (design §5: absolute distances
     mean little to a user, a quantile of the chunk's web values does)."""
-    if not 0.0 <= q <= 1.0:
-        raise ValueError(f"quantile must be within [0, 1], got {q}")
+    check_quantile(q)
     return quantile_of_sorted(sorted_path_values(webs), q)
 
 
@@ -934,8 +938,7 @@ class MatchSearch:
         names its content, so any quantile of a scope costs one pass over its webs, once for every
         process (about 3 s for a 16,290-web category of the 381k-frame demo store), then a file
         read; each quantile's value is kept too (a few bytes). ``stream``: see :meth:`path_values`."""
-        if not 0.0 <= q <= 1.0:
-            raise ValueError(f"quantile must be within [0, 1], got {q}")
+        check_quantile(q)
         key = self._scope_file(f"path value quantile {float(q)!r}")
         if key is not None:
             kept = self.files.get(key)
