@@ -301,6 +301,48 @@ def ref_bridges(g: np.ndarray, valid: np.ndarray, cells: np.ndarray, offs: np.nd
     return want
 
 
+def ref_band_dp(lo, hi, off, vals, init, flags, mrun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``tasks.matchweb.band.band_dp``'s outputs (cost, length, predecessor state per cell and
+    state), one transition at a time in plain Python: every cell's states start unreached, a
+    source sets state 0 (s = mrun); then the diagonal, up and right predecessors are tried in that
+    order, each over its states in ascending order, and a candidate replaces a state's value only
+    when strictly smaller (the first of equal costs is kept). Blocked cells (inf or NaN value, flag
+    1) stay unreached; a terminal cell (flag 2) is never a predecessor."""
+    n, ns, c0 = int(off[-1]), 2 * mrun + 1, mrun
+    cost = np.full((n, ns), np.inf)
+    length = np.zeros((n, ns), np.int32)
+    ptr = np.full((n, ns), -2, np.int8)
+
+    def cell(t: int, j: int) -> int | None:
+        if t < 0 or not lo[t] <= j <= hi[t]:
+            return None
+        return int(off[t] + j - lo[t])
+
+    for t in range(len(lo)):
+        for j in range(int(lo[t]), int(hi[t]) + 1):
+            k = cell(t, j)
+            v = float(vals[k])
+            if not v < np.inf or flags[k] == 1:
+                continue
+            if init[k] < np.inf:
+                cost[k, c0], length[k, c0], ptr[k, c0] = init[k], 1, -1
+            moves = [(cell(t - 1, j - 1), lambda r: 0)]
+            if mrun > 0:
+                moves.append((cell(t - 1, j), lambda r: r + 1 if r > 0 else 1))
+                moves.append((cell(t, j - 1), lambda r: r - 1 if r < 0 else -1))
+            for pred, run in moves:
+                if pred is None or flags[pred] == 2:
+                    continue
+                for s in range(ns):
+                    nr = run(s - c0)
+                    if abs(nr) > mrun:
+                        continue
+                    c = cost[pred, s] + v
+                    if c < cost[k, c0 + nr]:
+                        cost[k, c0 + nr], length[k, c0 + nr], ptr[k, c0 + nr] = c, length[pred, s] + 1, s
+    return cost, length, ptr
+
+
 def ref_alignment_cost(g: np.ndarray, slope_k: int) -> float:
     """Least total cost of a monotone path (0, 0) → (n − 1, m − 1) over finite cells with at most
     ``slope_k − 1`` consecutive steps along one axis (inf when there is none). Pure Python DP over

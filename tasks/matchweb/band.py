@@ -33,6 +33,12 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     (−1 at a source, −2 unreached). O(cells · k) with the predecessors' flat indices carried
     along the rows (no per-cell index search).
 
+    Each state has its own few candidates, taken in a fixed order with a strict ``<`` (ties keep
+    the first): state 0 (diagonal) the source, then the diagonal predecessor's states in order;
+    up-run 1 the up predecessor's states r ≤ 0 in order, up-run r + 1 its state r; right runs
+    likewise from the left neighbour. Each cell's states are found in registers and written once.
+    ``tests/naive.ref_band_dp`` is the same rule written out per transition.
+
     Bounds: writes rows ``off[t] .. off[t] + hi[t] − lo[t]`` of ``cost``/``length``/``ptr`` (so at
     most ``off[-1]`` rows: the caller sizes them from the band, ``off[t + 1] = off[t] + hi[t] − lo[t]
     + 1``, empty rows have ``hi < lo``) and states ``0 .. 2·mrun`` (≤ 126, held by the int8 ``ptr``:
@@ -48,51 +54,94 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
         base = off[t] - lo[t]
         for j in range(lo[t], hi[t] + 1):
             k = base + j
-            for s in range(ns):
-                cost[k, s] = INF
-                length[k, s] = 0
-                ptr[k, s] = -2
             v = vals[k]
             if not v < INF or flags[k] == 1:
+                for s in range(ns):
+                    cost[k, s] = INF
+                    length[k, s] = 0
+                    ptr[k, s] = -2
                 continue
+            # diagonal (and source) → state c0
+            bc = INF
+            bl = 0
+            bp = -2
             if init[k] < INF:
-                cost[k, c0] = init[k]
-                length[k, c0] = 1
-                ptr[k, c0] = -1
+                bc = init[k]
+                bl = 1
+                bp = -1
             if plo <= j - 1 <= phi and flags[pbase + j - 1] != 2:
                 kd = pbase + j - 1
                 for s in range(ns):
                     c = cost[kd, s] + v
-                    if c < cost[k, c0]:
-                        cost[k, c0] = c
-                        length[k, c0] = length[kd, s] + 1
-                        ptr[k, c0] = s
-            if mrun > 0:
-                if plo <= j <= phi and flags[pbase + j] != 2:
-                    kv = pbase + j
-                    # up: any state but a full run of up steps enters state r + 1 (r > 0) or 1
-                    for s in range(ns):
-                        r = s - c0
-                        nr = r + 1 if r > 0 else 1
-                        if nr > mrun:
-                            continue
-                        c = cost[kv, s] + v
-                        if c < cost[k, c0 + nr]:
-                            cost[k, c0 + nr] = c
-                            length[k, c0 + nr] = length[kv, s] + 1
-                            ptr[k, c0 + nr] = s
-                if j > lo[t] and flags[k - 1] != 2:
-                    kh = k - 1
-                    for s in range(ns):
-                        r = s - c0
-                        nr = r - 1 if r < 0 else -1
-                        if -nr > mrun:
-                            continue
-                        c = cost[kh, s] + v
-                        if c < cost[k, c0 + nr]:
-                            cost[k, c0 + nr] = c
-                            length[k, c0 + nr] = length[kh, s] + 1
-                            ptr[k, c0 + nr] = s
+                    if c < bc:
+                        bc = c
+                        bl = length[kd, s] + 1
+                        bp = s
+            cost[k, c0] = bc
+            length[k, c0] = bl
+            ptr[k, c0] = bp
+            if mrun == 0:
+                continue
+            # up: states r ≤ 0 → run 1; run r → r + 1 (≤ mrun)
+            if plo <= j <= phi and flags[pbase + j] != 2:
+                kv = pbase + j
+                bc = INF
+                bl = 0
+                bp = -2
+                for s in range(c0 + 1):
+                    c = cost[kv, s] + v
+                    if c < bc:
+                        bc = c
+                        bl = length[kv, s] + 1
+                        bp = s
+                cost[k, c0 + 1] = bc
+                length[k, c0 + 1] = bl
+                ptr[k, c0 + 1] = bp
+                for s in range(c0 + 1, ns - 1):
+                    c = cost[kv, s] + v
+                    if c < INF:
+                        cost[k, s + 1] = c
+                        length[k, s + 1] = length[kv, s] + 1
+                        ptr[k, s + 1] = s
+                    else:
+                        cost[k, s + 1] = INF
+                        length[k, s + 1] = 0
+                        ptr[k, s + 1] = -2
+            else:
+                for s in range(c0 + 1, ns):
+                    cost[k, s] = INF
+                    length[k, s] = 0
+                    ptr[k, s] = -2
+            # right: states r ≥ 0 → run −1; run r < 0 → r − 1 (≥ −mrun)
+            if j > lo[t] and flags[k - 1] != 2:
+                kh = k - 1
+                bc = INF
+                bl = 0
+                bp = -2
+                for s in range(c0, ns):
+                    c = cost[kh, s] + v
+                    if c < bc:
+                        bc = c
+                        bl = length[kh, s] + 1
+                        bp = s
+                cost[k, c0 - 1] = bc
+                length[k, c0 - 1] = bl
+                ptr[k, c0 - 1] = bp
+                for s in range(1, c0):
+                    c = cost[kh, s] + v
+                    if c < INF:
+                        cost[k, s - 1] = c
+                        length[k, s - 1] = length[kh, s] + 1
+                        ptr[k, s - 1] = s
+                    else:
+                        cost[k, s - 1] = INF
+                        length[k, s - 1] = 0
+                        ptr[k, s - 1] = -2
+            else:
+                for s in range(c0):
+                    cost[k, s] = INF
+                    length[k, s] = 0
+                    ptr[k, s] = -2
 
 
 @njit(cache=True, nogil=True)

@@ -19,7 +19,7 @@ from motionweb.tasks.blend import ease_offsets, leg_ik
 from motionweb.tasks.distance import distance_cells, prepare_pair
 from motionweb.tasks.guided_warp.features import knn_mean_distance
 from motionweb.tasks.guided_warp.paths import dag_path, fixed_length_path
-from motionweb.tasks.matchweb.band import optimal_path
+from motionweb.tasks.matchweb.band import band_buffers, band_dp, optimal_path
 from motionweb.tasks.matchweb.bridges import find_bridges
 from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
 from motionweb.tasks.matchweb.params import max_run
@@ -34,6 +34,7 @@ from naive import (
     numpy_leg_ik,
     polygons_of,
     ref_alignment_cost,
+    ref_band_dp,
     ref_bridges,
     ref_chains,
     ref_minima,
@@ -135,6 +136,31 @@ def test_band_dp_matches_the_reference(g: np.ndarray, k: int) -> None:
         assert path is not None and slope_ok(path, k)
         assert tuple(path[0]) == (0, 0) and tuple(path[-1]) == (n - 1, m - 1)
         assert float(g[path[:, 0], path[:, 1]].astype(np.float64).sum()) == pytest.approx(want, rel=1e-6)
+
+
+@SETTINGS
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(-1, 6)), min_size=0, max_size=12), st.integers(0, 4),
+       st.integers(0, 2**32 - 1))
+def test_band_dp_equals_the_transition_by_transition_reference(rows, mrun: int, seed: int) -> None:
+    """Every (cell, state) of band_dp — cost, length and predecessor — on random bands (empty rows,
+    one-cell rows, rows that jump right), with ties (costs 0-3 only), blocked cells (inf, NaN,
+    flag 1), terminal cells (flag 2) and sources anywhere: the exact values the reference gives,
+    so ties resolve to the same path."""
+    rng = np.random.default_rng(seed)
+    lo = np.cumsum([step for step, _ in rows]).astype(np.int64)
+    hi = lo + np.array([width for _, width in rows], np.int64)
+    off = np.zeros(len(rows) + 1, np.int64)
+    off[1:] = np.cumsum(np.maximum(hi - lo + 1, 0))
+    n = int(off[-1])
+    vals = rng.integers(0, 4, n).astype(np.float64)
+    vals[rng.random(n) < 0.1] = np.inf
+    vals[rng.random(n) < 0.05] = np.nan
+    init = np.where(rng.random(n) < 0.3, vals, np.inf)
+    flags = rng.choice(np.array([0, 0, 0, 1, 2], np.uint8), n)
+    got = band_buffers(n, mrun)
+    band_dp(lo, hi, off, vals, init, flags, mrun, *got)
+    for g, w in zip(got, ref_band_dp(lo, hi, off, vals, init, flags, mrun), strict=True):
+        np.testing.assert_array_equal(g, w)
 
 
 @pytest.mark.parametrize("k", [0, 65, 1000])
