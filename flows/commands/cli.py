@@ -370,14 +370,16 @@ def run_index(cfg: Config, progress: bool, ahead: list | None = None) -> dict:
         try:
             # nothing to compute, commit or repair, and no Prefect server to record the run: said
             # without Prefect, its server or a Dask cluster (flows/index.py unchanged_summary)
-            summary = idx.unchanged_summary(cfg) if server_url() is None else None
+            handover: dict = {}
+            summary = idx.unchanged_summary(cfg, handover) if server_url() is None else None
             if summary is not None:
                 return summary
             for started in ahead if ahead is not None else warmup.ahead_of_index(cfg.dask.address is None):
                 started.wait()
+            idx.VERIFIED = handover or None  # what it verified is not read again by the flow's plan
             return idx.index_library(cfg)
         finally:
-            idx.PROGRESS = None
+            idx.PROGRESS = idx.VERIFIED = None
             if seen:
                 typer.echo("", err=True)
 

@@ -134,6 +134,46 @@ def test_index_with_nothing_to_do_answers_without_prefect_unless_the_store_is_da
     assert unchanged_summary(cfg) is None
 
 
+def test_an_index_run_with_only_a_commit_to_make_reads_the_webs_once(prefect_harness, app_store: Path,
+                                                                    tmp_path: Path, monkeypatch) -> None:
+    """A run whose config changed (or one web damaged) but nothing else: the no-Prefect check
+    verifies every reused web, finds a commit (or a web) to make and hands its answers to the flow,
+    whose plan does not read them again; the damaged web is still recomputed."""
+    from motionweb.flows import index as idx
+    from motionweb.flows.commands import cli
+    from motionweb.flows.commands.cli import run_index
+    from motionweb.store.zarr_store import MotionStore
+
+    monkeypatch.setattr(cli, "server_url", lambda: None)  # no server to record to: the check runs first
+
+    data = yaml.safe_load(app_store.read_text())
+    shutil.copytree(app_store.parent / "store", tmp_path / "store")
+    data.update(store={"path": str(tmp_path / "store")}, output=str(tmp_path / "out"))
+    data["corpus"]["path"] = str(app_store.parent / "corpus")
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(data))
+    passes: list[int] = []
+    real = MotionStore.verify_webs
+
+    def counted(self, keys, *args, **kwargs):
+        keys = list(keys)
+        passes.append(len(keys))
+        return real(self, keys, *args, **kwargs)
+
+    monkeypatch.setattr(MotionStore, "verify_webs", counted)
+    first = run_index(load_config(tmp_path / "c.yaml"), False, ahead=[])  # another store path: a commit
+    assert first["pairs_computed"] == 0 and len(passes) == 1 and passes[0] == first["pairs"]
+    web = next(p for p in sorted((tmp_path / "store").rglob("*")) if p.is_file() and "/webs/" in p.as_posix()
+               and "/c/" in p.as_posix() and p.stat().st_size > 0)
+    web.write_bytes(b"x" + web.read_bytes()[1:])
+    passes.clear()
+    second = run_index(load_config(tmp_path / "c.yaml"), False, ahead=[])
+    assert len(passes) == 1 and second["pairs_computed"] >= 1  # the web recomputed (same bytes: same generation)
+    assert idx.VERIFIED is None  # nothing left behind for a later run of this process
+    passes.clear()
+    third = run_index(load_config(tmp_path / "c.yaml"), False, ahead=[])  # repaired: nothing to do
+    assert third["generation"] == first["generation"] and third["pairs_computed"] == 0 and len(passes) == 1
+
+
 @pytest.mark.parametrize(("module", "absent"), [
     ("motionweb.flows.commands.cli", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio", "matplotlib")),
     ("motionweb.flows.config", ("numba", "scipy", "zarr", "prefect", "distributed", "pinocchio")),

@@ -296,9 +296,11 @@ def test_a_reader_given_the_recorded_shard_takes_in_that_shard_alone(tmp_path):
     assert where[other] in fresh._bad_hints and len(fresh._seen_shards) == 3
 
 
-def test_verify_webs_in_one_pass_says_what_verify_says_of_each(tmp_path):
-    """verify_webs (one pass in the store's order) gives each web the answer verify gives it:
-    sound, missing, damaged bytes, a checksum that differs from the manifest's."""
+@pytest.mark.parametrize("threads", [1, 3])
+def test_verify_webs_in_one_pass_says_what_verify_says_of_each(tmp_path, threads):
+    """verify_webs (one pass per shard in the store's order, the shards shared among threads) gives
+    each web the answer verify gives it, in the order asked: sound, missing, damaged bytes, a
+    checksum that differs from the manifest's."""
     store = MotionStore(str(tmp_path / "s"))
     rng = np.random.default_rng(12)
     keys = []
@@ -313,8 +315,8 @@ def test_verify_webs_in_one_pass_says_what_verify_says_of_each(tmp_path):
     store = MotionStore(str(tmp_path / "s"))
     ask = [*keys, web_key("f" * 64, SHA_B, "wd")]
     expected = {keys[0]: "0" * 64, keys[1]: store.recorded_checksum(keys[1])}
-    got = store.verify_webs(ask, expected)
+    got = store.verify_webs(ask, expected, threads=threads)
     want = {k: MotionStore(str(tmp_path / "s")).verify(k, expected.get(k)) for k in ask}
-    assert got == want
+    assert got == want and list(got) == ask
     assert got[keys[1]] is None and got[keys[0]] == "checksum differs from the manifest's" and got[ask[-1]] == "missing"
     assert 0 < sum(v is not None and v != "missing" and k != keys[0] for k, v in got.items()) < len(keys)
