@@ -5,16 +5,17 @@ A rerun with nothing changed computes nothing but still scans the corpus, verifi
 feature object it reuses (each read whole and checked against its checksum), builds the
 generation and compares it with the current one. On the 381k-frame demo store (146,610 webs) its
 planning step verified the webs one by one through zarr, ~1.5 ms each. This runs
-``motionweb index CONFIG --no-progress`` (by category at 30 Hz, the config bench/app_scale.py and
-bench/corpus.py index with; a local cluster of 2 workers) on ``--store`` / ``--corpus``: once
-with the previous revision ``--base`` (``git archive`` of it put first on PYTHONPATH, as in
-bench/app_scale.py), then ``--runs`` times with this checkout, and prints each run's wall time and
+``motionweb index CONFIG --no-progress`` (by category at ``--rate`` Hz: 30, the config
+bench/app_scale.py and bench/corpus.py index with, or 60, bench/scale.py's; a local cluster of 2
+workers) on ``--store`` / ``--corpus``: ``--runs`` times with the previous revision ``--base``
+(``git archive`` of it put first on PYTHONPATH, as in bench/app_scale.py), then ``--runs`` times
+with this checkout, and prints each run's wall time and
 the peak RSS of its process tree, with a floor measured in the same run: reading the webs' files
 once (a verification reads them all, then decompresses and hashes them).
 This checkout's last rerun must commit nothing (checked); the first run of a code whose web
 records differ from the current manifest's (the shard each web is in) commits one generation.
 
-    .venv/bin/python -m bench.rerun --store DIR --corpus DIR [--base REV] [--keep DIR]
+    .venv/bin/python -m bench.rerun --store DIR --corpus DIR [--base REV] [--keep DIR] [--rate 30]
 """
 
 from __future__ import annotations
@@ -68,6 +69,8 @@ def main() -> None:
     ap.add_argument("--base", default="d6fdd3e", help="the previous revision measured in the same run")
     ap.add_argument("--keep", help="work folder (the base code), reused when present")
     ap.add_argument("--runs", type=int, default=2, help="reruns per code")
+    ap.add_argument("--rate", type=float, default=30.0,
+                    help="the store's working rate (30: bench/app_scale.py's stores; 60: bench/scale.py's)")
     args = ap.parse_args()
     store, work = Path(args.store), Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-rerun-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -77,7 +80,7 @@ def main() -> None:
     cfg_path = work / "rerun.yaml"
     cfg_path.write_text(yaml.safe_dump({
         "corpus": {"path": str(Path(args.corpus).resolve()), "length_unit": "m"},
-        "features": {"rates": rates_for(30.0)}, "store": {"path": str(store.resolve())},
+        "features": {"rates": rates_for(args.rate)}, "store": {"path": str(store.resolve())},
         "dask": {"n_workers": 2, "processes": True}, "index": {"chunk_by": "category"},
         "output": str(work / "out")}))
     nbytes, read_s = disk_read_s(store)
@@ -90,8 +93,7 @@ def main() -> None:
         env.pop("PYTHONPATH", None)
         if pkg is not None:
             env["PYTHONPATH"] = str(pkg)
-        runs = 1 if pkg is not None else args.runs
-        for i in range(runs):
+        for i in range(args.runs):
             cur = load_generation(MotionStore(str(store), read_only=True)).id
             wall, peak = rerun(cfg_path, env)
             gen = load_generation(MotionStore(str(store), read_only=True)).id

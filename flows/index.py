@@ -221,13 +221,15 @@ class ChunkPlan:
 
 def plan_chunk(chunk: Chunk, cfg: Config, has: Callable[[str], bool],
                has_features: Callable[[str], bool], keep: set[tuple[str, str]] | None = None,
-               features: bool = True) -> ChunkPlan:
+               features: bool = True, pairs: list[PairJob] | None = None) -> ChunkPlan:
     """Pair plan of one chunk split into cached and to-compute using the store predicates.
 
     ``keep``: the shortlisted pairs of the chunk (``(a.sha256, b.sha256)`` with ``a <= b``, see
     :func:`shortlist_chunk`); only those are planned. None: every pair. ``features=False`` asks
-    nothing about features (``features_todo`` empty: a shortlist run planned them before)."""
-    pairs = plan_pairs(chunk, web_digest(cfg), working_rate(cfg))
+    nothing about features (``features_todo`` empty: a shortlist run planned them before).
+    ``pairs``: the chunk's :func:`plan_pairs`, when the caller has them already."""
+    if pairs is None:
+        pairs = plan_pairs(chunk, web_digest(cfg), working_rate(cfg))
     if keep is not None:
         pairs = [j for j in pairs if (j.a.sha256, j.b.sha256) in keep]
     uniq = unique_jobs(pairs)
@@ -607,12 +609,13 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
             logger.warning("store object %s %s: recomputing it", key, problem)
         return problem is None
 
+    wdig, rate = web_digest(cfg), working_rate(cfg)
+    pairs = {c.name: plan_pairs(c, wdig, rate) for c in chunks} if stage != "features" else {}
+
     def web_ok(key: str) -> bool:
         if key in stored and not one_pass[0]:
             one_pass[0] = True
-            wdig, rate = web_digest(cfg), working_rate(cfg)
-            verified.update(store.verify_webs(sorted({j.key for c in chunks for j in plan_pairs(c, wdig, rate)}
-                                                     & stored), expected))
+            verified.update(store.verify_webs(sorted({j.key for ps in pairs.values() for j in ps} & stored), expected))
         return key in stored and sound(key)
 
     def features_ok(sha: str) -> bool:
@@ -625,7 +628,7 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
                         p.chunk.name, len(p.chunk.clips), len(p.features_todo))
         return plans
     plans = [plan_chunk(c, cfg, web_ok, features_ok, None if keep is None else keep[c.name].keep,
-                        features=stage != "pairs") for c in chunks]
+                        features=stage != "pairs", pairs=pairs[c.name]) for c in chunks]
     for p in plans:
         logger.info("chunk %s: %d clips, %d pairs (%d to compute, %d cached), %d clips need features",
                     p.chunk.name, len(p.chunk.clips), len(p.pairs), len(p.todo), len(p.cached),
