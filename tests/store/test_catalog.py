@@ -39,6 +39,19 @@ def test_scan_labels_hashes_and_facts(corpus: Path) -> None:
     assert set(cat.by_category()) == {"jump", "uncategorized", "walk"}
 
 
+@pytest.mark.parametrize("threads", [2, 5])
+def test_the_catalog_is_the_same_whatever_the_threads(corpus: Path, threads: int) -> None:
+    """Files read by several threads give the one-thread catalog: entries and errors in file order."""
+    for i in range(12):  # more files than threads, broken ones among them
+        if i % 4 == 3:
+            (corpus / "walk" / f"bad{i:02d}.bvh").write_text("HIERARCHY\nROOT a\n{\n")
+        else:
+            write_bvh(tiny_motion(5 + i, 30.0), corpus / "walk" / f"x{i:02d}.bvh")
+    one = scan_corpus(corpus, threads=1)
+    assert len(one.entries) == 12 and len(one.errors) == 4
+    assert scan_corpus(corpus, threads=threads).to_dict() == one.to_dict()
+
+
 def test_broken_file_is_reported_and_skipped(corpus: Path) -> None:
     cat = scan_corpus(corpus)
     assert [e.path for e in cat.errors] == ["walk/broken.bvh"]
