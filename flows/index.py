@@ -66,7 +66,7 @@ PROGRESS: Callable[[str, int, int], None] | None = None
 #: change) verified, set by the CLI for the flow it then runs, like :data:`PROGRESS`:
 #: ``{"store": url, "generation": id, "objects": {key: problem or None}}``. The flow's plan takes
 #: the answers for the same store and current generation instead of reading every reused object
-#: a second time (32.6 GB of webs at 10^6 frames: ~2 min)
+#: a second time (32.6 GB of webs at 10^6 frames: about a minute)
 VERIFIED: dict[str, Any] | None = None
 
 

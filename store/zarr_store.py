@@ -330,7 +330,8 @@ class MotionStore:
         ``keys``: on a local disk each shard read in one pass in its order (:meth:`_shard_pass`,
         each chunk decompressed once, ~0.2 ms a web; :meth:`verify` reads one through zarr,
         ~1.5 ms), the shards shared among ``threads`` threads (default: one per core, at most 8;
-        the reads, Blosc and SHA-256 release the GIL: 18,411 webs, 32.6 GB, took 106 s on one),
+        the reads, Blosc and SHA-256 release the GIL: a no-change rerun of the 1e6-frame store,
+        18,411 webs and 32.6 GB, took 118 s with one thread, 77 s with two; ``bench.rerun``),
         a web that pass does not give (missing, damaged, an object store) verified alone, which
         says why. O(bytes of the webs) / threads."""
         expected = expected or {}
