@@ -12,7 +12,6 @@ import csv
 import json
 import os
 import re
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -21,6 +20,7 @@ from motionweb.store.errors import MotionFormatError
 from motionweb.store.formats import is_clip, read_motion
 from motionweb.store.motion import Motion
 from motionweb.store.params import Params
+from motionweb.store.threads import IO_THREADS, map_in_threads
 from pydantic import Field
 
 
@@ -193,12 +193,9 @@ def scan_corpus(root: str | Path, cfg: CorpusParams | None = None, threads: int 
             unit=motion.unit,
         )
 
-    files = corpus_files(root)
-    n = max(1, min(threads or os.cpu_count() or 1, 8, len(files)))
-    with ThreadPoolExecutor(n, thread_name_prefix="scan") as pool:
-        for found in pool.map(describe, files) if n > 1 else map(describe, files):  # in file order
-            if isinstance(found, ScanError):
-                catalog.errors.append(found)
-            elif found is not None:
-                catalog.entries.append(found)
+    for found in map_in_threads(describe, corpus_files(root), threads, IO_THREADS, "scan"):  # in file order
+        if isinstance(found, ScanError):
+            catalog.errors.append(found)
+        elif found is not None:
+            catalog.entries.append(found)
     return catalog

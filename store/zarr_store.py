@@ -38,7 +38,6 @@ import os
 import threading
 import uuid
 from collections.abc import Iterable, Iterator, Mapping
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -48,6 +47,7 @@ import numpy as np
 import orjson
 import zarr
 from motionweb.store.keys import SHARDS, feature_key, grid_key, rate_tag, web_digest_of
+from motionweb.store.threads import IO_THREADS, map_in_threads
 from motionweb.store.web import MatchWeb
 from numcodecs import Blosc
 from zarr.codecs import BloscCodec
@@ -337,17 +337,13 @@ class MotionStore:
         expected = expected or {}
         keys = list(keys)
         local, _ = self._by_shard(keys)  # the others are verified alone below
-        n = max(1, min(threads or os.cpu_count() or 1, 8, len(local)))
 
         def shard_ok(item: tuple[str, list[tuple[int, str, dict[str, Any]]]]) -> list[tuple[str, bool]]:
             return [(key, buf is not None and (key not in expected or expected[key] == e.get("checksum")))
                     for key, e, buf in self._shard_pass(*item)]
 
-        if n > 1:
-            with ThreadPoolExecutor(n, thread_name_prefix="verify") as pool:
-                passed = dict(kv for part in pool.map(shard_ok, local.items()) for kv in part)
-        else:
-            passed = dict(kv for item in local.items() for kv in shard_ok(item))
+        passed = dict(kv for part in map_in_threads(shard_ok, list(local.items()), threads, IO_THREADS, "verify")
+                      for kv in part)
         out: dict[str, str | None] = {}
         for key in keys:
             out[key] = None if passed.get(key) else self.verify(key, expected.get(key))

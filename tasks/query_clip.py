@@ -9,12 +9,11 @@ web per compatible indexed clip (its coarse grid O(F·Fb·P / 9), then refinemen
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from motionweb.store.motion import Motion
+from motionweb.store.threads import map_in_threads
 from motionweb.store.web import MatchWeb, transpose
 from motionweb.store.webs import WebSource
 from motionweb.tasks.distance import ClipOperands
@@ -57,8 +56,7 @@ def query_clip_webs(motion: Motion, mine: dict[float, ClipOperands], others: Map
                 else transpose(build_web_operands(theirs, mine, wcfg, False)))
 
     # the web kernels release the GIL (nogil): one thread per core builds them, in the order given
-    with ThreadPoolExecutor(max_workers=min(len(others), os.cpu_count() or 1) or 1) as pool:
-        built = list(pool.map(web_with, list(others)))
+    built = map_in_threads(web_with, list(others))
     return {"": build_web_operands(mine, mine, wcfg, True), **dict(zip(others, built, strict=True))}
 
 
