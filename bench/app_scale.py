@@ -23,6 +23,7 @@ store (``--no-record``: no Prefect) and measured:
     of this checkout left (``--no-restart``: not);
   * memory: peak RSS of the service and its search workers, sampled every 50 ms (target ≤ 2 GB),
     each process's RSS at the end, and the worker's cache then (this checkout only).
+    The RSS counts the pages of mapped graph files a process holds (the page cache's, reclaimable).
 A code that is not ready within ``--timeout`` s is reported so and stopped.
 
     .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base REV] [--queries 40] [--cache-mb MB]

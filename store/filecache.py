@@ -16,26 +16,45 @@ is removed. The folder is bounded by bytes: past ``max_bytes`` the least recentl
 (by modification time, refreshed on each read) are removed down to 80% of the bound.
 
 File layout: ``MAGIC``, an 8-byte little-endian header length, a JSON header (the arrays' layout
-as ``store.zarr_store`` packs a web, the caller's metadata, the payload's size and CRC-32), then
-the arrays' bytes compressed with Blosc (LZ4, byte shuffle).
+as ``store.zarr_store`` packs a web, the caller's metadata, the payload's size and CRC-32, the
+codec), then the payload: the arrays' bytes compressed with Blosc (LZ4, byte shuffle), or, for a
+value put ``raw`` (the walk graphs), the arrays as they lie in memory, the payload starting on a
+page and each array on a 64-byte boundary, so that :meth:`FileCache.open_mapped` can map the file
+and hand out views of it.
+
+Mapped values (:meth:`FileCache.open_mapped`): a graph of a long take is hundreds of MB (29 M
+states, 600 MB, on the million-frame store) while a query of rows a..b walks only the states of
+those rows (a graph's states are sorted by web, row, column). Reading such a graph back whole cost
+2–3 s (read, LZ4, copies to align) each time a search worker's memory cache had dropped it; mapped,
+a file is read once per process to check it (CRC-32 and the caller's own check, ~0.5 s for that
+graph), its pages then released, and each later walk brings in only the pages of its rows — from
+the operating system's page cache, which is not the service's memory and is reclaimed under
+pressure. A process keeps the mappings it opened in an LRU bounded by the cache's own bound (file
+bytes): a file removed from the folder while still mapped keeps its disk blocks until it is
+dropped, so the disk held is at most twice the bound.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import mmap
 import os
 import threading
 import uuid
 import zlib
 from pathlib import Path
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
+from motionweb.store.cache import LRU
 from motionweb.store.zarr_store import pack_arrays, unpack_arrays
 from numcodecs import Blosc
 
 __all__ = ["FileCache", "default_folder"]
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +62,10 @@ MAGIC = b"MWFC1\n"
 #: Blosc compresses one buffer of at most 2 GB; a larger value is not kept
 MAX_VALUE_BYTES = 2**31 - 2**20
 _CODEC = Blosc(cname="lz4", clevel=5, shuffle=Blosc.SHUFFLE)
+#: a raw payload starts on a page (the offset of a mapping's views) and each array on 64 bytes
+_PAGE, _ALIGN = 4096, 64
+#: bytes read at a time to check a raw file's CRC-32 before it is mapped
+_CRC_CHUNK = 16 << 20
 
 
 #: environment variable naming the folder of motionweb's file caches (default: the user's cache folder)
@@ -55,6 +78,14 @@ def default_folder(kind: str = "graphs") -> Path:
         return Path(os.environ[CACHE_ENV]) / kind
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "motionweb" / kind
+
+
+def _release(mm: mmap.mmap) -> None:
+    """Drop ``mm``'s resident pages (a copy-on-write mapping never written: they are the file's)."""
+    try:
+        mm.madvise(mmap.MADV_DONTNEED)
+    except (AttributeError, ValueError, OSError):  # no madvise here, or a mapping already closed
+        pass
 
 
 def _is_key(key: str) -> bool:
@@ -73,6 +104,9 @@ class FileCache:
         self._lock = threading.Lock()
         self._bytes: int | None = None  # this process's estimate of the folder's bytes (scanned once)
         self.hits = self.misses = self.writes = self.damaged = 0
+        #: the values this process opened mapped, by key, with their mapping, charged their file's bytes
+        self._mapped = LRU(max_bytes=self.max_bytes)
+        self._used: dict[str, mmap.mmap] = {}  # mappings handed out since the last :meth:`release`
 
     def _path(self, key: str) -> Path:
         if not _is_key(key):
@@ -80,8 +114,8 @@ class FileCache:
         return self.folder / key[:2] / f"{key}.mwc"
 
     def get(self, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]] | None:
-        """The arrays and metadata kept under ``key``, or None (missing, damaged or unreadable;
-        a damaged file is removed)."""
+        """The arrays and metadata kept under ``key`` (arrays of their own, whatever the codec), or
+        None (missing, damaged or unreadable; a damaged file is removed)."""
         path = self._path(key)
         try:
             raw = path.read_bytes()
@@ -91,50 +125,97 @@ class FileCache:
         try:
             value = self._decode(raw)
         except (ValueError, KeyError, TypeError, RuntimeError) as exc:
-            self.damaged += 1
-            self.misses += 1
-            log.warning("%s: damaged cache file removed (%s)", path, exc)
-            path.unlink(missing_ok=True)
+            self._damaged(path, exc)
             return None
+        self._touch(path)
+        self.hits += 1
+        return value
+
+    def _damaged(self, path: Path, exc: BaseException) -> None:
+        self.damaged += 1
+        self.misses += 1
+        log.warning("%s: damaged cache file removed (%s)", path, exc)
+        path.unlink(missing_ok=True)
+
+    @staticmethod
+    def _touch(path: Path) -> None:
         try:
             os.utime(path)  # recently used: evicted last
         except OSError:
             pass
-        self.hits += 1
-        return value
 
     @staticmethod
-    def _decode(raw: bytes) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        if not raw.startswith(MAGIC) or len(raw) < len(MAGIC) + 8:
+    def _header(raw: bytes | memoryview, size: int) -> tuple[dict[str, Any], int]:
+        """(JSON header, payload offset) of a cache file of ``size`` bytes whose first bytes are
+        ``raw`` (at least the header's); ValueError for a file that is not one or whose payload
+        is not all there."""
+        if not bytes(raw[:len(MAGIC)]) == MAGIC or len(raw) < len(MAGIC) + 8:
             raise ValueError("not a cache file")
         n = int.from_bytes(raw[len(MAGIC):len(MAGIC) + 8], "little")
         start = len(MAGIC) + 8 + n
-        header = json.loads(raw[len(MAGIC) + 8:start])
+        if len(raw) < start:
+            raise ValueError("its header is cut short")
+        header = json.loads(bytes(raw[len(MAGIC) + 8:start]))
+        if header.get("codec", "blosc") == "raw":
+            start = -(-start // _PAGE) * _PAGE
+        if size - start != header["compressed"]:
+            raise ValueError("its payload is not the size its header gives")
+        return header, start
+
+    @classmethod
+    def _decode(cls, raw: bytes) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        header, start = cls._header(raw, len(raw))
         payload = memoryview(raw)[start:]
-        if len(payload) != header["compressed"] or zlib.crc32(payload) != header["crc32"]:
+        if zlib.crc32(payload) != header["crc32"]:
             raise ValueError("its payload does not match its checksum")
         buf = np.empty(header["nbytes"], np.uint8)
-        if header["nbytes"]:
+        if header.get("codec", "blosc") == "raw":
+            buf[:] = np.frombuffer(payload, np.uint8)
+        elif header["nbytes"]:
             _CODEC.decode(payload, out=buf)
         return unpack_arrays(buf, header["layout"], copy=False), header["meta"]
 
-    def put(self, key: str, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> bool:
+    def put(self, key: str, arrays: dict[str, np.ndarray], meta: dict[str, Any], raw: bool = False) -> bool:
         """Keep ``arrays`` (flat numeric arrays) and ``meta`` (JSON) under ``key``; False when it
         was not kept (too large, or the folder cannot be written: a cache never fails its
-        caller)."""
+        caller). ``raw``: uncompressed and aligned, for :meth:`open_mapped` (written straight
+        from the arrays, no copy)."""
         path = self._path(key)
-        parts, layout, nbytes = pack_arrays(arrays)
-        if nbytes > MAX_VALUE_BYTES:
-            return False
-        payload = _CODEC.encode(np.concatenate(parts)) if nbytes else b""
-        header = json.dumps({"layout": layout, "meta": meta, "nbytes": nbytes, "compressed": len(payload),
-                             "crc32": zlib.crc32(payload)}).encode()
+        if raw:
+            parts, layout, nbytes = [], [], 0
+            for name, value in arrays.items():
+                a = np.ascontiguousarray(value)
+                pad = -nbytes % _ALIGN
+                if pad:
+                    parts.append(np.zeros(pad, np.uint8))
+                layout.append([name, a.dtype.str, list(a.shape), nbytes + pad, a.nbytes])
+                parts.append(a.view(np.uint8).reshape(-1))
+                nbytes += pad + a.nbytes
+            if nbytes > self.max_bytes:
+                return False
+            crc = 0
+            for part in parts:
+                crc = zlib.crc32(part, crc)
+            size = nbytes
+        else:
+            parts, layout, nbytes = pack_arrays(arrays)
+            if nbytes > MAX_VALUE_BYTES:
+                return False
+            parts = [_CODEC.encode(np.concatenate(parts))] if nbytes else []
+            size = len(parts[0]) if parts else 0
+            crc = zlib.crc32(parts[0]) if parts else 0
+        header = json.dumps({"layout": layout, "meta": meta, "nbytes": nbytes, "compressed": size,
+                             "crc32": crc, "codec": "raw" if raw else "blosc"}).encode()
+        head = MAGIC + len(header).to_bytes(8, "little") + header
+        if raw:
+            head += b"\0" * (-len(head) % _PAGE)
         tmp = path.with_name(f"{path.name}.tmp-{uuid.uuid4().hex[:8]}")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             with open(tmp, "wb") as fh:
-                fh.write(MAGIC + len(header).to_bytes(8, "little") + header)
-                fh.write(payload)
+                fh.write(head)
+                for part in parts:
+                    fh.write(part)
             os.replace(tmp, path)
         except OSError as exc:
             log.debug("%s: not kept (%s)", path, exc)
@@ -144,13 +225,87 @@ class FileCache:
                 pass
             return False
         self.writes += 1
-        size = len(MAGIC) + 8 + len(header) + len(payload)
         with self._lock:
-            self._bytes = (self._scan()[0] if self._bytes is None else self._bytes + size)
+            self._bytes = (self._scan()[0] if self._bytes is None else self._bytes + len(head) + size)
             over = self._bytes > self.max_bytes
         if over:
             self.trim()
         return True
+
+    def open_mapped(self, key: str, opener: Callable[[dict[str, np.ndarray], dict[str, Any]], T],
+                    count: bool = True) -> T | None:
+        """``opener(arrays, meta)`` of the raw file kept under ``key``, its arrays views of the file
+        mapped copy-on-write (writable, never written back; the opener must not write them), or
+        None (missing, not raw, damaged — then removed — or refused by the opener, which raises
+        ValueError, KeyError or TypeError: it stays, for the caller to replace).
+
+        The value is kept in this process's LRU of mapped values (bounded by the cache's bound,
+        charged its file's bytes): a later call returns it without touching the file beyond its
+        use time. The first call reads the file once to check its CRC-32, maps it, calls the
+        opener (which may read every page, e.g. to check the arrays) and then releases the
+        pages it touched (``MADV_DONTNEED``): only pages a caller reads later are resident.
+        ``count``: a disk open counts as a hit (False for a file this process just wrote)."""
+        path = self._path(key)
+        kept = self._mapped.get(key)
+        if kept is not None:
+            self._touch(path)
+            with self._lock:
+                self._used[key] = kept[1]
+            return kept[0]
+        try:
+            fh = open(path, "rb")
+        except OSError:
+            self.misses += 1
+            return None
+        with fh:
+            try:
+                size = os.fstat(fh.fileno()).st_size
+                first = fh.read(min(size, 1 << 20))
+                header, start = self._header(first, size)
+                if header.get("codec") != "raw":
+                    self.misses += 1
+                    return None
+                fh.seek(start)
+                crc, buf = 0, bytearray(min(_CRC_CHUNK, max(size - start, 1)))
+                view = memoryview(buf)
+                while (n := fh.readinto(view)) > 0:
+                    crc = zlib.crc32(view[:n], crc)
+                if crc != header["crc32"]:
+                    raise ValueError("its payload does not match its checksum")
+                mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_COPY)  # size > 0: the header is there
+                arrays = {name: (np.frombuffer(mm, np.dtype(dt), int(np.prod(shape, dtype=np.int64)),
+                                               offset=start + int(at)).reshape(shape)
+                                 if nb else np.zeros(shape, np.dtype(dt)))
+                          for name, dt, shape, at, nb in header["layout"]}
+            except (ValueError, KeyError, TypeError, OSError) as exc:
+                self._damaged(path, exc)
+                return None
+        try:
+            value = opener(arrays, header["meta"])
+        except (ValueError, KeyError, TypeError):
+            self.misses += 1
+            return None
+        _release(mm)  # the check's pages: later reads fault in what they use
+        self._touch(path)
+        if count:
+            self.hits += 1
+        self._mapped.put(key, (value, mm), size)
+        with self._lock:
+            self._used[key] = mm
+        return value
+
+    def release(self) -> int:
+        """Release the pages of the mapped values handed out since the last call
+        (``MADV_DONTNEED``: they leave this process's resident memory and stay in the operating
+        system's page cache, so a later read is a minor fault). A service calls it after each
+        request: the page cache maps a file in folios of up to 2 MB, so a walk of a few rows in
+        each of a graph's webs maps most of the graph, and without this the service would hold
+        every graph it walked. The number of mappings released. O(mappings used)."""
+        with self._lock:
+            used, self._used = self._used, {}
+        for mm in used.values():
+            _release(mm)
+        return len(used)
 
     def _scan(self) -> tuple[int, list[tuple[float, int, str]]]:
         """(bytes, [(mtime, size, path)]) of the cache files in the folder."""
@@ -189,5 +344,7 @@ class FileCache:
         return removed
 
     def stats(self) -> dict[str, Any]:
+        mapped = self._mapped.stats()
         return {"folder": str(self.folder), "max_bytes": self.max_bytes, "hits": self.hits,
-                "misses": self.misses, "writes": self.writes, "damaged": self.damaged}
+                "misses": self.misses, "writes": self.writes, "damaged": self.damaged,
+                "mapped": {"entries": mapped["entries"], "bytes": mapped["bytes"], "hits": mapped["hits"]}}

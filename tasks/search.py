@@ -88,7 +88,7 @@ class WalkGraph:
     earliest row-a cell of each path crossing row a: for web w these are
     ``starts[start_off[w·F + a]:start_off[w·F + a + 1]]``, in path order. ``others[w]`` is the
     columns clip of web w. The work buffers of :func:`_walk` are not the graph's: one set per thread,
-    grown to the largest graph walked (:func:`work_buffers`), so a cache of graphs holds their
+    grown to the largest band walked (:func:`work_buffers`), so a cache of graphs holds their
     states only.
     """
 
@@ -119,7 +119,8 @@ class WalkGraph:
 
     @property
     def nbytes(self) -> int:
-        """Bytes it holds (what the service's cache counts; the work buffers are the thread's)."""
+        """Bytes its arrays span (what the service's memory cache counts for a packed graph; the
+        work buffers are the thread's)."""
         return array_bytes(self.rows, self.cols, self.values, self.nxt, self.branch_off, self.branch_to,
                            self.web_rows, self.start_off, self.starts, self.clip_rank)
 
@@ -179,26 +180,26 @@ class WalkGraph:
         need(bad == 0, ("", "a cell out of range", "a next state out of range", "a branch state out of range",
                         "a step that does not advance")[min(bad, 4)])
 
-    @property
-    def work(self) -> tuple[np.ndarray, ...]:
-        """The work buffers of :func:`_walk` for this graph (7 arrays of ``n_states``, the first
-        all −1): views of the calling thread's (:func:`work_buffers`)."""
-        return work_buffers(self.n_states)
+    def band(self, a: int, b: int) -> int:
+        """The most states one web has in rows a..b (``web_rows[w, b + 1] − web_rows[w, a]``): the
+        work buffers a walk of those rows needs (:func:`work_buffers`). Requires 0 ≤ a ≤ b < F."""
+        return int((self.web_rows[:, b + 1] - self.web_rows[:, a]).max(initial=0))
 
 
 _POOL = threading.local()
 
 
 def work_buffers(n: int) -> tuple[np.ndarray, ...]:
-    """The work buffers of :func:`_walk` for ``n`` states (7 arrays ``(n,)``: ``local`` all −1,
-    which every walk restores, then reach, stack, cost, total, length, pred): views of one set per
-    thread, grown (by at least a quarter) when a larger graph is walked. The walks of a thread run
-    one at a time, so every graph of a thread shares them: 56 bytes per state of the largest
-    graph walked, not of every graph kept."""
+    """The work buffers of :func:`_walk` for bands of up to ``n`` states (:meth:`WalkGraph.band`;
+    7 arrays ``(n,)``: ``local`` all 0, which every walk restores, then reach, stack, cost, total,
+    length, pred): views of one set per thread, grown (by at least a quarter) when a larger band
+    is walked. The walks of a thread run one at a time, so every graph of a thread shares them:
+    56 bytes per state of the largest band walked (one web's states in the rows of a query), not
+    of a whole graph, nor of every graph kept."""
     have = getattr(_POOL, "work", None)
     if have is None or len(have[0]) < n:
         m = max(n, len(have[0]) * 5 // 4) if have is not None else n
-        _POOL.work = have = (np.full(m, -1, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
+        _POOL.work = have = (np.zeros(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
                              np.empty(m, np.float64), np.empty(m, np.float64), np.empty(m, np.int64),
                              np.empty(m, np.int64))
     return tuple(x[:n] for x in have)
@@ -457,21 +458,31 @@ def _ranges(n: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
-    """States reachable from s0 within rows ≤ b, sorted by row + col (a topological order);
-    ``local[s]`` is set to each state's position in ``reach``. Returns their count.
+def _collect(s0, lo, hi, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
+    """States reachable from s0 within rows ≤ b and states lo..hi−1 (the band of s0's web in
+    rows a..b), sorted by row + col (a topological order); ``local[s − lo]`` is set to each
+    state's position in ``reach`` plus one (0: not reached; every walk puts the 0s back).
+    Returns their count.
 
-    Bounds: ``local`` marks each state once, so ``reach`` and ``stack`` (``n_states`` long) hold at
-    most ``n_states`` entries; the counting sort's ranks lie in [rank(s0), max rank] because every
-    step raises row + col (:func:`walk_graph` drops any step of a malformed web that does not).
+    A step to a state past the band is not followed: it leaves rows a..b (its row is > b, a
+    state with no step a walk of rows a..b may take, never its end), so what a walk finds is the
+    same; a state before the band cannot be a step's target in a checked graph and is skipped
+    too. Hence the buffers need only the band's size (:func:`work_buffers`): a query of rows
+    a..b touches the states of those rows, not the whole graph.
+
+    Bounds: ``local`` is indexed by ``s − lo`` for states lo ≤ s < hi only, and marks each once,
+    so ``reach`` and ``stack`` (``hi − lo`` long at least) hold at most ``hi − lo`` entries; the
+    counting sort's ranks lie in [rank(s0), max rank] because every step raises row + col
+    (:func:`walk_graph` drops any step of a malformed web that does not).
 
     The successors of state s (here, in :func:`_dp` and :func:`_nearest`, written out in each:
     numba calls in these loops cost several times the loop): below row b the next cell of its
     path or bridge (``nxt[s]``, when there is one) then every bridge leaving s; in row b only the
-    next cell, when it is still in row b (a walk ends at the last cell of its row-b run)."""
+    next cell, when it is still in row b (a walk ends at the last cell of its row-b run); of
+    these, the states of the band."""
     n = 1
     reach[0] = s0
-    local[s0] = 0
+    local[s0 - lo] = 1
     sp = 1
     stack[0] = s0
     while sp > 0:
@@ -483,44 +494,45 @@ def _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack) -> int:
             k0, k1 = boff[s], boff[s + 1]
         elif t >= 0 and rows[t] != b:
             t = -1
-        if t >= 0 and local[t] < 0:
-            local[t] = n
+        if lo <= t < hi and local[t - lo] == 0:
+            local[t - lo] = n + 1
             reach[n] = t
             n += 1
             stack[sp] = t
             sp += 1
         for k in range(k0, k1):
             t = bto[k]
-            if local[t] < 0:
-                local[t] = n
+            if lo <= t < hi and local[t - lo] == 0:
+                local[t - lo] = n + 1
                 reach[n] = t
                 n += 1
                 stack[sp] = t
                 sp += 1
-    lo = rows[s0] + cols[s0]  # the start has the least rank; counting sort by rank into ``stack``
-    hi = lo
+    r0 = rows[s0] + cols[s0]  # the start has the least rank; counting sort by rank into ``stack``
+    r1 = r0
     for q in range(n):
-        hi = max(hi, rows[reach[q]] + cols[reach[q]])
-    count = np.zeros(hi - lo + 2, np.int64)
+        r1 = max(r1, rows[reach[q]] + cols[reach[q]])
+    count = np.zeros(r1 - r0 + 2, np.int64)
     for q in range(n):
-        count[rows[reach[q]] + cols[reach[q]] - lo + 1] += 1
-    for r in range(hi - lo + 1):
+        count[rows[reach[q]] + cols[reach[q]] - r0 + 1] += 1
+    for r in range(r1 - r0 + 1):
         count[r + 1] += count[r]
     for q in range(n):
-        r = rows[reach[q]] + cols[reach[q]] - lo
+        r = rows[reach[q]] + cols[reach[q]] - r0
         stack[count[r]] = reach[q]
         count[r] += 1
     for q in range(n):
         reach[q] = stack[q]
-        local[stack[q]] = q
+        local[stack[q] - lo] = q + 1
     return n
 
 
 @njit(cache=True)
-def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred) -> None:
+def _dp(n, lo, hi, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred) -> None:
     """Least total of (value − lam) from reach[0] to every reachable state (KG04 §3.3 walks).
-    Bounds: writes positions < n of ``cost``/``total``/``length``/``pred``, ``local`` of the n
-    states :func:`_collect` placed (every successor it reads is one of them)."""
+    Bounds: writes positions < n of ``cost``/``total``/``length``/``pred``, reads ``local`` of the
+    n states :func:`_collect` placed (every successor it follows is one of them: the same steps,
+    in the band lo..hi−1)."""
     for q in range(n):
         cost[q] = INF
     s0 = reach[0]
@@ -537,8 +549,8 @@ def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, leng
             k0, k1 = boff[s], boff[s + 1]
         elif t >= 0 and rows[t] != b:
             t = -1
-        if t >= 0:
-            r = local[t]
+        if lo <= t < hi:
+            r = local[t - lo] - 1
             c = cq + values[t] - lam
             if c < cost[r]:
                 cost[r] = c
@@ -547,38 +559,44 @@ def _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, leng
                 pred[r] = q
         for k in range(k0, k1):
             t = bto[k]
-            r = local[t]
-            c = cq + values[t] - lam
-            if c < cost[r]:
-                cost[r] = c
-                total[r] = total[q] + values[t]
-                length[r] = length[q] + 1
-                pred[r] = q
+            if lo <= t < hi:
+                r = local[t - lo] - 1
+                c = cq + values[t] - lam
+                if c < cost[r]:
+                    cost[r] = c
+                    total[r] = total[q] + values[t]
+                    length[r] = length[q] + 1
+                    pred[r] = q
 
 
 @njit(cache=True)
-def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frames, a, b, eps,
+def _walk(rows, cols, values, nxt, boff, bto, web_rows, start_off, starts, a, b, eps,
           local, reach, stack, cost, total, length, pred):
     """Every match of rows a..b with average ≤ eps, per (start path, terminal cell), each with its
     least-average walk, start paths in path order. Returns (webs, c, d, averages, cells (K, 2),
     offsets).
 
-    Bounds: the work buffers (``n_states`` each, :attr:`WalkGraph.work`) are indexed by state or by
-    position in ``reach`` (< ``n_states``, see :func:`_collect`); a walk's cells are its
-    predecessor chain, of exactly ``length[q]`` states because the states are processed in a
-    topological order (each ``pred``/``length`` pair is final before it is read); the outputs
-    are typed lists, grown as needed. Requires 0 ≤ a ≤ b < n_frames (checked by
-    :func:`_walk_arrays`)."""
+    Web w's walks stay in its states of rows a..b, ``web_rows[w, a]..web_rows[w, b + 1] − 1``
+    (:func:`_collect`). Bounds: the work buffers (at least that band's size for every web,
+    :meth:`WalkGraph.band`) are indexed by state − band start or by position in ``reach``; a start
+    outside its band (a damaged graph) is skipped; a walk's cells are its predecessor chain, of
+    exactly ``length[q]`` states because the states are processed in a topological order (each
+    ``pred``/``length`` pair is final before it is read); the outputs are typed lists, grown as
+    needed. Requires 0 ≤ a ≤ b < n_frames (checked by :func:`_walk_arrays`)."""
+    n_webs, n_frames = web_rows.shape[0], web_rows.shape[1] - 1
     o_web = []
     o_c = []
     o_d = []
     o_avg = []
     o_cells = []
     for w in range(n_webs):
+        lo, hi = web_rows[w, a], web_rows[w, b + 1]
         for e in range(start_off[w * n_frames + a], start_off[w * n_frames + a + 1]):
             s0 = starts[e]
-            n = _collect(s0, rows, cols, nxt, boff, bto, b, local, reach, stack)
-            _dp(n, reach, rows, values, nxt, boff, bto, b, local, eps, cost, total, length, pred)
+            if s0 < lo or s0 >= hi:
+                continue
+            n = _collect(s0, lo, hi, rows, cols, nxt, boff, bto, b, local, reach, stack)
+            _dp(n, lo, hi, reach, rows, values, nxt, boff, bto, b, local, eps, cost, total, length, pred)
             terms = []
             first = []
             for q in range(n):
@@ -592,7 +610,7 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
                 q = terms[u]
                 lam = first[u]
                 while True:  # Dinkelbach: the walk of least average ending at q
-                    _dp(n, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred)
+                    _dp(n, lo, hi, reach, rows, values, nxt, boff, bto, b, local, lam, cost, total, length, pred)
                     avg = total[q] / length[q]
                     if avg < lam - 1e-12 * max(abs(lam), 1e-30):
                         lam = avg
@@ -613,7 +631,7 @@ def _walk(rows, cols, values, nxt, boff, bto, start_off, starts, n_webs, n_frame
                 o_avg.append(avg)
                 o_cells.append(cells)
             for q in range(n):
-                local[reach[q]] = -1
+                local[reach[q] - lo] = 0
     k = len(o_web)
     off = np.zeros(k + 1, np.int64)
     for u in range(k):
@@ -758,13 +776,13 @@ def _walk_arrays(graph: WalkGraph, a: int, b: int, eps: float):
     such walk found on ties (KG04 §3.3). Returns (clip ranks, c, d, averages, cells, offsets,
     entries) with ``entries`` indexing the walk outputs in the order each key first appears."""
     _check_rows(graph, a, b)
-    work = graph.work
+    work = work_buffers(graph.band(a, b))
     try:
         webs, cs, ds, avgs, flat, off = _walk(
-            graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.start_off,
-            graph.starts, len(graph.others), graph.n_frames, int(a), int(b), float(eps), *work)
+            graph.rows, graph.cols, graph.values, graph.nxt, graph.branch_off, graph.branch_to, graph.web_rows,
+            graph.start_off, graph.starts, int(a), int(b), float(eps), *work)
     except BaseException:
-        work[0].fill(-1)  # a walk cut short leaves its cells marked: the next walk finds them clean
+        work[0].fill(0)  # a walk cut short leaves its cells marked: the next walk finds them clean
         raise
     rank = graph.clip_rank[webs]
     order = np.lexsort((np.arange(len(webs)), avgs, ds, cs, rank))
@@ -884,10 +902,11 @@ def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
 
 class MatchSearch:
     """Searches over a :data:`WebSource`, one :class:`WalkGraph` packed per clip when a search
-    first reaches it (KG04 §3.3) and kept in ``graphs`` (an :class:`~motionweb.store.cache.LRU`,
-    unbounded by default; the service shares one bounded by bytes between its scopes, each with
-    its own ``key``). Packing a clip's graph costs O(cells of its webs). Not thread-safe (graphs
-    share work buffers)."""
+    first reaches it (KG04 §3.3) and kept mapped from the file cache ``files`` when there is one
+    (see :meth:`graph`), else in ``graphs`` (an :class:`~motionweb.store.cache.LRU`, unbounded by
+    default; the service shares one bounded by bytes between its scopes, each with its own
+    ``key``). Packing a clip's graph costs O(cells of its webs). Not thread-safe (graphs share
+    work buffers)."""
 
     def __init__(self, webs: WebSource, cfg: SearchParams | None = None, web_cfg: MatchWebParams | None = None,
                  graphs: LRU | None = None, key: tuple = (), files: FileCache | None = None):
@@ -899,36 +918,46 @@ class MatchSearch:
         # packed graphs kept in files between processes, for a source that names its webs'
         # content (``StoreWebs.content_key``); others are packed every time
         self.files = files if hasattr(webs, "content_key") else None
+        self._named: dict[str, tuple[str, list[str]]] = {}  # clip -> (file key, other clips) of its graph
 
     def graph(self, clip: str) -> WalkGraph:
-        """The packed webs of ``clip`` (ValueError naming an unknown clip): from the memory
-        cache, else from the file cache (~2 ms for a 180-web clip), else read and packed
-        (~46 ms) and put in both."""
+        """The packed webs of ``clip`` (ValueError naming an unknown clip).
+
+        With a file cache (a source naming its content): the graph mapped from its file
+        (:meth:`FileCache.open_mapped`: kept open by the cache, checked once per process, ~0.5 s
+        for a 29 M-state graph of a long take, then only the pages of the rows walked are read),
+        else read, packed (8 s for that graph: 3 s reading its 118 webs, 5 s packing) and put
+        there, then mapped — the packed copy is dropped. Without one, or when the file cannot be
+        kept: the packed graph, kept in the memory cache."""
         g = self._graphs.get((*self._key, clip))
         if g is not None:
             return g
         unknown = ValueError(f"unknown clip {clip!r}: it is not in the index searched")
         fkey = None
         if self.files is not None:
-            try:
-                fkey = self.webs.content_key(clip, f"walk graph layout {WalkGraph.LAYOUT}")
-            except KeyError:
-                raise unknown from None
-            if (kept := self.files.get(fkey)) is not None:
+            if (named := self._named.get(clip)) is None:
                 try:
-                    g = WalkGraph.from_arrays(*kept, self.webs.others_of(clip))
-                except (ValueError, KeyError, TypeError):
-                    g = None  # not what this version packs (or damaged): packed again and replaced
-        if g is None:
-            try:
-                webs = self.webs[clip]
-            except KeyError:
-                raise unknown from None
-            if not webs:
-                raise ValueError(f"clip {clip!r} has no match webs in the index searched")
-            g = walk_graph(webs)
-            if fkey is not None:
-                self.files.put(fkey, *g.to_arrays())
+                    named = self._named[clip] = (self.webs.content_key(clip, f"walk graph layout {WalkGraph.LAYOUT}"),
+                                                 self.webs.others_of(clip))
+                except KeyError:
+                    raise unknown from None
+            fkey, others = named
+
+            def opener(arrays: dict[str, np.ndarray], meta: dict) -> WalkGraph:
+                return WalkGraph.from_arrays(arrays, meta, others)
+
+            if (g := self.files.open_mapped(fkey, opener)) is not None:
+                return g
+        try:
+            webs = self.webs[clip]
+        except KeyError:
+            raise unknown from None
+        if not webs:
+            raise ValueError(f"clip {clip!r} has no match webs in the index searched")
+        g = walk_graph(webs)
+        if fkey is not None and self.files.put(fkey, *g.to_arrays(), raw=True):
+            if (mapped := self.files.open_mapped(fkey, opener, count=False)) is not None:
+                return mapped
         self._graphs.put((*self._key, clip), g, g.nbytes)
         return g
 

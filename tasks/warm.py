@@ -57,7 +57,7 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
     # KG04 §3.3-3.4: the match walk, redundancy removal, the match graph; §4 registration
     "search": (
         ("motionweb.tasks.search", "_walk",
-         "i4[:] i4[:] f4[:] i4[:] i4[:] i4[:] i4[:] i4[:] i8 i8 i8 i8 f8 i8[:] i8[:] i8[:] f8[:] f8[:] i8[:] i8[:]", 2.1),
+         "i4[:] i4[:] f4[:] i4[:] i4[:] i4[:] i4[:,:] i4[:] i4[:] i8 i8 f8 i8[:] i8[:] i8[:] f8[:] f8[:] i8[:] i8[:]", 2.1),
         ("motionweb.tasks.search", "_greedy_disjoint", "i8[:] i8[:] i8[:] f8", 0.2),
         ("motionweb.tasks.search", "_steps_ok", "i4[:] i4[:] i4[:] i4[:] i4[:] i8", 0.2),
         ("motionweb.tasks.search", "place_matches", "i8[:] i8[:] i8[:] i8[:,:] i8 f8 f8", 0.6),

@@ -20,7 +20,10 @@ switch wait for it. Without a ready standby (two crashes in a row faster than a 
 request waits for a fresh worker's start (imports, ~1-2 s) and reads the webs it needs.
 
 Memory: the primary and the standby each hold at most ``app.cache_mb`` of webs and graphs (the
-standby those of the searches it rehearses); a new generation is opened in a new worker while
+standby those of the searches it rehearses). With the file cache of graphs on (``app.graph_files_gb``,
+the default), a graph lives in its file, mapped (``store.filecache.FileCache.open_mapped``): a walk
+reads the pages of the rows it walks, and they leave the worker's resident memory after each request
+(``FileCache.release``), staying in the page cache; a new generation is opened in a new worker while
 the old one keeps serving, then swapped in.
 
 Test hook (off by default): with ``MOTIONWEB_TEST_CRASH_CLIP=NAME`` in the service's environment,
@@ -306,8 +309,21 @@ def child_main(fd: int, url: str, cache_bytes: int | None = None, files: tuple[s
     from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
 
     state = _State(url, cache_bytes, files)
-    serve(fd, "search worker", {"search": state.search, "warm": lambda p: state.warm(*p),
-                                "register": lambda p: state.register(*p), "query_webs": lambda p: state.query_webs(*p),
+
+    def then_release(handler: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        """``handler``, after which the pages of the graphs it walked leave the worker's resident
+        memory (``FileCache.release``; they stay in the page cache)."""
+        def run(payload: Any) -> Any:
+            try:
+                return handler(payload)
+            finally:
+                if state.files is not None:
+                    state.files.release()
+        return run
+
+    serve(fd, "search worker", {"search": then_release(state.search), "warm": lambda p: state.warm(*p),
+                                "register": then_release(lambda p: state.register(*p)),
+                                "query_webs": then_release(lambda p: state.query_webs(*p)),
                                 "stats": lambda _: state.stats(), "open": lambda _: state.open_current()})
 
 

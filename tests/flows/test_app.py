@@ -397,8 +397,10 @@ def test_opening_a_generation_reads_no_web(cfg, tmp_path) -> None:
         assert res.rows == rows and len(rows) > 2
         stats = engine.workers.cache_stats(wait=60)
         walk_webs = sum(1 for w in snap.gen.webs if "walk/" in w["a"] and "walk/" in w["b"])
-        # the cache keeps graphs, not webs: a web is read for each of its two clips' graphs at most
-        assert 0 < stats["webs_read"] <= 2 * walk_webs and stats["entries"] > 0
+        # graphs are kept, not webs: a web is read for each of its two clips' graphs at most; the
+        # graphs mapped from their files (app.graph_files_*), not in the memory cache
+        assert 0 < stats["webs_read"] <= 2 * walk_webs and stats["entries"] == 0
+        assert stats["graph_files"]["mapped"]["entries"] > 0 and stats["graph_files"]["writes"] > 0
         assert stats["max_bytes"] == int(cfg.app.cache_mb * 2**20) and stats["bytes"] <= stats["max_bytes"]
         assert engine.status()["cache"]["webs_read"] == stats["webs_read"]
     finally:
@@ -438,8 +440,9 @@ def test_a_new_service_reads_the_graphs_packed_before_from_files(cfg, tmp_path) 
 
 def test_a_cache_smaller_than_a_web_answers_the_same(cfg) -> None:
     """With ``app.cache_mb`` below one web every search reads its webs again and answers as the
-    query flow does (quantile ε, tiers, clips of both categories)."""
-    tiny = cfg.model_copy(update={"app": cfg.app.model_copy(update={"cache_mb": 1e-3})})
+    query flow does (quantile ε, tiers, clips of both categories). The graph files are off: with
+    them, graphs are mapped from their files and the memory cache holds none."""
+    tiny = cfg.model_copy(update={"app": cfg.app.model_copy(update={"cache_mb": 1e-3, "graph_files_gb": 0.0})})
     engine = Engine(tiny, warm=False)
     try:
         for clip, start, end in (("walk_00", 1.0, 2.5), ("run_01", 0.5, 1.5), ("walk_00", 1.0, 2.5)):

@@ -85,3 +85,111 @@ def test_default_folder_follows_the_environment(monkeypatch, tmp_path) -> None:
     monkeypatch.delenv("MOTIONWEB_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert default_folder("x") == tmp_path / "xdg" / "motionweb" / "x"
+
+
+def _opened(arrays: dict[str, np.ndarray], meta: dict) -> tuple[dict[str, np.ndarray], dict]:
+    return arrays, meta
+
+
+def _mapping_rss_kb(path) -> int:
+    """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
+    lines = open("/proc/self/smaps").read().split("\n")
+    total, inside = 0, False
+    for line in lines:
+        head = line.split()
+        if head and "-" in head[0] and len(head) >= 5:  # a mapping's first line
+            inside = line.endswith(str(path))
+        elif inside and line.startswith("Rss:"):
+            total += int(head[1])
+    return total
+
+
+def test_a_raw_value_reads_back_whole_and_mapped(tmp_path) -> None:
+    """Issue 25 part 5: a value put ``raw`` (the walk graphs) reads back by :meth:`get` as arrays
+    of its own and by :meth:`open_mapped` as aligned, writable views of the file, opened once per
+    cache (kept in its LRU of mappings), counted a hit only when opened from disk."""
+    fc = FileCache(tmp_path, 1 << 20)
+    arrays = _arrays(np.random.default_rng(3))
+    assert fc.put(KEY, arrays, {"n": 5}, raw=True)
+    got, meta = fc.get(KEY)
+    assert meta == {"n": 5} and all(np.array_equal(got[k], a) and got[k].flags.writeable for k, a in arrays.items())
+    other = FileCache(tmp_path, 1 << 20)  # another process
+    value = other.open_mapped(KEY, _opened)
+    mapped, meta = value
+    assert meta == {"n": 5} and set(mapped) == set(arrays) and (other.hits, other.misses) == (1, 0)
+    for k, a in arrays.items():
+        m = mapped[k]
+        assert m.dtype == a.dtype and m.shape == a.shape and np.array_equal(m, a), k
+        assert m.flags.writeable and m.flags.c_contiguous
+        if a.size:
+            assert m.ctypes.data % 64 == 0 and not m.flags.owndata, k
+    assert other.open_mapped(KEY, _opened) is value and other.hits == 1  # kept: no second open
+    assert other.stats()["mapped"] == {"entries": 1, "bytes": (tmp_path / KEY[:2] / f"{KEY}.mwc").stat().st_size,
+                                       "hits": 1}
+    assert other.release() == 1 and other.release() == 0  # only mappings used since the last release
+    (tmp_path / KEY[:2] / f"{KEY}.mwc").unlink()  # removed from the folder: the mapping still reads
+    assert np.array_equal(mapped["i8"], arrays["i8"])
+    # a file this process just wrote is opened without counting a hit; a compressed one is not mapped
+    assert fc.put(KEY, arrays, {}, raw=True) and fc.open_mapped(KEY, _opened, count=False) is not None
+    assert fc.hits == 1  # the get above
+    assert fc.put("cd" * 32, arrays, {}) and fc.open_mapped("cd" * 32, _opened) is None
+    assert (tmp_path / "cd" / f"{'cd' * 32}.mwc").exists()
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "header", "layout"])
+def test_a_damaged_raw_file_is_not_mapped_and_is_removed(tmp_path, damage) -> None:
+    fc = FileCache(tmp_path, 1 << 20)
+    arrays = {"a": np.arange(5000, dtype=np.int64), "b": np.ones(3, np.float32)}
+    fc.put(KEY, arrays, {}, raw=True)
+    path = tmp_path / KEY[:2] / f"{KEY}.mwc"
+    raw = bytearray(path.read_bytes())
+    if damage == "flip":
+        raw[-5] ^= 0x40
+    elif damage == "truncate":
+        raw = raw[:-4096]
+    elif damage == "header":
+        raw[20:30] = b"}}}}}}}}}}"
+    else:  # an array said to lie past the end of the file
+        raw = bytearray(bytes(raw).replace(b'"<i8", [5000]', b'"<i8", [9000]'))
+    path.write_bytes(bytes(raw))
+    assert fc.open_mapped(KEY, _opened) is None and fc.damaged == 1 and not path.exists()
+    assert fc.put(KEY, arrays, {}, raw=True) and np.array_equal(fc.open_mapped(KEY, _opened)[0]["a"], arrays["a"])
+
+
+def test_a_refused_mapping_stays_for_the_caller_to_replace(tmp_path) -> None:
+    fc = FileCache(tmp_path, 1 << 20)
+    fc.put(KEY, {"a": np.arange(10)}, {"layout": 1}, raw=True)
+
+    def refuse(arrays, meta):
+        raise ValueError("another layout")
+
+    assert fc.open_mapped(KEY, refuse) is None and fc.misses == 1 and fc.damaged == 0
+    assert (tmp_path / KEY[:2] / f"{KEY}.mwc").exists() and fc.stats()["mapped"]["entries"] == 0
+
+
+def test_mappings_are_bounded_by_the_cache_bound(tmp_path) -> None:
+    """A process keeps at most the cache's bound of files mapped (least recently used dropped)."""
+    big = {"x": np.random.default_rng(4).random(4000)}  # 32 kB
+    fc = FileCache(tmp_path, 100_000)
+    keys = [f"{i:064x}" for i in range(1, 5)]
+    for k in keys:
+        assert fc.put(k, big, {}, raw=True)
+        assert fc.open_mapped(k, _opened, count=False) is not None
+    st = fc.stats()["mapped"]
+    assert st["bytes"] <= 100_000 and st["entries"] == 2
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/smaps"), reason="needs Linux's /proc/self/smaps")
+def test_release_drops_the_pages_a_walk_read(tmp_path) -> None:
+    """After :meth:`release`, the mapped pages read leave the process's resident memory; the
+    values still read the same (from the page cache)."""
+    fc = FileCache(tmp_path, 1 << 30)
+    a = np.random.default_rng(5).random(2_000_000)  # 16 MB
+    fc.put(KEY, {"a": a}, {}, raw=True)
+    path = tmp_path / KEY[:2] / f"{KEY}.mwc"
+    mapped = fc.open_mapped(KEY, _opened)[0]["a"]
+    assert _mapping_rss_kb(path) < 4096  # the open's own check released
+    assert float(mapped.sum()) == float(a.sum())
+    assert _mapping_rss_kb(path) > 8000
+    assert fc.release() == 1 and _mapping_rss_kb(path) == 0
+    assert np.array_equal(mapped, a)

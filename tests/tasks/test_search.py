@@ -299,22 +299,27 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     _commit_chain(pc, webs, tmp_path / "store")
     files = FileCache(tmp_path / "graphs", 1 << 30)
 
-    def fresh() -> tuple[StoreWebs, MatchSearch]:
+    def fresh() -> tuple[StoreWebs, MatchSearch]:  # as in another process: its own cache of mappings
         src = StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), pc.query.clip)
-        return src, MatchSearch(src, SearchParams(), files=files)
+        return src, MatchSearch(src, SearchParams(), files=FileCache(tmp_path / "graphs", 1 << 30))
 
     src1, ms1 = fresh()
     want = ms1.search(pc.query, 0.003)
-    assert files.writes == len(want.nodes) and src1.reads > 0
+    assert ms1.files.writes == len(want.nodes) and src1.reads > 0 and ms1.files.hits == 0
     src2, ms2 = fresh()
     got = ms2.search(pc.query, 0.003)
-    assert src2.reads == 0 and files.hits == len(want.nodes)  # every graph from its file, no web read
+    assert src2.reads == 0 and ms2.files.hits == len(want.nodes)  # every graph from its file, no web read
+    assert ms2.files.writes == 0 and ms2.files.stats()["mapped"]["entries"] == len(want.nodes)
     assert [(n.segment, n.distance, n.tier) for n in got.nodes] == [(n.segment, n.distance, n.tier) for n in want.nodes]
+    packed = MatchSearch(StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), pc.query.clip))
     for clip in src1:
-        a, b = ms1.graph(clip), ms2.graph(clip)
+        a, b = packed.graph(clip), ms2.graph(clip)
+        assert ms2.graph(clip) is b and ms1.graph(clip) is not b  # kept mapped, per process
+        assert not b.rows.flags.owndata and b.rows.flags.writeable  # a view of the mapped file
         assert a.others == b.others and b.values.dtype == np.float32
         for name in (*WalkGraph.STORED, "clip_rank"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert ms2.files.hits == len(want.nodes)  # a graph asked again: no second open
     # a file from another layout (or of other webs under a colliding key) is packed again, and replaced
     fkey = src2.content_key(pc.query.clip, f"walk graph layout {WalkGraph.LAYOUT}")
     arrays, meta = files.get(fkey)
@@ -556,7 +561,7 @@ def test_rank_trials_finds_far_variants_through_tiers(chain) -> None:
 
 def test_graphs_share_the_threads_work_buffers(chain) -> None:
     """The walk's work buffers are one set per thread (tasks/search.work_buffers), grown for a
-    larger graph and shared by every graph: a search after walks of graphs of other sizes gives
+    larger band and shared by every graph: a search after walks of graphs of other sizes gives
     what it gives in a fresh thread (fresh buffers), and a cached graph holds no buffers."""
     import threading
 
@@ -564,12 +569,12 @@ def test_graphs_share_the_threads_work_buffers(chain) -> None:
 
     pc, webs = chain
     ms = MatchSearch(webs)
-    sizes = {c: ms.graph(c).n_states for c in webs}
+    sizes = {c: ms.graph(c).band(0, ms.graph(c).n_frames - 1) for c in webs}
     first = search(pc.query, 0.003, webs, SearchParams())
     for c in sorted(sizes, key=sizes.get, reverse=True):  # walk the largest graphs first
         ms.matches(Segment(c, 0, ms.graph(c).n_frames - 1), 0.01)
     assert len(_POOL.work[0]) >= max(sizes.values())
-    assert (_POOL.work[0] == -1).all()  # every walk restores the marks
+    assert (_POOL.work[0] == 0).all()  # every walk restores the marks
     fresh = []
     t = threading.Thread(target=lambda: fresh.append(search(pc.query, 0.003, webs, SearchParams())))
     t.start()
