@@ -43,8 +43,8 @@ import os
 import threading
 import uuid
 import zlib
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -253,33 +253,18 @@ class FileCache:
                 self._used[key] = kept[1]
             return kept[0]
         try:
-            fh = open(path, "rb")
+            with open(path, "rb") as fh:
+                mapped = self._map(fh)
         except OSError:
             self.misses += 1
             return None
-        with fh:
-            try:
-                size = os.fstat(fh.fileno()).st_size
-                first = fh.read(min(size, 1 << 20))
-                header, start = self._header(first, size)
-                if header.get("codec") != "raw":
-                    self.misses += 1
-                    return None
-                fh.seek(start)
-                crc, buf = 0, bytearray(min(_CRC_CHUNK, max(size - start, 1)))
-                view = memoryview(buf)
-                while (n := fh.readinto(view)) > 0:
-                    crc = zlib.crc32(view[:n], crc)
-                if crc != header["crc32"]:
-                    raise ValueError("its payload does not match its checksum")
-                mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_COPY)  # size > 0: the header is there
-                arrays = {name: (np.frombuffer(mm, np.dtype(dt), int(np.prod(shape, dtype=np.int64)),
-                                               offset=start + int(at)).reshape(shape)
-                                 if nb else np.zeros(shape, np.dtype(dt)))
-                          for name, dt, shape, at, nb in header["layout"]}
-            except (ValueError, KeyError, TypeError, OSError) as exc:
-                self._damaged(path, exc)
-                return None
+        except (ValueError, KeyError, TypeError) as exc:
+            self._damaged(path, exc)
+            return None
+        if mapped is None:  # not a raw file (e.g. kept compressed by another version)
+            self.misses += 1
+            return None
+        header, mm, arrays = mapped
         try:
             value = opener(arrays, header["meta"])
         except (ValueError, KeyError, TypeError):
@@ -289,10 +274,35 @@ class FileCache:
         self._touch(path)
         if count:
             self.hits += 1
-        self._mapped.put(key, (value, mm), size)
+        self._mapped.put(key, (value, mm), len(mm))
         with self._lock:
             self._used[key] = mm
         return value
+
+    @classmethod
+    def _map(cls, fh: Any) -> tuple[dict[str, Any], mmap.mmap, dict[str, np.ndarray]] | None:
+        """(header, mapping, arrays) of the open cache file ``fh``, its CRC-32 checked by reading it
+        (not through the mapping); None when its payload is not raw; ValueError (or KeyError,
+        TypeError) when it is damaged, an error mapping it included."""
+        size = os.fstat(fh.fileno()).st_size
+        header, start = cls._header(fh.read(min(size, 1 << 20)), size)
+        if header.get("codec") != "raw":
+            return None
+        fh.seek(start)
+        crc, buf = 0, bytearray(min(_CRC_CHUNK, max(size - start, 1)))
+        view = memoryview(buf)
+        while (n := fh.readinto(view)) > 0:
+            crc = zlib.crc32(view[:n], crc)
+        if crc != header["crc32"]:
+            raise ValueError("its payload does not match its checksum")
+        try:
+            mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_COPY)  # size > 0: the header is there
+        except OSError as exc:
+            raise ValueError(f"it cannot be mapped ({exc})") from None
+        arrays = {name: (np.frombuffer(mm, np.dtype(dt), int(np.prod(shape, dtype=np.int64)),
+                                       offset=start + int(at)).reshape(shape) if nb else np.zeros(shape, np.dtype(dt)))
+                  for name, dt, shape, at, nb in header["layout"]}
+        return header, mm, arrays
 
     def release(self) -> int:
         """Release the pages of the mapped values handed out since the last call

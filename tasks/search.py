@@ -955,9 +955,9 @@ class MatchSearch:
         if not webs:
             raise ValueError(f"clip {clip!r} has no match webs in the index searched")
         g = walk_graph(webs)
-        if fkey is not None and self.files.put(fkey, *g.to_arrays(), raw=True):
-            if (mapped := self.files.open_mapped(fkey, opener, count=False)) is not None:
-                return mapped
+        if (fkey is not None and self.files.put(fkey, *g.to_arrays(), raw=True)
+                and (mapped := self.files.open_mapped(fkey, opener, count=False)) is not None):
+            return mapped
         self._graphs.put((*self._key, clip), g, g.nbytes)
         return g
 

@@ -4,6 +4,7 @@ missing and removed, the bound kept by least recent use, a cache that never fail
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -93,7 +94,7 @@ def _opened(arrays: dict[str, np.ndarray], meta: dict) -> tuple[dict[str, np.nda
 
 def _mapping_rss_kb(path) -> int:
     """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
-    lines = open("/proc/self/smaps").read().split("\n")
+    lines = Path("/proc/self/smaps").read_text().split("\n")
     total, inside = 0, False
     for line in lines:
         head = line.split()
