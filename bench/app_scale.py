@@ -27,6 +27,7 @@ store (``--no-record``: no Prefect) and measured:
 A code that is not ready within ``--timeout`` s is reported so and stopped.
 
     .venv/bin/python -m bench.app_scale [--variants 60] [--keep DIR] [--base REV] [--queries 40] [--cache-mb MB]
+        [--graph-files-gb GB]
 """
 
 from __future__ import annotations
@@ -231,6 +232,8 @@ def main() -> None:
     ap.add_argument("--cache-mb", type=float, default=None,
                     help="app.cache_mb of the service (each search worker's bound; default: the config's default)")
     ap.add_argument("--no-restart", action="store_true", help="do not measure a restart on the kept graph files")
+    ap.add_argument("--graph-files-gb", type=float, default=None,
+                    help="app.graph_files_gb of the service (its file cache of packed graphs; default: the config's)")
     args = ap.parse_args()
 
     work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-app-scale-"))
@@ -245,8 +248,9 @@ def main() -> None:
     cfg_path = work / "app-scale.yaml"
     cfg = {"corpus": {"path": str(corpus), "length_unit": "m"}, "store": {"path": str(store)},
            "output": str(work / "out")}
-    if args.cache_mb is not None:
-        cfg["app"] = {"cache_mb": args.cache_mb}
+    app = {"cache_mb": args.cache_mb, "graph_files_gb": args.graph_files_gb}
+    if any(v is not None for v in app.values()):
+        cfg["app"] = {k: v for k, v in app.items() if v is not None}
     cfg_path.write_text(yaml.safe_dump(cfg))
     queries = random_queries(gen, args.queries, np.random.default_rng(3))
     frames = sum(c["frames"] for c in gen.clips)
