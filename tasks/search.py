@@ -925,10 +925,20 @@ class MatchSearch:
 
         With a file cache (a source naming its content): the graph mapped from its file
         (:meth:`FileCache.open_mapped`: kept open by the cache, checked once per process, ~0.5 s
-        for a 29 M-state graph of a long take, then only the pages of the rows walked are read),
-        else read, packed (8 s for that graph: 3 s reading its 118 webs, 5 s packing) and put
-        there, then mapped — the packed copy is dropped. Without one, or when the file cannot be
-        kept: the packed graph, kept in the memory cache."""
+        for a 29 M-state, 600 MB graph of a long take), else read, packed (8 s for an 11.5 M-state
+        graph of 118 webs: 3 s reading them, 5 s packing) and put there, then mapped — the packed
+        copy is dropped. Without one, or when the file cannot be kept: the packed graph, kept in
+        the memory cache.
+
+        Each call first releases the pages of the mapped graphs walked since the last
+        (``FileCache.release``): the page cache maps a file in folios of up to 2 MB, so a walk of
+        a few rows in each web of a graph maps most of it, and a tier-3 search that walks dozens
+        of graphs of long takes would otherwise hold them all until the request ends (10.8 GB of
+        file pages in one search worker on the million-frame store). So the graphs in use are
+        resident, not all those walked; a graph walked again takes minor faults from the page
+        cache."""
+        if self.files is not None:
+            self.files.release()
         g = self._graphs.get((*self._key, clip))
         if g is not None:
             return g

@@ -4,11 +4,11 @@ missing and removed, the bound kept by least recent use, a cache that never fail
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
 from motionweb.store.filecache import FileCache, default_folder
+from smaps import HAVE_SMAPS, mapping_rss_kb
 
 KEY = "ab" * 32
 
@@ -92,19 +92,6 @@ def _opened(arrays: dict[str, np.ndarray], meta: dict) -> tuple[dict[str, np.nda
     return arrays, meta
 
 
-def _mapping_rss_kb(path) -> int:
-    """Resident kB of this process's mappings of ``path`` (/proc/self/smaps)."""
-    lines = Path("/proc/self/smaps").read_text().split("\n")
-    total, inside = 0, False
-    for line in lines:
-        head = line.split()
-        if head and "-" in head[0] and len(head) >= 5:  # a mapping's first line
-            inside = line.endswith(str(path))
-        elif inside and line.startswith("Rss:"):
-            total += int(head[1])
-    return total
-
-
 def test_a_raw_value_reads_back_whole_and_mapped(tmp_path) -> None:
     """Issue 25 part 5: a value put ``raw`` (the walk graphs) reads back by :meth:`get` as arrays
     of its own and by :meth:`open_mapped` as aligned, writable views of the file, opened once per
@@ -180,7 +167,7 @@ def test_mappings_are_bounded_by_the_cache_bound(tmp_path) -> None:
     assert st["bytes"] <= 100_000 and st["entries"] == 2
 
 
-@pytest.mark.skipif(not os.path.exists("/proc/self/smaps"), reason="needs Linux's /proc/self/smaps")
+@pytest.mark.skipif(not HAVE_SMAPS, reason="needs Linux's /proc/self/smaps")
 def test_release_drops_the_pages_a_walk_read(tmp_path) -> None:
     """After :meth:`release`, the mapped pages read leave the process's resident memory; the
     values still read the same (from the page cache)."""
@@ -189,8 +176,8 @@ def test_release_drops_the_pages_a_walk_read(tmp_path) -> None:
     fc.put(KEY, {"a": a}, {}, raw=True)
     path = tmp_path / KEY[:2] / f"{KEY}.mwc"
     mapped = fc.open_mapped(KEY, _opened)[0]["a"]
-    assert _mapping_rss_kb(path) < 4096  # the open's own check released
+    assert mapping_rss_kb(path) < 4096  # the open's own check released
     assert float(mapped.sum()) == float(a.sum())
-    assert _mapping_rss_kb(path) > 8000
-    assert fc.release() == 1 and _mapping_rss_kb(path) == 0
+    assert mapping_rss_kb(path) > 8000
+    assert fc.release() == 1 and mapping_rss_kb(path) == 0
     assert np.array_equal(mapped, a)

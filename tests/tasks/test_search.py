@@ -21,6 +21,7 @@ from motionweb.tasks.search import (
     MatchSearch,
     SearchParams,
     epsilon_from_quantile,
+    find_matches,
     nearest_by_clip,
     nearest_matches,
     place_matches,
@@ -31,6 +32,7 @@ from motionweb.tasks.search import (
 )
 from naive import ref_matches, ref_place, ref_remove_redundant, ref_row_starts, ref_walk_steps
 from planted import CorpusWebs, PlantedCorpus, planted_corpus, variant_chain
+from smaps import HAVE_SMAPS, mapping_rss_kb
 
 TOL = 3  # frames at 30 Hz
 EPS = 0.005  # planted copies cost ~3e-4, the nearest other motion 0.02 (see test output)
@@ -349,6 +351,37 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     assert np.array_equal(files.get(vkey)[0]["values"], values)
     # a source that does not name its webs' content (a plain mapping) keeps no files
     assert MatchSearch(webs, files=files).files is None
+
+
+@pytest.mark.skipif(not HAVE_SMAPS, reason="needs Linux's /proc/self/smaps")
+def test_asking_for_a_graph_releases_the_pages_of_the_graphs_walked_before(chain, tmp_path) -> None:
+    """Issue 25 part 5: a walk maps most pages of a mapped graph (the page cache's folios), so
+    MatchSearch.graph releases those of the graphs walked before: a search holds the graphs in
+    use, not every graph it walked; the walks find the same matches after a release."""
+    from motionweb.store.filecache import FileCache
+    from motionweb.tasks.search import MatchSearch, WalkGraph
+
+    pc, webs = chain
+    _commit_chain(pc, webs, tmp_path / "store")
+    src = StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), pc.query.clip)
+    ms = MatchSearch(src, SearchParams(), files=FileCache(tmp_path / "graphs", 1 << 30))
+    clips = sorted(src)
+    for c in clips:
+        ms.graph(c)  # packed, written, mapped
+    key = {c: src.content_key(c, f"walk graph layout {WalkGraph.LAYOUT}") for c in clips}
+    paths = {c: tmp_path / "graphs" / key[c][:2] / f"{key[c]}.mwc" for c in clips}
+    assert len(clips) > 2 and all(p.is_file() for p in paths.values())
+    first = {}
+    for c in clips:
+        g = ms.graph(c)
+        first[c] = find_matches(g, 0, g.n_frames - 1, 0.01)  # every row: every page read
+        assert mapping_rss_kb(paths[c]) > 0, c
+        others = [o for o in clips if o != c]
+        assert all(mapping_rss_kb(paths[o]) == 0 for o in others), c  # released when this one was asked
+    for c in clips:  # walked again after the release: the same matches
+        g = ms.graph(c)
+        again = find_matches(g, 0, g.n_frames - 1, 0.01)
+        assert [(m.clip, m.start, m.end, m.cost) for m in again] == [(m.clip, m.start, m.end, m.cost) for m in first[c]]
 
 
 def test_a_packed_graph_from_outside_is_checked(chain) -> None:
