@@ -61,6 +61,18 @@ class LRU:
                 self.nbytes -= n
                 self.evictions += 1
 
+    def discard(self, key: Hashable) -> None:
+        """Drop ``key``'s entry, if any."""
+        with self._lock:
+            old = self._items.pop(key, None)
+            if old is not None:
+                self.nbytes -= old[1]
+
+    def keys(self) -> list[Hashable]:
+        """The keys, least recently used first (a copy)."""
+        with self._lock:
+            return list(self._items)
+
     def __len__(self) -> int:
         return len(self._items)
 

@@ -29,9 +29,13 @@ those rows (a graph's states are sorted by web, row, column). Reading such a gra
 a file is read once per process to check it (CRC-32 and the caller's own check, ~0.5 s for that
 graph), its pages then released, and each later walk brings in only the pages of its rows — from
 the operating system's page cache, which is not the service's memory and is reclaimed under
-pressure. A process keeps the mappings it opened in an LRU bounded by the cache's own bound (file
-bytes): a file removed from the folder while still mapped keeps its disk blocks until it is
-dropped, so the disk held is at most twice the bound.
+pressure. A process keeps the mappings it opened in an LRU bounded by half the cache's bound (file
+bytes). A file removed from the folder while still mapped keeps its disk blocks until it is
+dropped: :meth:`FileCache.release` (after each request of a search worker) drops the mappings
+whose files are gone, so the disk held is the bound, plus at most half of it per process that
+idles with mappings of removed files (measured the hard way: a first search on the million-frame
+store wrote 23 GB of graph files in 12 min with a 24 GB bound and a mapping bound as large, and
+the disk filled past the bound by about 9 GB of removed files still mapped).
 """
 
 from __future__ import annotations
@@ -104,8 +108,9 @@ class FileCache:
         self._lock = threading.Lock()
         self._bytes: int | None = None  # this process's estimate of the folder's bytes (scanned once)
         self.hits = self.misses = self.writes = self.damaged = 0
-        #: the values this process opened mapped, by key, with their mapping, charged their file's bytes
-        self._mapped = LRU(max_bytes=self.max_bytes)
+        #: the values this process opened mapped, by key, with their mapping, charged their file's
+        #: bytes: at most half the bound (see the module notes)
+        self._mapped = LRU(max_bytes=self.max_bytes // 2)
         self._used: dict[str, mmap.mmap] = {}  # mappings handed out since the last :meth:`release`
 
     def _path(self, key: str) -> Path:
@@ -310,11 +315,16 @@ class FileCache:
         system's page cache, so a later read is a minor fault). A service calls it after each
         request: the page cache maps a file in folios of up to 2 MB, so a walk of a few rows in
         each of a graph's webs maps most of the graph, and without this the service would hold
-        every graph it walked. The number of mappings released. O(mappings used)."""
+        every graph it walked. Mappings whose file was removed from the folder (by any
+        process's trim) are dropped, so their disk blocks are freed once no caller holds them.
+        The number of mappings released. O(mappings kept) (one ``stat`` each)."""
         with self._lock:
             used, self._used = self._used, {}
         for mm in used.values():
             _release(mm)
+        for key in self._mapped.keys():  # a file another process removed: its disk freed once unused
+            if not self._path(key).exists():
+                self._mapped.discard(key)
         return len(used)
 
     def _scan(self) -> tuple[int, list[tuple[float, int, str]]]:

@@ -346,68 +346,129 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     n_frames = frames.pop()
     _check_webs(webs)
     cat = _packed_states([w for _, w in webs])
-    web_of = cat["web_of"]
-    rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
-    # renumber the states by (web, row, col); ties keep the packing order (one stable sort of one key)
-    width = int(cols.max(initial=0)) + 1
-    order = np.argsort((web_of * n_frames + rows) * width + cols, kind="stable")
-    return _graph_of(cat, order, n_frames, rates.pop(), tuple(o for o, _ in webs))
-
-
-def _graph_of(cat: dict[str, np.ndarray], order: np.ndarray, n_frames: int, rate: float,
-              others: tuple[str, ...]) -> WalkGraph:
-    """The :class:`WalkGraph` of packed states ``cat`` (:func:`_packed_states`'s arrays) renumbered
-    by ``order`` (the states in (web, row, col) order): successors and branches renumbered (steps
-    that do not advance dropped), the branch offsets, the row-start table. O(states · log states)."""
-    base = len(cat["cells"])
-    web_of = cat["web_of"]
-    rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
-    new = np.empty(base, np.int64)
-    new[order] = np.arange(base)
-    nxt = cat["nxt"][order]
-    nxt = np.where(nxt >= 0, new[np.maximum(nxt, 0)], -1)
-    # every step must go up and/or right (row + col grows: the walk's topological order, _collect;
-    # rows never fall: the band of rows a..b, _nearest): a step of a malformed web that does not is
-    # dropped, so the compiled walks only ever see a DAG within their bands
-    r_new, c_new = rows[order].astype(np.int64), cols[order].astype(np.int64)
-
-    def advances(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return (r_new[v] >= r_new[u]) & (c_new[v] >= c_new[u]) & (r_new[v] + c_new[v] > r_new[u] + c_new[u])
-
-    bad_nxt = (nxt >= 0) & ~advances(np.arange(base), np.maximum(nxt, 0))
-    nxt[bad_nxt] = -1
-    b_from, b_to = new[cat["branch_from"]], new[cat["branch_to"]]
-    good = advances(b_from, b_to)
-    dropped = int(bad_nxt.sum()) + int((~good).sum())
-    b_from, b_to = b_from[good], b_to[good]
-    by_from = np.argsort(b_from, kind="stable")  # bridges by new from-state, packing order kept
-    branch_off = np.zeros(base + 1, np.int64)
-    np.cumsum(np.bincount(b_from, minlength=base), out=branch_off[1:])
-    # the earliest row-r cell of each path crossing row r: a path cell whose predecessor on the path
-    # lies in a lower row (or that starts the path) starts the rows above that predecessor's up to its own
-    first, last = cat["path_first"], cat["path_last"]
-    first, last = first[last >= first], last[last >= first]
-    is_path = np.zeros(base, bool)
-    is_path[np.repeat(first, last - first + 1) + _ranges(last - first + 1)] = True
-    prev_row = np.full(base, -1, np.int64)
-    prev_row[1:] = rows[:-1]
-    prev_row[first] = rows[first] - 1
-    entry = np.nonzero(is_path & (rows > prev_row))[0]
-    n_rows = rows[entry] - prev_row[entry]
-    e_state = np.repeat(entry, n_rows)
-    e_row = rows[e_state] - _ranges(n_rows)
-    e_key = web_of[e_state] * n_frames + e_row
-    e_order = np.lexsort((e_state, e_key))  # by (web, row), then packing (= path) order
-    start_off = np.searchsorted(e_key[e_order], np.arange(len(others) * n_frames + 1)).astype(np.int64)
-    key = web_of[order] * (n_frames + 1) + rows[order]
-    want = np.arange(len(others))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
+    rows, cols = np.ascontiguousarray(cat["cells"][:, 0]), np.ascontiguousarray(cat["cells"][:, 1])
+    # renumber the states by (web, row, col); ties keep the packing order
+    order = _pack_order(cat["web_of"], rows, cols, len(webs), n_frames, int(cols.max(initial=0)) + 1)
+    nxt, branch_off, branch_to, dropped, web_rows, start_off, starts = _renumbered(
+        rows, cols, cat["nxt"], cat["web_of"], cat["branch_from"], cat["branch_to"], cat["path_first"],
+        cat["path_last"], order, len(webs), n_frames)
     return WalkGraph(
-        rate=rate, n_frames=n_frames, others=others,
-        rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
-        values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off),
-        branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
-        start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
-    )
+        rate=rates.pop(), n_frames=n_frames, others=tuple(o for o, _ in webs), rows=rows[order], cols=cols[order],
+        values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off), branch_to=_narrow(branch_to),
+        dropped_steps=int(dropped), web_rows=_narrow(web_rows), start_off=_narrow(start_off), starts=_narrow(starts))
+
+
+@njit(cache=True)
+def _pack_order(web_of, rows, cols, n_webs, n_frames, width):
+    """The states (N,) in (web, row, col) order, ties in packing order: the stable argsort of
+    ``(web · F + row) · width + col``, as two stable counting sorts (by column, then by web and
+    row). O(N + W · F + width). Bounds: the caller's cells lie in rows 0..F−1 and columns
+    0..width−1 (:func:`_check_webs`), webs 0..W−1."""
+    n = len(rows)
+    count = np.zeros(width + 1, np.int64)
+    for s in range(n):
+        count[cols[s] + 1] += 1
+    for c in range(width):
+        count[c + 1] += count[c]
+    by_col = np.empty(n, np.int64)
+    for s in range(n):
+        by_col[count[cols[s]]] = s
+        count[cols[s]] += 1
+    count = np.zeros(n_webs * n_frames + 1, np.int64)
+    for s in range(n):
+        count[web_of[s] * n_frames + rows[s] + 1] += 1
+    for k in range(n_webs * n_frames):
+        count[k + 1] += count[k]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        s = by_col[i]
+        k = web_of[s] * n_frames + rows[s]
+        order[count[k]] = s
+        count[k] += 1
+    return order
+
+
+@njit(cache=True)
+def _renumbered(rows, cols, nxt, web_of, branch_from, branch_to, path_first, path_last, order, n_webs, n_frames):
+    """The tables of :class:`WalkGraph` for states renumbered by ``order`` (:func:`_pack_order`):
+    (nxt, branch_off, branch_to, dropped steps, web_rows, start_off, starts), all int64 (KG04
+    §3.3 walks; ``tests/naive.py`` ``ref_graph_of`` computes them with numpy sorts).
+
+    * successors and branches renumbered; a step that does not advance (row and column never
+      fall, their sum grows: the walk's topological order, :func:`_collect`) is dropped and
+      counted, so the compiled walks only ever see a DAG within their bands;
+    * branches grouped by their new from-state, packing order kept (a counting sort);
+    * the row-start table: a path cell whose predecessor on its path lies in a lower row (or that
+      starts its path) starts the walks of the rows above that predecessor's up to its own; per
+      (web, row) in packing order (= path order);
+    * ``web_rows[w, r]``: the first state of web w in row ≥ r.
+
+    O(N + B + W · F). Bounds: state numbers from :func:`_packed_states` lie in 0..N−1, paths
+    ``path_first..path_last`` in it, rows in 0..F−1 and webs in 0..W−1."""
+    n = len(order)
+    new = np.empty(n, np.int64)
+    for i in range(n):
+        new[order[i]] = i
+    dropped = 0
+    out_nxt = np.empty(n, np.int64)
+    for i in range(n):
+        u = order[i]
+        t = nxt[u]
+        if t >= 0:
+            if (rows[t] >= rows[u] and cols[t] >= cols[u]
+                    and np.int64(rows[t]) + cols[t] > np.int64(rows[u]) + cols[u]):
+                out_nxt[i] = new[t]
+            else:
+                out_nxt[i] = -1
+                dropped += 1
+        else:
+            out_nxt[i] = -1
+    n_b = len(branch_from)
+    good = np.zeros(n_b, np.bool_)
+    branch_off = np.zeros(n + 1, np.int64)
+    for k in range(n_b):
+        u, v = branch_from[k], branch_to[k]
+        if rows[v] >= rows[u] and cols[v] >= cols[u] and np.int64(rows[v]) + cols[v] > np.int64(rows[u]) + cols[u]:
+            good[k] = True
+            branch_off[new[u] + 1] += 1
+        else:
+            dropped += 1
+    for i in range(n):
+        branch_off[i + 1] += branch_off[i]
+    fill = branch_off[:-1].copy()
+    out_to = np.empty(branch_off[n], np.int64)
+    for k in range(n_b):
+        if good[k]:
+            f = new[branch_from[k]]
+            out_to[fill[f]] = new[branch_to[k]]
+            fill[f] += 1
+    # row starts: count per (web, row), then place in packing order (entries come in rising state)
+    n_keys = n_webs * n_frames
+    start_off = np.zeros(n_keys + 1, np.int64)
+    for p in range(len(path_first)):
+        for s in range(path_first[p], path_last[p] + 1):
+            prev = rows[s] - 1 if s == path_first[p] else rows[s - 1]
+            for r in range(prev + 1, rows[s] + 1):
+                start_off[web_of[s] * n_frames + r + 1] += 1
+    for k in range(n_keys):
+        start_off[k + 1] += start_off[k]
+    at = start_off[:-1].copy()
+    starts = np.empty(start_off[n_keys], np.int64)
+    for p in range(len(path_first)):  # paths in packing order, their cells rising: states rise
+        for s in range(path_first[p], path_last[p] + 1):
+            prev = rows[s] - 1 if s == path_first[p] else rows[s - 1]
+            for r in range(prev + 1, rows[s] + 1):
+                k = web_of[s] * n_frames + r
+                starts[at[k]] = new[s]
+                at[k] += 1
+    web_rows = np.empty((n_webs, n_frames + 1), np.int64)
+    i = 0
+    for w in range(n_webs):
+        for r in range(n_frames + 1):
+            while i < n and (web_of[order[i]] < w or (web_of[order[i]] == w and rows[order[i]] < r)):
+                i += 1
+            web_rows[w, r] = i
+    return out_nxt, branch_off, out_to, dropped, web_rows, start_off, starts
 
 
 @njit(cache=True)

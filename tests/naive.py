@@ -15,7 +15,7 @@ from motionweb.store.web import MatchWeb
 from motionweb.tasks.distance import rigid_align_2d
 from motionweb.tasks.guided_warp import Track
 from motionweb.tasks.retime.objective import BakedObjective, sector
-from motionweb.tasks.search import WalkGraph, _check_web, _graph_of, _with_switches
+from motionweb.tasks.search import WalkGraph, _check_web, _narrow, _ranges, _with_switches
 
 
 class TooManySequences(RuntimeError):
@@ -861,4 +861,61 @@ def ref_walk_graph(webs: list[tuple[str, MatchWeb]]) -> WalkGraph:
     rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
     # renumber the states by (web, row, col); ties keep the packing order
     order = np.lexsort((cols, rows, web_of))  # three keys, where walk_graph sorts one
-    return _graph_of({**cat, "web_of": web_of}, order, n_frames, rate, tuple(o for o, _ in webs))
+    return ref_graph_of({**cat, "web_of": web_of}, order, n_frames, rate, tuple(o for o, _ in webs))
+
+
+def ref_graph_of(cat: dict[str, np.ndarray], order: np.ndarray, n_frames: int, rate: float,
+              others: tuple[str, ...]) -> WalkGraph:
+    """``tasks.search._renumbered`` with numpy sorts: the :class:`WalkGraph` of packed states ``cat``
+    (``_packed_states``'s arrays) renumbered by ``order`` (the states in (web, row, col) order):
+    successors and branches renumbered (steps that do not advance dropped), the branch offsets,
+    the row-start table. O(states · log states)."""
+    base = len(cat["cells"])
+    web_of = cat["web_of"]
+    rows, cols = cat["cells"][:, 0], cat["cells"][:, 1]
+    new = np.empty(base, np.int64)
+    new[order] = np.arange(base)
+    nxt = cat["nxt"][order]
+    nxt = np.where(nxt >= 0, new[np.maximum(nxt, 0)], -1)
+    # every step must go up and/or right (row + col grows: the walk's topological order, _collect;
+    # rows never fall: the band of rows a..b, _nearest): a step of a malformed web that does not is
+    # dropped, so the compiled walks only ever see a DAG within their bands
+    r_new, c_new = rows[order].astype(np.int64), cols[order].astype(np.int64)
+
+    def advances(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return (r_new[v] >= r_new[u]) & (c_new[v] >= c_new[u]) & (r_new[v] + c_new[v] > r_new[u] + c_new[u])
+
+    bad_nxt = (nxt >= 0) & ~advances(np.arange(base), np.maximum(nxt, 0))
+    nxt[bad_nxt] = -1
+    b_from, b_to = new[cat["branch_from"]], new[cat["branch_to"]]
+    good = advances(b_from, b_to)
+    dropped = int(bad_nxt.sum()) + int((~good).sum())
+    b_from, b_to = b_from[good], b_to[good]
+    by_from = np.argsort(b_from, kind="stable")  # bridges by new from-state, packing order kept
+    branch_off = np.zeros(base + 1, np.int64)
+    np.cumsum(np.bincount(b_from, minlength=base), out=branch_off[1:])
+    # the earliest row-r cell of each path crossing row r: a path cell whose predecessor on the path
+    # lies in a lower row (or that starts the path) starts the rows above that predecessor's up to its own
+    first, last = cat["path_first"], cat["path_last"]
+    first, last = first[last >= first], last[last >= first]
+    is_path = np.zeros(base, bool)
+    is_path[np.repeat(first, last - first + 1) + _ranges(last - first + 1)] = True
+    prev_row = np.full(base, -1, np.int64)
+    prev_row[1:] = rows[:-1]
+    prev_row[first] = rows[first] - 1
+    entry = np.nonzero(is_path & (rows > prev_row))[0]
+    n_rows = rows[entry] - prev_row[entry]
+    e_state = np.repeat(entry, n_rows)
+    e_row = rows[e_state] - _ranges(n_rows)
+    e_key = web_of[e_state] * n_frames + e_row
+    e_order = np.lexsort((e_state, e_key))  # by (web, row), then packing (= path) order
+    start_off = np.searchsorted(e_key[e_order], np.arange(len(others) * n_frames + 1)).astype(np.int64)
+    key = web_of[order] * (n_frames + 1) + rows[order]
+    want = np.arange(len(others))[:, None] * (n_frames + 1) + np.arange(n_frames + 1)[None, :]
+    return WalkGraph(
+        rate=rate, n_frames=n_frames, others=others,
+        rows=np.ascontiguousarray(rows[order]), cols=np.ascontiguousarray(cols[order]),
+        values=cat["values"][order], nxt=_narrow(nxt), branch_off=_narrow(branch_off),
+        branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
+        start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
+    )

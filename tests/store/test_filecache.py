@@ -155,16 +155,22 @@ def test_a_refused_mapping_stays_for_the_caller_to_replace(tmp_path) -> None:
     assert (tmp_path / KEY[:2] / f"{KEY}.mwc").exists() and fc.stats()["mapped"]["entries"] == 0
 
 
-def test_mappings_are_bounded_by_the_cache_bound(tmp_path) -> None:
-    """A process keeps at most the cache's bound of files mapped (least recently used dropped)."""
+def test_mappings_are_bounded_and_those_of_removed_files_dropped(tmp_path) -> None:
+    """A process keeps at most half the cache's bound of files mapped (least recently used
+    dropped), and :meth:`release` drops the mappings of files removed from the folder (by
+    another process's trim): their disk is freed once unused."""
     big = {"x": np.random.default_rng(4).random(4000)}  # 32 kB
-    fc = FileCache(tmp_path, 100_000)
+    fc = FileCache(tmp_path, 200_000)
     keys = [f"{i:064x}" for i in range(1, 5)]
     for k in keys:
         assert fc.put(k, big, {}, raw=True)
         assert fc.open_mapped(k, _opened, count=False) is not None
     st = fc.stats()["mapped"]
     assert st["bytes"] <= 100_000 and st["entries"] == 2
+    (tmp_path / keys[-1][:2] / f"{keys[-1]}.mwc").unlink()
+    fc.release()
+    assert fc.stats()["mapped"]["entries"] == 1
+    assert fc.open_mapped(keys[-1], _opened) is None and fc.open_mapped(keys[-2], _opened) is not None
 
 
 @pytest.mark.skipif(not HAVE_SMAPS, reason="needs Linux's /proc/self/smaps")
