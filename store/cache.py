@@ -68,7 +68,7 @@ class LRU:
             if old is not None:
                 self.nbytes -= old[1]
 
-    def keys(self) -> list[Hashable]:
+    def oldest_first(self) -> list[Hashable]:
         """The keys, least recently used first (a copy)."""
         with self._lock:
             return list(self._items)

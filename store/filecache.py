@@ -322,7 +322,7 @@ class FileCache:
             used, self._used = self._used, {}
         for mm in used.values():
             _release(mm)
-        for key in self._mapped.keys():  # a file another process removed: its disk freed once unused
+        for key in self._mapped.oldest_first():  # a file another process removed: its disk freed once unused
             if not self._path(key).exists():
                 self._mapped.discard(key)
         return len(used)

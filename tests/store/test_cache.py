@@ -46,12 +46,12 @@ def test_web_bytes_count_its_arrays() -> None:
     assert web.nbytes == 2 * 2 * 4 + 2 * 4 + 2 * 8 + 0 + 0 + 0 + 8
 
 
-def test_discard_drops_an_entry_and_its_bytes_and_keys_come_oldest_first() -> None:
+def test_discard_drops_an_entry_and_its_bytes_and_oldest_first_lists_the_keys() -> None:
     c = LRU(max_bytes=100)
     for k, n in (("a", 10), ("b", 20), ("c", 30)):
         c.put(k, k.upper(), n)
     c.get("a")
-    assert c.keys() == ["b", "c", "a"]
+    assert c.oldest_first() == ["b", "c", "a"]
     c.discard("c")
     c.discard("nope")
-    assert c.keys() == ["b", "a"] and c.nbytes == 30 and c.get("c") is None and len(c) == 2
+    assert c.oldest_first() == ["b", "a"] and c.nbytes == 30 and c.get("c") is None and len(c) == 2
