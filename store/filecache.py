@@ -31,8 +31,8 @@ graph), its pages then released, and each later walk brings in only the pages of
 the operating system's page cache, which is not the service's memory and is reclaimed under
 pressure. A process keeps the mappings it opened in an LRU bounded by half the cache's bound (file
 bytes). A file removed from the folder while still mapped keeps its disk blocks until it is
-dropped: :meth:`FileCache.release` (after each request of a search worker) drops the mappings
-whose files are gone, so the disk held is the bound, plus at most half of it per process that
+dropped: :meth:`FileCache.release` with ``sweep`` (after each request of a search worker) drops
+the mappings whose files are gone, so the disk held is the bound, plus at most half of it per process that
 idles with mappings of removed files (measured the hard way: a first search on the million-frame
 store wrote 23 GB of graph files in 12 min with a 24 GB bound and a mapping bound as large, and
 the disk filled past the bound by about 9 GB of removed files still mapped).
@@ -309,22 +309,25 @@ class FileCache:
                   for name, dt, shape, at, nb in header["layout"]}
         return header, mm, arrays
 
-    def release(self) -> int:
+    def release(self, sweep: bool = False) -> int:
         """Release the pages of the mapped values handed out since the last call
         (``MADV_DONTNEED``: they leave this process's resident memory and stay in the operating
         system's page cache, so a later read is a minor fault). A service calls it after each
         request: the page cache maps a file in folios of up to 2 MB, so a walk of a few rows in
         each of a graph's webs maps most of the graph, and without this the service would hold
-        every graph it walked. Mappings whose file was removed from the folder (by any
-        process's trim) are dropped, so their disk blocks are freed once no caller holds them.
-        The number of mappings released. O(mappings kept) (one ``stat`` each)."""
+        every graph it walked. ``sweep`` (a service, after each request): also drop the mappings
+        whose file was removed from the folder (by any process's trim), so their disk blocks are
+        freed once no caller holds them. The number of mappings released. O(mappings used), with
+        ``sweep`` O(mappings kept) (one ``stat`` each: ~1.5 ms for 480, too much for every graph
+        a search asks for)."""
         with self._lock:
             used, self._used = self._used, {}
         for mm in used.values():
             _release(mm)
-        for key in self._mapped.oldest_first():  # a file another process removed: its disk freed once unused
-            if not self._path(key).exists():
-                self._mapped.discard(key)
+        if sweep:
+            for key in self._mapped.oldest_first():  # a file another process removed: its disk freed once unused
+                if not self._path(key).exists():
+                    self._mapped.discard(key)
         return len(used)
 
     def _scan(self) -> tuple[int, list[tuple[float, int, str]]]:

@@ -312,13 +312,14 @@ def child_main(fd: int, url: str, cache_bytes: int | None = None, files: tuple[s
 
     def then_release(handler: Callable[[Any], Any]) -> Callable[[Any], Any]:
         """``handler``, after which the pages of the graphs it walked leave the worker's resident
-        memory (``FileCache.release``; they stay in the page cache)."""
+        memory (``FileCache.release``; they stay in the page cache) and the mappings of graph
+        files another process removed are dropped."""
         def run(payload: Any) -> Any:
             try:
                 return handler(payload)
             finally:
                 if state.files is not None:
-                    state.files.release()
+                    state.files.release(sweep=True)
         return run
 
     serve(fd, "search worker", {"search": then_release(state.search), "warm": lambda p: state.warm(*p),

@@ -169,6 +169,8 @@ def test_mappings_are_bounded_and_those_of_removed_files_dropped(tmp_path) -> No
     assert st["bytes"] <= 100_000 and st["entries"] == 2
     (tmp_path / keys[-1][:2] / f"{keys[-1]}.mwc").unlink()
     fc.release()
+    assert fc.stats()["mapped"]["entries"] == 2  # pages only
+    fc.release(sweep=True)
     assert fc.stats()["mapped"]["entries"] == 1
     assert fc.open_mapped(keys[-1], _opened) is None and fc.open_mapped(keys[-2], _opened) is not None
 
