@@ -32,23 +32,31 @@ def test_round_trip_dtypes_shapes_meta(tmp_path) -> None:
     assert (fc.hits, fc.writes) == (2, 2)
 
 
+def _damage(path, how: str, cut: int = 9) -> None:
+    """Damage the cache file ``path``: a payload bit flipped, ``cut`` bytes cut off its end,
+    garbage, nothing, its header broken, or an array said to lie past the file's end."""
+    raw = bytearray(path.read_bytes())
+    if how == "flip":
+        raw[-5] ^= 0x40
+    elif how == "truncate":
+        raw = raw[:-cut]
+    elif how == "garbage":
+        raw = bytearray(b"\x00\xff" * 50)
+    elif how == "empty":
+        raw = bytearray()
+    elif how == "header":
+        raw[20:30] = b"}}}}}}}}}}"
+    else:
+        raw = bytearray(bytes(raw).replace(b'"<i8", [5000]', b'"<i8", [9000]'))
+    path.write_bytes(bytes(raw))
+
+
 @pytest.mark.parametrize("damage", ["flip", "truncate", "garbage", "empty", "header"])
 def test_a_damaged_file_reads_as_missing_and_is_removed(tmp_path, damage) -> None:
     fc = FileCache(tmp_path, 1 << 20)
     fc.put(KEY, _arrays(np.random.default_rng(1)), {"x": 1})
     path = tmp_path / KEY[:2] / f"{KEY}.mwc"
-    raw = bytearray(path.read_bytes())
-    if damage == "flip":
-        raw[-5] ^= 0x40
-    elif damage == "truncate":
-        raw = raw[:-9]
-    elif damage == "garbage":
-        raw = bytearray(b"\x00\xff" * 50)
-    elif damage == "empty":
-        raw = bytearray()
-    else:
-        raw[20:30] = b"}}}}}}}}}}"
-    path.write_bytes(bytes(raw))
+    _damage(path, damage)
     assert fc.get(KEY) is None and fc.damaged == 1 and not path.exists()
     assert fc.put(KEY, {"a": np.arange(3)}, {}) and np.array_equal(fc.get(KEY)[0]["a"], np.arange(3))
 
@@ -130,16 +138,7 @@ def test_a_damaged_raw_file_is_not_mapped_and_is_removed(tmp_path, damage) -> No
     arrays = {"a": np.arange(5000, dtype=np.int64), "b": np.ones(3, np.float32)}
     fc.put(KEY, arrays, {}, raw=True)
     path = tmp_path / KEY[:2] / f"{KEY}.mwc"
-    raw = bytearray(path.read_bytes())
-    if damage == "flip":
-        raw[-5] ^= 0x40
-    elif damage == "truncate":
-        raw = raw[:-4096]
-    elif damage == "header":
-        raw[20:30] = b"}}}}}}}}}}"
-    else:  # an array said to lie past the end of the file
-        raw = bytearray(bytes(raw).replace(b'"<i8", [5000]', b'"<i8", [9000]'))
-    path.write_bytes(bytes(raw))
+    _damage(path, damage, cut=4096)
     assert fc.open_mapped(KEY, _opened) is None and fc.damaged == 1 and not path.exists()
     assert fc.put(KEY, arrays, {}, raw=True) and np.array_equal(fc.open_mapped(KEY, _opened)[0]["a"], arrays["a"])
 
