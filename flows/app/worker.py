@@ -22,8 +22,8 @@ request waits for a fresh worker's start (imports, ~1-2 s) and reads the webs it
 Memory: the primary and the standby each hold at most ``app.cache_mb`` of webs and graphs (the
 standby those of the searches it rehearses). With the file cache of graphs on (``app.graph_files_gb``,
 the default), a graph lives in its file, mapped (``store.filecache.FileCache.open_mapped``): a walk
-reads the pages of the rows it walks, and they leave the worker's resident memory after each request
-(``FileCache.release``), staying in the page cache; a new generation is opened in a new worker while
+reads the pages of the rows it walks, and they leave the worker's resident memory when the search
+asks for its next graph and after each request (``FileCache.release``), staying in the page cache; a new generation is opened in a new worker while
 the old one keeps serving, then swapped in.
 
 Test hook (off by default): with ``MOTIONWEB_TEST_CRASH_CLIP=NAME`` in the service's environment,
