@@ -187,15 +187,7 @@ class FileCache:
         from the arrays, no copy)."""
         path = self._path(key)
         if raw:
-            parts, layout, nbytes = [], [], 0
-            for name, value in arrays.items():
-                a = np.ascontiguousarray(value)
-                pad = -nbytes % _ALIGN
-                if pad:
-                    parts.append(np.zeros(pad, np.uint8))
-                layout.append([name, a.dtype.str, list(a.shape), nbytes + pad, a.nbytes])
-                parts.append(a.view(np.uint8).reshape(-1))
-                nbytes += pad + a.nbytes
+            parts, layout, nbytes = pack_arrays(arrays, align=_ALIGN)
             if nbytes > self.max_bytes:
                 return False
             crc = 0
@@ -304,10 +296,9 @@ class FileCache:
             mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_COPY)  # size > 0: the header is there
         except OSError as exc:
             raise ValueError(f"it cannot be mapped ({exc})") from None
-        arrays = {name: (np.frombuffer(mm, np.dtype(dt), int(np.prod(shape, dtype=np.int64)),
-                                       offset=start + int(at)).reshape(shape) if nb else np.zeros(shape, np.dtype(dt)))
-                  for name, dt, shape, at, nb in header["layout"]}
-        return header, mm, arrays
+        if any(not 0 <= int(at) <= int(at) + int(nb) <= size - start for *_, at, nb in header["layout"]):
+            raise ValueError("an array of its layout lies outside its payload")
+        return header, mm, unpack_arrays(np.frombuffer(mm, np.uint8), header["layout"], base=-start, copy=False)
 
     def release(self, sweep: bool = False) -> int:
         """Release the pages of the mapped values handed out since the last call

@@ -98,11 +98,16 @@ def _close_sessions() -> None:
 atexit.register(_close_sessions)
 
 
-def pack_arrays(arrays: dict[str, np.ndarray], start: int = 0) -> tuple[list[np.ndarray], list[list[Any]], int]:
-    """Byte views of arrays and their layout rows ``[name, dtype, shape, start, nbytes]``."""
+def pack_arrays(arrays: dict[str, np.ndarray], start: int = 0,
+                align: int = 1) -> tuple[list[np.ndarray], list[list[Any]], int]:
+    """Byte views of arrays and their layout rows ``[name, dtype, shape, start, nbytes]``, and the
+    end offset; ``align``: each array starts on a multiple of it (zero bytes between)."""
     layout, parts = [], []
     for name, value in arrays.items():
         a = np.ascontiguousarray(value)
+        if pad := -start % align:
+            parts.append(np.zeros(pad, np.uint8))
+            start += pad
         layout.append([name, a.dtype.str, list(a.shape), start, a.nbytes])
         parts.append(a.view(np.uint8).reshape(-1))
         start += a.nbytes
