@@ -20,7 +20,7 @@ def nearest_costs(ms: MatchSearch, query: Segment) -> dict[str, float]:
     """Per clip other than the query's, the least average value of a match of the query in its
     web (:func:`nearest_matches` with the length and slope rules of :meth:`MatchSearch.matches`).
     Clips with no such match are absent."""
-    g = ms.graph(query.clip)
+    g = ms.graph(query.clip, (query.start, query.end))
     cost, _, _ = nearest_matches(g, query.start, min(query.end, g.n_frames - 1),
                                  min_chain_extent(ms.web_cfg, g.rate), ms.web_cfg.slope_k)
     best: dict[str, float] = {}
@@ -172,7 +172,9 @@ def rank_trials(ms: MatchSearch, query: Segment, tiers: int | None = None) -> Tr
 
     def reach(seg: Segment) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cost, c, d) per clip of ``clips`` of the nearest match of ``seg``."""
-        gg = ms.graph(seg.clip)
+        # the query's windows share the query's graph (a window graph of its rows serves them all)
+        inside = seg.clip == query.clip and query.start <= seg.start and seg.end <= query.end
+        gg = g if inside else ms.graph(seg.clip, (seg.start, seg.end))
         if seg.clip not in slots:
             slots[seg.clip] = np.array([-1 if o == seg.clip else index.get(o, -1) for o in gg.others], np.int64)
         return nearest_by_clip(gg, seg.start, min(seg.end, gg.n_frames - 1), slots[seg.clip], len(clips), need, k)

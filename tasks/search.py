@@ -49,6 +49,7 @@ store generation.
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -333,13 +334,46 @@ def _check_webs(webs: Sequence[tuple[str, MatchWeb]]) -> None:
         raise AssertionError("the vectorised web check and _check_web disagree")  # pragma: no cover
 
 
-def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
+def _cut_rows(cat: dict[str, np.ndarray], a: int, b: int) -> dict[str, np.ndarray]:
+    """The states of :func:`_packed_states` ``cat`` that a walk of rows a'..b' ⊆ a..b may use: those
+    of rows a..b, plus each path's last cell before row a when its next cell lies in rows ≥ a (the
+    row-start table of :func:`_renumbered` reads a path cell's predecessor's row), renumbered in
+    the same order; steps to states left out end (``nxt`` −1) or are dropped (branches). A walk of
+    rows a'..b' never takes a step to a row past b' (:func:`_collect`) nor reaches a row before
+    a', so it finds the same matches in the cut states as in all of them (KG04 §3.3 walks;
+    ``tests/tasks/test_search_props.py`` checks it). O(cells + bridges), vectorised."""
+    cells, pf, pl = cat["cells"], cat["path_first"], cat["path_last"]
+    r = cells[:, 0]
+    keep = (r >= a) & (r <= b)
+    n_path = int(pl[-1]) + 1 if len(pl) else 0
+    if n_path > 1:
+        ends = np.zeros(n_path, bool)
+        ends[pl[pl >= pf]] = True
+        keep[:n_path - 1] |= ~ends[:-1] & (r[:n_path - 1] < a) & (r[1:n_path] >= a)
+    before = np.concatenate([[0], np.cumsum(keep)])
+    new = before[:-1]
+    nxt = cat["nxt"][keep]
+    ok = nxt >= 0
+    ok[ok] = keep[nxt[ok]]
+    nxt = np.where(ok, new[np.where(ok, nxt, 0)], -1)
+    bf, bt = cat["branch_from"], cat["branch_to"]
+    both = keep[bf] & keep[bt]
+    return {"cells": cells[keep], "values": cat["values"][keep], "nxt": nxt, "web_of": cat["web_of"][keep],
+            "branch_from": new[bf[both]], "branch_to": new[bt[both]],
+            "path_first": before[pf], "path_last": before[pl + 1] - 1}
+
+
+def walk_graph(webs: Sequence[tuple[str, MatchWeb]], rows: tuple[int, int] | None = None) -> WalkGraph:
     """Pack the webs of one clip (each with that clip as rows) into a :class:`WalkGraph` (KG04
     §3.3). O(cells + bridges + webs · frames + columns): the states gathered for all webs at once
     (:func:`_packed_states`), put in (web, row, col) order and renumbered by two compiled passes
     (:func:`_pack_order`, :func:`_renumbered`; 1.9 s for an 11 M-state graph of 118 webs of the
     million-frame store, 4.1 s with numpy sorts). ``tests/naive.py`` ``ref_walk_graph`` packs
-    the webs one at a time and renumbers with numpy (``ref_graph_of``)."""
+    the webs one at a time and renumbers with numpy (``ref_graph_of``).
+
+    ``rows`` (a, b): a window graph, the states a walk of rows within a..b uses (:func:`_cut_rows`):
+    the same matches for such walks, at the cost of gathering the states plus O(window states +
+    webs · frames) for the kernels, and a graph of the window's size, not the clip's."""
     if not webs:
         raise ValueError("no match webs to search")
     rates = {float(w.rate) for _, w in webs}
@@ -349,6 +383,8 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]]) -> WalkGraph:
     n_frames = frames.pop()
     _check_webs(webs)
     cat = _packed_states([w for _, w in webs])
+    if rows is not None:
+        cat = _cut_rows(cat, max(int(rows[0]), 0), min(int(rows[1]), n_frames - 1))
     rows, cols = np.ascontiguousarray(cat["cells"][:, 0]), np.ascontiguousarray(cat["cells"][:, 1])
     # renumber the states by (web, row, col); ties keep the packing order
     order = _pack_order(cat["web_of"], rows, cols, len(webs), n_frames, int(cols.max(initial=0)) + 1)
@@ -983,16 +1019,22 @@ class MatchSearch:
         # content (``StoreWebs.content_key``); others are packed every time
         self.files = files if hasattr(webs, "content_key") else None
         self._named: dict[str, tuple[str, list[str]]] = {}  # clip -> (file key, other clips) of its graph
+        self._long: set[str] = set()  # clips packed per window (``cfg.window_graph_states``)
 
-    def graph(self, clip: str) -> WalkGraph:
-        """The packed webs of ``clip`` (ValueError naming an unknown clip).
+    def graph(self, clip: str, rows: tuple[int, int] | None = None) -> WalkGraph:
+        """The packed webs of ``clip`` (ValueError naming an unknown clip); with ``rows`` (a, b),
+        a graph a walk of rows within a..b may use: the whole clip's, or for a clip whose webs
+        hold more than ``cfg.window_graph_states`` states, the window's alone (:func:`walk_graph`
+        ``rows``; the same matches, see :func:`_cut_rows`).
 
         With a file cache (a source naming its content): the graph mapped from its file
         (:meth:`FileCache.open_mapped`: kept open by the cache, checked once per process, ~0.5 s
         for a 29 M-state, 600 MB graph of a long take), else read, packed (8 s for an 11.5 M-state
         graph of 118 webs: 3 s reading them, 5 s packing) and put there, then mapped — the packed
         copy is dropped. Without one, or when the file cannot be kept: the packed graph, kept in
-        the memory cache.
+        the memory cache. A window graph is kept the same way under its clip and rows, so a query
+        asked again reads neither webs nor packs; a new window of a long clip reads its webs and
+        packs the window (O(the clip's cells) to gather, O(window states + webs · frames) after).
 
         Each call first releases the pages of the mapped graphs walked since the last
         (``FileCache.release``): the page cache maps a file in folios of up to 2 MB, so a walk of
@@ -1006,6 +1048,12 @@ class MatchSearch:
         g = self._graphs.get((*self._key, clip))
         if g is not None:
             return g
+        if rows is not None:
+            rows = (int(rows[0]), int(rows[1]))
+        window = rows is not None and clip in self._long
+        if window:
+            if (g := self._graphs.get((*self._key, clip, rows))) is not None:
+                return g
         unknown = ValueError(f"unknown clip {clip!r}: it is not in the index searched")
         fkey = None
         if self.files is not None:
@@ -1020,7 +1068,11 @@ class MatchSearch:
             def opener(arrays: dict[str, np.ndarray], meta: dict) -> WalkGraph:
                 return WalkGraph.from_arrays(arrays, meta, others)
 
-            if (g := self.files.open_mapped(fkey, opener)) is not None:
+            if not window and (g := self.files.open_mapped(fkey, opener)) is not None:
+                return g
+            # a window's file is looked for even before this process knows the clip is long
+            if rows is not None and (g := self.files.open_mapped(self._window_key(fkey, rows), opener)) is not None:
+                self._long.add(clip)
                 return g
         try:
             webs = self.webs[clip]
@@ -1028,12 +1080,24 @@ class MatchSearch:
             raise unknown from None
         if not webs:
             raise ValueError(f"clip {clip!r} has no match webs in the index searched")
-        g = walk_graph(webs)
-        if (fkey is not None and self.files.put(fkey, *g.to_arrays(), raw=True)
-                and (mapped := self.files.open_mapped(fkey, opener, count=False)) is not None):
-            return mapped
-        self._graphs.put((*self._key, clip), g, g.nbytes)
+        if rows is not None and not window and sum(len(w.paths_cells) + len(w.bridges_cells) for _, w in webs) \
+                > self.cfg.window_graph_states:
+            self._long.add(clip)
+            window = True
+        g = walk_graph(webs, rows if window else None)
+        if fkey is not None:
+            if window:
+                fkey = self._window_key(fkey, rows)
+            if self.files.put(fkey, *g.to_arrays(), raw=True) and (
+                    mapped := self.files.open_mapped(fkey, opener, count=False)) is not None:
+                return mapped
+        self._graphs.put((*self._key, clip, rows) if window else (*self._key, clip), g, g.nbytes)
         return g
+
+    @staticmethod
+    def _window_key(fkey: str, rows: tuple[int, int]) -> str:
+        """The file key of the window graph of rows a..b of the graph keyed ``fkey``."""
+        return hashlib.sha256(f"{fkey} rows {rows[0]} {rows[1]}".encode()).hexdigest()
 
     def quantile(self, q: float, stream: bool = False) -> float:
         """ε as the ``q`` quantile of the searched webs' path values (:func:`epsilon_from_quantile`).
@@ -1080,7 +1144,7 @@ class MatchSearch:
 
     def check(self, query: Segment) -> WalkGraph:
         """Validate a user query: known clip, range inside it, at least the minimum chain length."""
-        g = self.graph(query.clip)
+        g = self.graph(query.clip, (query.start, query.end))
         if query.start < 0 or query.end >= g.n_frames:
             raise ValueError(f"query range {query.start}..{query.end} is outside clip {query.clip!r} "
                              f"(frames 0..{g.n_frames - 1} at {g.rate:g} Hz)")
@@ -1104,7 +1168,7 @@ class MatchSearch:
     def _kept(self, query: Segment, eps: float) -> tuple[WalkGraph, tuple, np.ndarray]:
         """:meth:`matches` as arrays: (the query clip's graph, the :func:`_walk_arrays` output,
         the positions of the kept matches in it, best first)."""
-        g = self.graph(query.clip)
+        g = self.graph(query.clip, (query.start, query.end))
         b = min(query.end, g.n_frames - 1)
         rows, k = b - query.start + 1, self.web_cfg.slope_k
         need = min_chain_extent(self.web_cfg, g.rate)

@@ -21,3 +21,7 @@ class SearchParams(Params):
     window_s: float = 0.5
     window_tiers: int = 3
     window_nodes: int = 5
+    #: a clip whose webs hold more states than this is packed per query window (the rows a..b a
+    #: walk uses, ``tasks.search.walk_graph``), not whole: a long take's whole graph is hundreds of
+    #: MB (11-29 M states on the million-frame store), a window of it a few MB; 0: never whole
+    window_graph_states: int = 4_000_000

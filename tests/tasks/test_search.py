@@ -353,6 +353,46 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     assert MatchSearch(webs, files=files).files is None
 
 
+def test_long_clips_are_searched_through_window_graphs(chain, tmp_path) -> None:
+    """Issue 25 part 5: clips whose webs hold more states than ``window_graph_states`` are packed
+    per query window: the tiered search and the trial ranking give what whole graphs give, the
+    window graphs are kept under their rows (in memory, or in the file cache, where another
+    process reads them back without a web read), and a window graph holds fewer states."""
+    from motionweb.store.filecache import FileCache
+    from motionweb.tasks.search import MatchSearch
+
+    pc, webs = chain
+    whole = MatchSearch(webs, SearchParams())
+    part = MatchSearch(webs, SearchParams(window_graph_states=0))
+    want = whole.search(pc.query, 0.003)
+    assert [n.segment.clip for n in want.nodes[1:]] == list(pc.expected)
+    got = part.search(pc.query, 0.003)
+    assert [(n.segment, n.distance, n.tier) for n in got.nodes] == [(n.segment, n.distance, n.tier) for n in want.nodes]
+    assert part._long == {n.segment.clip for n in want.nodes}
+    keys = part._graphs.oldest_first()
+    assert keys and all(len(k) == 3 and isinstance(k[2], tuple) for k in keys)
+    q = pc.query
+    assert part.graph(q.clip, (q.start, q.end)).n_states < whole.graph(q.clip).n_states
+    assert part.graph(q.clip, (q.start, q.end)) is part.graph(q.clip, (q.start, q.end))  # kept
+    rw, rp = rank_trials(whole, q), rank_trials(part, q)
+    assert rp.ranking == rw.ranking and rp.found == rw.found
+    # in the file cache: another process reads the window graphs back, no web read
+    _commit_chain(pc, webs, tmp_path / "store")
+
+    def fresh() -> tuple[StoreWebs, MatchSearch]:
+        src = StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), q.clip)
+        return src, MatchSearch(src, SearchParams(window_graph_states=0), files=FileCache(tmp_path / "graphs", 1 << 30))
+
+    src1, ms1 = fresh()
+    first = ms1.search(q, 0.003)
+    assert ms1.files.writes == len(want.nodes) and src1.reads > 0
+    src2, ms2 = fresh()
+    again = ms2.search(q, 0.003)
+    assert src2.reads == 0 and ms2.files.hits == len(want.nodes) and ms2.files.writes == 0
+    assert [(n.segment, n.distance) for n in again.nodes] == [(n.segment, n.distance) for n in first.nodes] \
+        == [(n.segment, n.distance) for n in want.nodes]
+
+
 @pytest.mark.skipif(not HAVE_SMAPS, reason="needs Linux's /proc/self/smaps")
 def test_asking_for_a_graph_releases_the_pages_of_the_graphs_walked_before(chain, tmp_path) -> None:
     """Issue 25 part 5: a walk maps most pages of a mapped graph (the page cache's folios), so

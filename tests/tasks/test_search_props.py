@@ -184,6 +184,34 @@ def test_tiered_search_over_webs_of_very_different_lengths(data) -> None:
         assert 0 <= n.segment.start <= n.segment.end < f
 
 
+def _matches(g, a: int, b: int, eps: float) -> list[tuple]:
+    from motionweb.tasks.search import find_matches
+
+    return sorted((m.clip, m.start, m.end, round(m.cost, 9), m.cells.tobytes()) for m in find_matches(g, a, b, eps))
+
+
+@SETTINGS
+@given(st.data())
+def test_a_window_graph_walks_as_the_whole_graph(data) -> None:
+    """Issue 25 part 5: the graph of rows a0..b0 alone (``walk_graph(..., rows)``) gives every walk
+    of rows a..b within a0..b0 the matches (each with its walk) and the nearest matches of the
+    whole clip's graph, at ε = 0, mid and huge; the window holds no more states than the whole."""
+    fa = data.draw(st.integers(1, 12))
+    webs_ = [(f"c{data.draw(st.integers(0, 3))}", data.draw(webs(rows=fa)))
+             for _ in range(data.draw(st.integers(1, 5)))]
+    a0 = data.draw(st.integers(-2, fa - 1))
+    b0 = data.draw(st.integers(max(a0, 0), fa + 2))
+    whole, part = walk_graph(webs_), walk_graph(webs_, (a0, b0))
+    assert part.n_states <= whole.n_states and part.n_frames == whole.n_frames and part.others == whole.others
+    lo, hi = max(a0, 0), min(b0, fa - 1)
+    a = data.draw(st.integers(lo, hi))
+    b = data.draw(st.integers(a, hi))
+    for eps in (0.0, 0.3, 1e30):
+        assert _matches(part, a, b, eps) == _matches(whole, a, b, eps)
+    for got, want in zip(nearest_matches(part, a, b), nearest_matches(whole, a, b)):
+        assert np.array_equal(got, want)
+
+
 GRAPH_FIELDS = ("rows", "cols", "values", "nxt", "branch_off", "branch_to", "web_rows", "start_off", "starts",
                 "clip_rank")
 
