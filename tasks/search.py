@@ -224,6 +224,38 @@ def _check_web(web: MatchWeb) -> None:
             raise ValueError("a bridge of the web joins a path cell that does not exist")
 
 
+def _gathered(webs: Sequence[MatchWeb]) -> dict:
+    """The arrays of all ``webs`` end to end, what :func:`_packed_states` and :func:`_window_states`
+    number states from: ``offs`` (P + 1,) every path's first cell as a global cell number (then
+    the cell count), ``cells`` (Nc, 2) and ``pvals`` (Nc,) the path cells and values,
+    ``path_web`` (P,) each path's web, ``bridges`` (B, 4) with global path numbers,
+    ``web_of_bridge`` (B,), ``bcells`` (Nb, 2), ``bvals`` (Nb,) and ``boffs`` (B + 1,) the bridge
+    cells. O(cells + bridges) copies, no Python per cell."""
+    n_webs = len(webs)
+    p_cells = np.array([len(w.paths_cells) for w in webs], np.int64)
+    n_paths = np.array([w.n_paths for w in webs], np.int64)
+    n_br = np.array([len(w.bridges) for w in webs], np.int64)
+    cell_base = np.concatenate([[0], np.cumsum(p_cells)])
+    path_base = np.concatenate([[0], np.cumsum(n_paths)])
+    n_cells = int(cell_base[-1])
+    offs = np.concatenate([w.paths_offsets[:-1].astype(np.int64) + cell_base[i] for i, w in enumerate(webs)]
+                          + [np.array([n_cells], np.int64)])
+    web_of_br = np.repeat(np.arange(n_webs), n_br)
+    br = np.concatenate([w.bridges.reshape(-1, 4) for w in webs]).astype(np.int64)
+    br[:, 0] += path_base[web_of_br]
+    br[:, 2] += path_base[web_of_br]
+    blens = np.concatenate([np.diff(w.bridges_offsets) for w in webs]).astype(np.int64)
+    return {
+        "n_webs": n_webs, "offs": offs, "path_web": np.repeat(np.arange(n_webs), n_paths),
+        "cells": np.concatenate([w.paths_cells for w in webs]).reshape(-1, 2),
+        "pvals": np.concatenate([w.paths_values for w in webs]),
+        "bridges": br, "web_of_bridge": web_of_br,
+        "bcells": np.concatenate([w.bridges_cells for w in webs]).reshape(-1, 2),
+        "bvals": np.concatenate([w.bridges_values for w in webs]),
+        "boffs": np.concatenate([[0], np.cumsum(blens)]),
+    }
+
+
 def _packed_states(webs: Sequence[MatchWeb]) -> dict[str, np.ndarray]:
     """States, successors and branches of all ``webs`` at once (vectorised over every cell of
     every web: no Python per web beyond gathering its arrays). Numbering: every web's path cells
@@ -238,28 +270,16 @@ def _packed_states(webs: Sequence[MatchWeb]) -> dict[str, np.ndarray]:
     and its bridges of two or more cells), so the shared cell is counted once and no step stays in
     place (KG04 §3.3 walks advance a row or a column per step; :func:`walk_graph` relies on it).
     O(cells + bridges · log bridges)."""
-    n_webs = len(webs)
-    p_cells = np.array([len(w.paths_cells) for w in webs], np.int64)
-    n_paths = np.array([w.n_paths for w in webs], np.int64)
-    n_br = np.array([len(w.bridges) for w in webs], np.int64)
-    cell_base = np.concatenate([[0], np.cumsum(p_cells)])
-    path_base = np.concatenate([[0], np.cumsum(n_paths)])
-    n_cells = int(cell_base[-1])
-    # path offsets as global cell numbers, (paths + 1,)
-    offs = np.concatenate([w.paths_offsets[:-1].astype(np.int64) + cell_base[i] for i, w in enumerate(webs)]
-                          + [np.array([n_cells], np.int64)])
-    cells = np.concatenate([w.paths_cells for w in webs]).reshape(-1, 2)
+    g = _gathered(webs)
+    n_webs, offs, cells, br, web_of_br, bcells, boffs = (g[k] for k in ("n_webs", "offs", "cells", "bridges",
+                                                                         "web_of_bridge", "bcells", "boffs"))
+    n_cells = int(offs[-1])
     nxt = np.arange(1, n_cells + 1, dtype=np.int64)
     plen = np.diff(offs)
     nxt[offs[1:][plen > 0] - 1] = -1
-    # bridges with global path numbers, (B, 4); their cells and offsets end to end
-    web_of_br = np.repeat(np.arange(n_webs), n_br)
-    br = np.concatenate([w.bridges.reshape(-1, 4) for w in webs]).astype(np.int64)
-    bcells = np.concatenate([w.bridges_cells for w in webs]).reshape(-1, 2)
-    blens = np.concatenate([np.diff(w.bridges_offsets) for w in webs]).astype(np.int64)
-    boffs = np.concatenate([[0], np.cumsum(blens)])
-    from_state = offs[path_base[web_of_br] + br[:, 0]] + br[:, 1]
-    to_state = offs[path_base[web_of_br] + br[:, 2]] + br[:, 3]
+    blens = np.diff(boffs)
+    from_state = offs[br[:, 0]] + br[:, 1]
+    to_state = offs[br[:, 2]] + br[:, 3]
     inner = np.maximum(blens - 2, 0)
     inner_start = n_cells + np.cumsum(inner) - inner
     keep = np.ones(len(bcells), bool)
@@ -279,10 +299,9 @@ def _packed_states(webs: Sequence[MatchWeb]) -> dict[str, np.ndarray]:
     i_count = np.bincount(web_of_br, weights=inner, minlength=n_webs).astype(np.int64)
     return {
         "cells": np.concatenate([cells, inner_cells]).astype(np.int32),
-        "values": np.concatenate([w.paths_values for w in webs] + [w.bridges_values for w in webs])[
-            np.concatenate([np.ones(n_cells, bool), keep])].astype(np.float32),
+        "values": np.concatenate([g["pvals"], g["bvals"][keep]]).astype(np.float32),
         "nxt": np.concatenate([nxt, inner_nxt]),
-        "web_of": np.concatenate([np.repeat(np.arange(n_webs), p_cells), np.repeat(np.arange(n_webs), i_count)]),
+        "web_of": np.concatenate([np.repeat(g["path_web"], plen), np.repeat(np.arange(n_webs), i_count)]),
         "branch_from": b_from.astype(np.int64),
         "branch_to": b_to.astype(np.int64),
         "path_first": offs[:-1],
@@ -334,33 +353,150 @@ def _check_webs(webs: Sequence[tuple[str, MatchWeb]]) -> None:
         raise AssertionError("the vectorised web check and _check_web disagree")  # pragma: no cover
 
 
-def _cut_rows(cat: dict[str, np.ndarray], a: int, b: int) -> dict[str, np.ndarray]:
-    """The states of :func:`_packed_states` ``cat`` that a walk of rows a'..b' ⊆ a..b may use: those
-    of rows a..b, plus each path's last cell before row a when its next cell lies in rows ≥ a (the
-    row-start table of :func:`_renumbered` reads a path cell's predecessor's row), renumbered in
-    the same order; steps to states left out end (``nxt`` −1) or are dropped (branches). A walk of
-    rows a'..b' never takes a step to a row past b' (:func:`_collect`) nor reaches a row before
-    a', so it finds the same matches in the cut states as in all of them (KG04 §3.3 walks;
-    ``tests/tasks/test_search_props.py`` checks it). O(cells + bridges), vectorised."""
-    cells, pf, pl = cat["cells"], cat["path_first"], cat["path_last"]
-    r = cells[:, 0]
-    keep = (r >= a) & (r <= b)
-    n_path = int(pl[-1]) + 1 if len(pl) else 0
-    if n_path > 1:
-        ends = np.zeros(n_path, bool)
-        ends[pl[pl >= pf]] = True
-        keep[:n_path - 1] |= ~ends[:-1] & (r[:n_path - 1] < a) & (r[1:n_path] >= a)
-    before = np.concatenate([[0], np.cumsum(keep)])
-    new = before[:-1]
-    nxt = cat["nxt"][keep]
-    ok = nxt >= 0
-    ok[ok] = keep[nxt[ok]]
-    nxt = np.where(ok, new[np.where(ok, nxt, 0)], -1)
-    bf, bt = cat["branch_from"], cat["branch_to"]
-    both = keep[bf] & keep[bt]
-    return {"cells": cells[keep], "values": cat["values"][keep], "nxt": nxt, "web_of": cat["web_of"][keep],
-            "branch_from": new[bf[both]], "branch_to": new[bt[both]],
-            "path_first": before[pf], "path_last": before[pl + 1] - 1}
+def _packed_window(webs: Sequence[MatchWeb], a: int, b: int) -> dict[str, np.ndarray]:
+    """The states of :func:`_packed_states` that a walk of rows a'..b' ⊆ a..b may use, array for
+    array as ``tests/naive.py`` ``ref_cut_rows`` cuts them from all the states, without numbering
+    those outside the window: the webs gathered (:func:`_gathered`, copies), then one compiled
+    pass (:func:`_window_states`). O(cells + bridges) to gather and mark, O(window states +
+    bridges · log bridges) after.
+
+    Kept: the states of rows a..b, plus each path's last cell before row a when its next cell
+    lies in rows ≥ a (the row-start table of :func:`_renumbered` reads a path cell's predecessor's
+    row); a step to a state left out ends (``nxt`` −1) or is dropped (branches). A walk of rows
+    a'..b' never takes a step to a row past b' (:func:`_collect`) nor reaches a row before a', so
+    it finds the same matches in the window's states as in all of them (KG04 §3.3 walks;
+    ``tests/tasks/test_search_props.py`` checks it)."""
+    g = _gathered(webs)
+    out = _window_states(g["offs"], g["cells"], g["pvals"], g["path_web"], g["bridges"], g["web_of_bridge"],
+                         g["bcells"], g["bvals"], g["boffs"], a, b)
+    return dict(zip(("cells", "values", "nxt", "web_of", "branch_from", "branch_to", "path_first", "path_last"),
+                    out))
+
+
+@njit(cache=True)
+def _window_states(offs, cells, pvals, path_web, br, br_web, bcells, bvals, boffs, a, b):
+    """The states of rows a..b of the gathered webs (:func:`_gathered`), numbered, stepped and
+    branched as :func:`_packed_states` numbers them and :func:`_packed_window` cuts them (KG04 §3.3
+    walks): a path cell of rows a..b, or the last of its path before row a when the next is in a
+    row ≥ a; a bridge interior cell of rows a..b. Returns (cells (K, 2) int32, values (K,)
+    float32, nxt, web_of, branch_from, branch_to, path_first, path_last) in the new numbering.
+    Branches come in :func:`_packed_states`'s order (proper bridges, then each switch's step onto
+    its joined path, then each switch's bridges of the joined cell) filtered to those with both
+    ends kept. O(cells + bridges · log bridges); ``new`` is one int64 per state.
+
+    Bounds: path numbers of ``br`` lie in 0..P−1 and cell indices in their paths, bridge cells
+    in their ``boffs`` ranges (:func:`_check_webs` before packing); every state index written is
+    < the counts computed in the first passes."""
+    n_paths = len(offs) - 1
+    n_cells = offs[n_paths]
+    n_br = len(br)
+    from_s = np.empty(n_br, np.int64)
+    to_s = np.empty(n_br, np.int64)
+    inner = np.empty(n_br, np.int64)
+    inner_start = np.empty(n_br, np.int64)
+    n_inner = 0
+    for k in range(n_br):
+        from_s[k] = offs[br[k, 0]] + br[k, 1]
+        to_s[k] = offs[br[k, 2]] + br[k, 3]
+        inner[k] = max(boffs[k + 1] - boffs[k] - 2, 0)
+        inner_start[k] = n_cells + n_inner
+        n_inner += inner[k]
+    new = np.empty(n_cells + n_inner, np.int64)
+    path_first = np.empty(n_paths, np.int64)
+    path_last = np.empty(n_paths, np.int64)
+    cnt = 0
+    for p in range(n_paths):
+        path_first[p] = cnt
+        e = offs[p + 1]
+        for s in range(offs[p], e):
+            r = cells[s, 0]
+            if (a <= r <= b) or (r < a and s + 1 < e and cells[s + 1, 0] >= a):
+                new[s] = cnt
+                cnt += 1
+            else:
+                new[s] = -1
+        path_last[p] = cnt - 1
+    for k in range(n_br):
+        for j in range(inner[k]):
+            r = bcells[boffs[k] + 1 + j, 0]
+            if a <= r <= b:
+                new[inner_start[k] + j] = cnt
+                cnt += 1
+            else:
+                new[inner_start[k] + j] = -1
+    out_cells = np.empty((cnt, 2), np.int32)
+    out_vals = np.empty(cnt, np.float32)
+    out_nxt = np.empty(cnt, np.int64)
+    out_web = np.empty(cnt, np.int64)
+    for p in range(n_paths):
+        e = offs[p + 1]
+        for s in range(offs[p], e):
+            i = new[s]
+            if i >= 0:
+                out_cells[i, 0] = cells[s, 0]
+                out_cells[i, 1] = cells[s, 1]
+                out_vals[i] = pvals[s]
+                out_web[i] = path_web[p]
+                out_nxt[i] = new[s + 1] if s + 1 < e else -1
+    for k in range(n_br):
+        for j in range(inner[k]):
+            i = new[inner_start[k] + j]
+            if i >= 0:
+                c = boffs[k] + 1 + j
+                out_cells[i, 0] = bcells[c, 0]
+                out_cells[i, 1] = bcells[c, 1]
+                out_vals[i] = bvals[c]
+                out_web[i] = br_web[k]
+                out_nxt[i] = new[inner_start[k] + j + 1] if j + 1 < inner[k] else new[to_s[k]]
+    # branches: proper bridges, then the switches' steps onto their joined paths, then the
+    # switches' bridges of the joined cells (each list in bridge order), both ends kept
+    switch = np.empty(n_br, np.bool_)
+    n_proper = 0
+    for k in range(n_br):
+        switch[k] = (boffs[k + 1] - boffs[k] < 2 or (cells[from_s[k], 0] == cells[to_s[k], 0]
+                                                    and cells[from_s[k], 1] == cells[to_s[k], 1]))
+        if not switch[k]:
+            n_proper += 1
+    p_from = np.empty(n_proper, np.int64)
+    p_to = np.empty(n_proper, np.int64)
+    q = 0
+    for k in range(n_br):
+        if not switch[k]:
+            p_from[q] = from_s[k]
+            p_to[q] = inner_start[k] if inner[k] > 0 else to_s[k]
+            q += 1
+    by_from = np.argsort(p_from, kind="mergesort")
+    sorted_from = p_from[by_from]
+    bf = []
+    bt = []
+    for q in range(n_proper):
+        if new[p_from[q]] >= 0 and new[p_to[q]] >= 0:
+            bf.append(new[p_from[q]])
+            bt.append(new[p_to[q]])
+    # the step after a switch's joined cell: the next cell of its path (``_packed_states``'s nxt)
+    for k in range(n_br):
+        if switch[k]:
+            t = to_s[k]
+            after = t + 1 if t + 1 < offs[br[k, 2] + 1] else -1
+            if after >= 0 and new[from_s[k]] >= 0 and new[after] >= 0:
+                bf.append(new[from_s[k]])
+                bt.append(new[after])
+    for k in range(n_br):
+        if switch[k]:
+            lo = np.searchsorted(sorted_from, to_s[k], "left")
+            hi = np.searchsorted(sorted_from, to_s[k], "right")
+            for m in range(lo, hi):
+                v = p_to[by_from[m]]
+                if new[from_s[k]] >= 0 and new[v] >= 0:
+                    bf.append(new[from_s[k]])
+                    bt.append(new[v])
+    n_b = len(bf)
+    out_from = np.empty(n_b, np.int64)
+    out_to = np.empty(n_b, np.int64)
+    for m in range(n_b):
+        out_from[m] = bf[m]
+        out_to[m] = bt[m]
+    return out_cells, out_vals, out_nxt, out_web, out_from, out_to, path_first, path_last
 
 
 def walk_graph(webs: Sequence[tuple[str, MatchWeb]], rows: tuple[int, int] | None = None) -> WalkGraph:
@@ -371,7 +507,7 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]], rows: tuple[int, int] | Non
     million-frame store, 4.1 s with numpy sorts). ``tests/naive.py`` ``ref_walk_graph`` packs
     the webs one at a time and renumbers with numpy (``ref_graph_of``).
 
-    ``rows`` (a, b): a window graph, the states a walk of rows within a..b uses (:func:`_cut_rows`):
+    ``rows`` (a, b): a window graph, the states a walk of rows within a..b uses (:func:`_packed_window`):
     the same matches for such walks, at the cost of gathering the states plus O(window states +
     webs · frames) for the kernels, and a graph of the window's size, not the clip's."""
     if not webs:
@@ -382,9 +518,10 @@ def walk_graph(webs: Sequence[tuple[str, MatchWeb]], rows: tuple[int, int] | Non
         raise ValueError(f"the webs of one clip disagree on rate {sorted(rates)} or rows {sorted(frames)}")
     n_frames = frames.pop()
     _check_webs(webs)
-    cat = _packed_states([w for _, w in webs])
-    if rows is not None:
-        cat = _cut_rows(cat, max(int(rows[0]), 0), min(int(rows[1]), n_frames - 1))
+    if rows is None:
+        cat = _packed_states([w for _, w in webs])
+    else:
+        cat = _packed_window([w for _, w in webs], max(int(rows[0]), 0), min(int(rows[1]), n_frames - 1))
     rows, cols = np.ascontiguousarray(cat["cells"][:, 0]), np.ascontiguousarray(cat["cells"][:, 1])
     # renumber the states by (web, row, col); ties keep the packing order
     order = _pack_order(cat["web_of"], rows, cols, len(webs), n_frames, int(cols.max(initial=0)) + 1)
@@ -1025,7 +1162,7 @@ class MatchSearch:
         """The packed webs of ``clip`` (ValueError naming an unknown clip); with ``rows`` (a, b),
         a graph a walk of rows within a..b may use: the whole clip's, or for a clip whose webs
         hold more than ``cfg.window_graph_states`` states, the window's alone (:func:`walk_graph`
-        ``rows``; the same matches, see :func:`_cut_rows`).
+        ``rows``; the same matches, see :func:`_packed_window`).
 
         With a file cache (a source naming its content): the graph mapped from its file
         (:meth:`FileCache.open_mapped`: kept open by the cache, checked once per process, ~0.5 s

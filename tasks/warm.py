@@ -60,6 +60,7 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
          "i4[:] i4[:] f4[:] i4[:] i4[:] i4[:] i4[:,:] i4[:] i4[:] i8 i8 f8 i8[:] i8[:] i8[:] f8[:] f8[:] i8[:] i8[:]", 2.1),
         ("motionweb.tasks.search", "_pack_order", "i8[:] i4[:] i4[:] i8 i8 i8", 0.3),
         ("motionweb.tasks.search", "_renumbered", "i4[:] i4[:] i8[:] i8[:] i8[:] i8[:] i8[:] i8[:] i8[:] i8 i8", 0.8),
+        ("motionweb.tasks.search", "_window_states", "i8[:] i4[:,:] f4[:] i8[:] i8[:,:] i8[:] i4[:,:] f4[:] i8[:] i8 i8", 0.8),
         ("motionweb.tasks.search", "_greedy_disjoint", "i8[:] i8[:] i8[:] f8", 0.2),
         ("motionweb.tasks.search", "_steps_ok", "i4[:] i4[:] i4[:] i4[:] i4[:] i8", 0.2),
         ("motionweb.tasks.search", "place_matches", "i8[:] i8[:] i8[:] i8[:,:] i8 f8 f8", 0.6),

@@ -919,3 +919,30 @@ def ref_graph_of(cat: dict[str, np.ndarray], order: np.ndarray, n_frames: int, r
         branch_to=_narrow(b_to[by_from]), dropped_steps=dropped, web_rows=_narrow(np.searchsorted(key, want)),
         start_off=_narrow(start_off), starts=_narrow(new[e_state[e_order]]),
     )
+
+
+def ref_cut_rows(cat: dict[str, np.ndarray], a: int, b: int) -> dict[str, np.ndarray]:
+    """Reference for ``tasks.search._packed_window``: the states of ``_packed_states`` ``cat`` (all
+    of them, numbered) that a walk of rows within a..b may use, cut with numpy masks: those of
+    rows a..b plus each path's last cell before row a when its next cell lies in rows ≥ a,
+    renumbered in the same order; steps to states left out end (``nxt`` −1) or are dropped
+    (branches)."""
+    cells, pf, pl = cat["cells"], cat["path_first"], cat["path_last"]
+    r = cells[:, 0]
+    keep = (r >= a) & (r <= b)
+    n_path = int(pl[-1]) + 1 if len(pl) else 0
+    if n_path > 1:
+        ends = np.zeros(n_path, bool)
+        ends[pl[pl >= pf]] = True
+        keep[:n_path - 1] |= ~ends[:-1] & (r[:n_path - 1] < a) & (r[1:n_path] >= a)
+    before = np.concatenate([[0], np.cumsum(keep)])
+    new = before[:-1]
+    nxt = cat["nxt"][keep]
+    ok = nxt >= 0
+    ok[ok] = keep[nxt[ok]]
+    nxt = np.where(ok, new[np.where(ok, nxt, 0)], -1)
+    bf, bt = cat["branch_from"], cat["branch_to"]
+    both = keep[bf] & keep[bt]
+    return {"cells": cells[keep], "values": cat["values"][keep], "nxt": nxt, "web_of": cat["web_of"][keep],
+            "branch_from": new[bf[both]], "branch_to": new[bt[both]],
+            "path_first": before[pf], "path_last": before[pl + 1] - 1}

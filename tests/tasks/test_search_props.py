@@ -17,7 +17,7 @@ from motionweb.store.web import MatchWeb, transpose
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.matchweb.params import MatchWebParams
 from motionweb.tasks.search import MatchSearch, SearchParams, nearest_matches, walk_graph, walk_web
-from naive import TooManySequences, ref_matches, ref_walk_graph, ref_walk_steps
+from naive import TooManySequences, ref_cut_rows, ref_matches, ref_walk_graph, ref_walk_steps
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -210,6 +210,25 @@ def test_a_window_graph_walks_as_the_whole_graph(data) -> None:
         assert _matches(part, a, b, eps) == _matches(whole, a, b, eps)
     for got, want in zip(nearest_matches(part, a, b), nearest_matches(whole, a, b)):
         assert np.array_equal(got, want)
+
+
+@SETTINGS
+@given(st.data())
+def test_the_compiled_window_cut_equals_the_reference(data) -> None:
+    """``_packed_window`` (compiled, numbering the window's states only) gives, array for array,
+    ``naive.ref_cut_rows`` of every packed state, for windows inside, across and outside the
+    rows, on webs with switches, two-cell bridges and empty webs."""
+    from motionweb.tasks.search import _packed_states, _packed_window
+
+    fa = data.draw(st.integers(1, 12))
+    webs_ = [data.draw(webs(rows=fa)) for _ in range(data.draw(st.integers(1, 5)))]
+    a = data.draw(st.integers(0, fa - 1))
+    b = data.draw(st.integers(a, fa - 1))
+    got, want = _packed_window(webs_, a, b), ref_cut_rows(_packed_states(webs_), a, b)
+    assert set(got) == set(want)
+    for name in want:
+        assert got[name].shape == want[name].shape and np.array_equal(got[name], want[name]), name
+    assert got["cells"].dtype == np.int32 and got["values"].dtype == np.float32
 
 
 GRAPH_FIELDS = ("rows", "cols", "values", "nxt", "branch_off", "branch_to", "web_rows", "start_off", "starts",
