@@ -1170,8 +1170,9 @@ class MatchSearch:
         graph of 118 webs: 3 s reading them, 5 s packing) and put there, then mapped — the packed
         copy is dropped. Without one, or when the file cannot be kept: the packed graph, kept in
         the memory cache. A window graph is kept the same way under its clip and rows, so a query
-        asked again reads neither webs nor packs; a new window of a long clip reads its webs and
-        packs the window (O(the clip's cells) to gather, O(window states + webs · frames) after).
+        asked again reads neither webs nor packs; a new window of a long clip packs the window from
+        its webs (O(the clip's cells) to gather, O(window states + webs · frames) after), kept in
+        the memory cache while it holds them (a clip's webs up to half its bound), else read.
 
         Each call first releases the pages of the mapped graphs walked since the last
         (``FileCache.release``): the page cache maps a file in folios of up to 2 MB, so a walk of
@@ -1211,16 +1212,23 @@ class MatchSearch:
             if rows is not None and (g := self.files.open_mapped(self._window_key(fkey, rows), opener)) is not None:
                 self._long.add(clip)
                 return g
-        try:
-            webs = self.webs[clip]
-        except KeyError:
-            raise unknown from None
-        if not webs:
-            raise ValueError(f"clip {clip!r} has no match webs in the index searched")
-        if rows is not None and not window and sum(len(w.paths_cells) + len(w.bridges_cells) for _, w in webs) \
-                > self.cfg.window_graph_states:
-            self._long.add(clip)
-            window = True
+        webs = self._graphs.get((*self._key, "webs", clip)) if window else None
+        if webs is None:
+            try:
+                webs = self.webs[clip]
+            except KeyError:
+                raise unknown from None
+            if not webs:
+                raise ValueError(f"clip {clip!r} has no match webs in the index searched")
+            if rows is not None and not window and sum(len(w.paths_cells) + len(w.bridges_cells) for _, w in webs) \
+                    > self.cfg.window_graph_states:
+                self._long.add(clip)
+                window = True
+            if window:  # its next windows pack from these while the memory cache holds them
+                size = sum(w.nbytes for _, w in webs)
+                bound = self._graphs.max_bytes
+                if bound is None or size <= bound // 2:
+                    self._graphs.put((*self._key, "webs", clip), webs, size)
         g = walk_graph(webs, rows if window else None)
         if fkey is not None:
             if window:

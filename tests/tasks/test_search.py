@@ -370,7 +370,9 @@ def test_long_clips_are_searched_through_window_graphs(chain, tmp_path) -> None:
     assert [(n.segment, n.distance, n.tier) for n in got.nodes] == [(n.segment, n.distance, n.tier) for n in want.nodes]
     assert part._long == {n.segment.clip for n in want.nodes}
     keys = part._graphs.oldest_first()
-    assert keys and all(len(k) == 3 and isinstance(k[2], tuple) for k in keys)
+    graphs = [k for k in keys if k[1] != "webs"]
+    assert graphs and all(len(k) == 3 and isinstance(k[2], tuple) for k in graphs)
+    assert {k[2] for k in keys if k[1] == "webs"} == part._long  # and each long clip's webs
     q = pc.query
     assert part.graph(q.clip, (q.start, q.end)).n_states < whole.graph(q.clip).n_states
     assert part.graph(q.clip, (q.start, q.end)) is part.graph(q.clip, (q.start, q.end))  # kept
@@ -381,6 +383,7 @@ def test_long_clips_are_searched_through_window_graphs(chain, tmp_path) -> None:
 
     def fresh() -> tuple[StoreWebs, MatchSearch]:
         src = StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), q.clip)
+        src.keep_webs = False  # as the service's worker reads them: webs not kept by the source
         return src, MatchSearch(src, SearchParams(window_graph_states=0), files=FileCache(tmp_path / "graphs", 1 << 30))
 
     src1, ms1 = fresh()
@@ -391,6 +394,19 @@ def test_long_clips_are_searched_through_window_graphs(chain, tmp_path) -> None:
     assert src2.reads == 0 and ms2.files.hits == len(want.nodes) and ms2.files.writes == 0
     assert [(n.segment, n.distance) for n in again.nodes] == [(n.segment, n.distance) for n in first.nodes] \
         == [(n.segment, n.distance) for n in want.nodes]
+    # a new window of a long clip packs from its webs kept in the memory cache (up to half its bound)
+    reads = src1.reads
+    other = ms1.graph(q.clip, (q.start + 1, q.end))
+    assert src1.reads == reads and other.n_states > 0
+    from motionweb.store.cache import LRU
+
+    src3 = StoreWebs.for_query(MotionStore(str(tmp_path / "store"), read_only=True), q.clip)
+    src3.keep_webs = False  # as the service's worker reads them: webs not kept by the source
+    small = MatchSearch(src3, SearchParams(window_graph_states=0), graphs=LRU(max_bytes=1000))
+    small.graph(q.clip, (q.start, q.end))
+    reads = src3.reads
+    small.graph(q.clip, (q.start + 1, q.end))
+    assert src3.reads == 2 * reads  # webs more than half the bound: not kept, read again
 
 
 @pytest.mark.skipif(not HAVE_SMAPS, reason="needs Linux's /proc/self/smaps")
