@@ -35,7 +35,11 @@ dropped: :meth:`FileCache.release` with ``sweep`` (after each request of a searc
 the mappings whose files are gone, so the disk held is the bound, plus at most half of it per process that
 idles with mappings of removed files (measured the hard way: a first search on the million-frame
 store wrote 23 GB of graph files in 12 min with a 24 GB bound and a mapping bound as large, and
-the disk filled past the bound by about 9 GB of removed files still mapped).
+the disk filled past the bound by about 9 GB of removed files still mapped). Each mapping also
+holds a file descriptor (Python's ``mmap`` keeps a duplicate of the file's), so the LRU is bounded
+in entries too, by a quarter of the process's limit on open files (:func:`mapping_slots`): the
+small graphs of a library of many short clips (~1-5 MB each) would otherwise exhaust a default
+limit of 1024 long before the bytes bound, and every read of the store would then fail.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ import json
 import logging
 import mmap
 import os
+import resource
 import threading
 import uuid
 import zlib
@@ -56,7 +61,7 @@ from motionweb.store.cache import LRU
 from motionweb.store.zarr_store import pack_arrays, unpack_arrays
 from numcodecs import Blosc
 
-__all__ = ["FileCache", "default_folder"]
+__all__ = ["FileCache", "default_folder", "mapping_slots"]
 
 T = TypeVar("T")
 
@@ -96,6 +101,16 @@ def _is_key(key: str) -> bool:
     return 8 <= len(key) <= 128 and all(c in "0123456789abcdef" for c in key)
 
 
+def mapping_slots() -> int:
+    """How many mappings a process keeps open (each holds a file descriptor): a quarter of its
+    soft limit on open files, at least 16. A process that may hold many (a search worker) raises
+    its soft limit first (``flows.app.worker``)."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY:
+        soft = 1 << 16
+    return max(16, int(soft) // 4)
+
+
 class FileCache:
     """Values ``(arrays, meta)`` under hex content keys in ``folder``, at most ``max_bytes`` of
     files (see the module notes). Thread- and process-safe: writes are atomic renames; an
@@ -110,7 +125,7 @@ class FileCache:
         self.hits = self.misses = self.writes = self.damaged = 0
         #: the values this process opened mapped, by key, with their mapping, charged their file's
         #: bytes: at most half the bound (see the module notes)
-        self._mapped = LRU(max_bytes=self.max_bytes // 2)
+        self._mapped = LRU(max_bytes=self.max_bytes // 2, max_items=mapping_slots())
         self._used: dict[str, mmap.mmap] = {}  # mappings handed out since the last :meth:`release`
 
     def _path(self, key: str) -> Path:

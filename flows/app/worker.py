@@ -302,12 +302,30 @@ def serve(fd: int, name: str, handlers: dict[str, Callable[[Any], Any]]) -> None
             return
 
 
+def raise_open_files(most: int = 1 << 16) -> int:
+    """Raise this process's soft limit on open files to its hard limit (at most ``most``) and
+    return the soft limit: each graph file a worker keeps mapped holds a descriptor
+    (``store.filecache.mapping_slots``), and a default soft limit of 1024 would cap them low."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    want = most if hard == resource.RLIM_INFINITY else min(int(hard), most)
+    if soft != resource.RLIM_INFINITY and soft < want:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+            soft = want
+        except (ValueError, OSError):  # not allowed here: keep the limit, the mappings follow it
+            pass
+    return int(soft)
+
+
 def child_main(fd: int, url: str, cache_bytes: int | None = None, files: tuple[str, int] | None = None) -> None:
     """The search worker: ("search", job) / ("warm", (gen, category)) / ("register", (gen,
     graph)) / ("open", _) / ("stats", _) through :func:`serve`; ``cache_bytes`` bounds its cache of webs and
     graphs, ``files`` (folder, bytes) its file cache of graphs."""
     from motionweb.tasks.search import MatchSearch  # noqa: F401  (import the heavy stack before "ready")
 
+    raise_open_files()  # before the file cache sizes its mappings by the limit
     state = _State(url, cache_bytes, files)
 
     def then_release(handler: Callable[[Any], Any]) -> Callable[[Any], Any]:

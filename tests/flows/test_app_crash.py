@@ -201,3 +201,22 @@ def test_no_worker_is_left_after_shutdown(crashy) -> None:
     assert not crashy.thread.is_alive()
     assert worker_pids() == set()  # none running, none a zombie: each was waited for
     assert [pid for pid in pids if psutil.pid_exists(pid)] == []
+
+
+def test_a_worker_raises_its_open_files_limit_for_its_mappings() -> None:
+    """Each graph file a search worker keeps mapped holds a descriptor: the worker raises its soft
+    limit on open files to the hard one (at most ``most``) before its file cache sizes its mappings
+    by it; a limit it may not raise is kept."""
+    import resource
+
+    from motionweb.flows.app.worker import raise_open_files
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    try:
+        low = 64 if hard == resource.RLIM_INFINITY else min(64, int(hard))
+        resource.setrlimit(resource.RLIMIT_NOFILE, (low, hard))
+        want = 512 if hard == resource.RLIM_INFINITY else min(int(hard), 512)
+        assert raise_open_files(most=512) == want == resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+        assert raise_open_files(most=32) == want  # never lowered
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))

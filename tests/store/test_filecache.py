@@ -174,6 +174,35 @@ def test_mappings_are_bounded_and_those_of_removed_files_dropped(tmp_path) -> No
     assert fc.open_mapped(keys[-1], _opened) is None and fc.open_mapped(keys[-2], _opened) is not None
 
 
+def test_mappings_are_bounded_by_the_open_files_limit(tmp_path, monkeypatch) -> None:
+    """Each mapping holds a file descriptor: a process keeps at most a quarter of its soft limit
+    on open files mapped (at least 16), and the descriptors of the mappings it dropped are closed."""
+    import gc
+    import os
+    import resource
+
+    from motionweb.store import filecache
+
+    monkeypatch.setattr(filecache.resource, "getrlimit", lambda what: (80, 4096))
+    assert filecache.mapping_slots() == 20
+    monkeypatch.setattr(filecache.resource, "getrlimit", lambda what: (8, 4096))
+    assert filecache.mapping_slots() == 16
+    monkeypatch.setattr(filecache.resource, "getrlimit", lambda what: (resource.RLIM_INFINITY,) * 2)
+    assert filecache.mapping_slots() == 1 << 14
+    monkeypatch.setattr(filecache.resource, "getrlimit", lambda what: (80, 4096))
+    fc = FileCache(tmp_path, 1 << 30)
+    fds = len(os.listdir("/proc/self/fd")) if os.path.isdir("/proc/self/fd") else None
+    for i in range(1, 41):
+        key = f"{i:064x}"
+        assert fc.put(key, {"x": np.full(100, float(i))}, {}, raw=True)
+        assert fc.open_mapped(key, _opened, count=False) is not None
+    fc.release()
+    gc.collect()
+    assert fc.stats()["mapped"]["entries"] == 20
+    if fds is not None:
+        assert len(os.listdir("/proc/self/fd")) <= fds + 20
+
+
 @pytest.mark.skipif(not HAVE_SMAPS, reason="needs Linux's /proc/self/smaps")
 def test_release_drops_the_pages_a_walk_read(tmp_path) -> None:
     """After :meth:`release`, the mapped pages read leave the process's resident memory; the
