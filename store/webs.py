@@ -11,7 +11,7 @@ default, so each web is read once; the service passes one bounded by bytes).
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -191,6 +191,30 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         recs = self.records()
         webs = self._read_many(recs)
         return [webs[r["key"]] for r in recs]
+
+    def map_webs(self, fn: Callable[[MatchWeb], Any], threads: int | None = None) -> list[Any]:
+        """``fn(web)`` of every web of the restriction once, in :meth:`records`'s order: a web in
+        the cache as it is, the others read in one pass over their shards shared among ``threads``
+        threads (``MotionStore.map_web_arrays``) and not kept, a web that pass does not give read
+        alone (:meth:`_load`, naming a missing or damaged one). For a pass whose answer per web is
+        small (a quantile's path values); ``fn`` runs in the reading threads. O(bytes of the
+        webs) / threads."""
+        recs = self.records()
+        out: dict[str, Any] = {}
+        missing: dict[str, dict[str, Any]] = {}
+        for r in recs:
+            web = self.cache.get(("web", r["key"]))
+            if web is not None:
+                out[r["key"]] = fn(web)
+            else:
+                missing[r["key"]] = r
+        got, alone = self.store.map_web_arrays(missing, lambda arrays: fn(MatchWeb.from_arrays(arrays)),
+                                               {k: r.get("shard") for k, r in missing.items()}, threads)
+        self.reads += len(got)
+        out.update(got)
+        for key in alone:
+            out[key] = fn(self._load(missing[key]))
+        return [out[r["key"]] for r in recs]
 
     def iter_webs(self) -> Iterator[MatchWeb]:
         """Every web of the restriction once, those not in the cache read and not kept: one pass

@@ -37,7 +37,7 @@ import json
 import os
 import threading
 import uuid
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -595,6 +595,31 @@ class MotionStore:
         for shard, items in local.items():
             for key, e, buf in self._shard_pass(shard, items):
                 yield key, None if buf is None else unpack_arrays(buf, e["layout"], e["start"])
+
+    def map_web_arrays(self, keys: Iterable[str], fn: Callable[[dict[str, np.ndarray]], Any],
+                       shards: Mapping[str, str | None] | None = None, threads: int | None = None
+                       ) -> tuple[dict[str, Any], list[str]]:
+        """:meth:`iter_web_arrays` with the shards shared among ``threads`` threads (default: one
+        per core, at most ``IO_THREADS``; the reads, Blosc and SHA-256 release the GIL), for a pass
+        whose answer per web is small (e.g. its path values for a quantile): ``fn(flat arrays)`` of
+        each web checked against its checksum, called in the reading thread on arrays valid during
+        the call only. Returns (``fn``'s answer by key, the keys not read so: missing, damaged or
+        on an object store, for the caller to read alone, first). O(bytes of the webs) / threads."""
+        local, alone = self._by_shard(keys, shards)
+
+        def part(item: tuple[str, list[tuple[int, str, dict[str, Any]]]]) -> list[tuple[str, bool, Any]]:
+            return [(key, buf is not None,
+                     None if buf is None else fn(unpack_arrays(buf, e["layout"], e["start"], copy=False)))
+                    for key, e, buf in self._shard_pass(*item)]
+
+        out: dict[str, Any] = {}
+        for piece in map_in_threads(part, list(local.items()), threads, IO_THREADS, "webs"):
+            for key, ok, value in piece:
+                if ok:
+                    out[key] = value
+                else:
+                    alone.append(key)
+        return out, alone
 
     def _by_shard(self, keys: Iterable[str], shards: Mapping[str, str | None] | None = None
                   ) -> tuple[dict[str, list[tuple[int, str, dict[str, Any]]]], list[str]]:

@@ -1105,9 +1105,19 @@ def remove_redundant(matches: Iterable[WebMatch], overlap: float) -> list[WebMat
 def sorted_path_values(webs: Iterable[MatchWeb]) -> np.ndarray:
     """The finite path values of ``webs``, sorted ``(N,)`` (their dtype, float32 as stored): any
     quantile of them is then a lookup (:func:`quantile_of_sorted`; design §5). O(N log N)."""
-    vals = [w.paths_values for w in webs]
-    allv = np.concatenate(vals) if vals else np.zeros(0)
-    return np.sort(allv[np.isfinite(allv)])
+    return sorted_values([finite_path_values(w) for w in webs])
+
+
+def finite_path_values(web: MatchWeb) -> np.ndarray:
+    """The finite path values of one web ``(n,)``, a copy (its dtype, float32 as stored)."""
+    v = web.paths_values
+    return v[np.isfinite(v)]
+
+
+def sorted_values(parts: list[np.ndarray]) -> np.ndarray:
+    """The values of ``parts`` (finite, each ``(n_i,)``) in one sorted array ``(Σ n_i,)``: the same
+    bytes whatever the order of the parts. O(N log N)."""
+    return np.sort(np.concatenate(parts)) if parts else np.zeros(0)
 
 
 def check_quantile(q: float) -> None:
@@ -1264,8 +1274,9 @@ class MatchSearch:
     def path_values(self, stream: bool = False) -> np.ndarray:
         """The scope's finite path values sorted ``(N,)`` float32 (:func:`sorted_path_values`),
         from the file cache, else one pass over every web of the scope (then kept there).
-        ``stream``: the webs read and not kept (``StoreWebs.iter_webs``), else kept in the
-        source's cache. O(N log N) the first time, O(N) read back."""
+        ``stream``: the webs read and not kept, their shards shared among one thread per core
+        (``StoreWebs.map_webs``; ``iter_webs`` for a source without it), else kept in the source's
+        cache. O(N log N) + O(bytes of the webs) / threads the first time, O(N) read back."""
         key = self._scope_file("path values sorted")
         if key is not None:
             kept = self.files.get(key)
@@ -1274,8 +1285,11 @@ class MatchSearch:
                 if (len(values) == kept[1].get("n") and np.isfinite(values).all()
                         and not (len(values) > 1 and np.any(values[1:] < values[:-1]))):
                     return values
-        webs = self.webs.iter_webs() if stream and hasattr(self.webs, "iter_webs") else self.webs.all_webs()
-        values = sorted_path_values(webs)
+        if stream and hasattr(self.webs, "map_webs"):  # the shards read by as many threads as cores
+            values = sorted_values(self.webs.map_webs(finite_path_values))
+        else:
+            values = sorted_path_values(self.webs.iter_webs() if stream and hasattr(self.webs, "iter_webs")
+                                        else self.webs.all_webs())
         if key is not None:
             self.files.put(key, {"values": values}, {"n": len(values)})
         return values

@@ -236,6 +236,43 @@ def test_a_pass_over_many_webs_reads_each_chunk_once_and_gives_each_web(tmp_path
     assert [k for k, a in writer.iter_web_arrays(list(written)) if a is None] == bad
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_map_web_arrays_answers_as_the_one_thread_pass(tmp_path, threads):
+    """``map_web_arrays``: ``fn`` of each web equal to :meth:`iter_web_arrays`'s arrays, the shards
+    shared among threads (``fn`` called in the pool's threads with 2), the webs that pass does not
+    give (never written, damaged) listed for the caller, none answered."""
+    import threading
+
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(11)
+    written = {}
+    for s in range(3):
+        batch = [(web_key(f"{s}{i:x}" * 32, "ab" * 32, "wd"), ragged_web(rng)) for i in range(7)]
+        store.write_webs([(k, w, {}) for k, w in batch])
+        written.update(batch)
+    never = web_key("dd" * 32, "dd" * 32, "wd")
+    reader = MotionStore(str(tmp_path / "s"), read_only=True)
+    where = []
+
+    def fn(arrays):
+        where.append(threading.current_thread() is threading.main_thread())
+        return {name: a.sum() for name, a in arrays.items()}, sorted(arrays)
+
+    got, alone = reader.map_web_arrays([*written, never], fn, threads=threads)
+    assert alone == [never] and set(got) == set(written)
+    for key, arrays in reader.iter_web_arrays(list(written)):
+        assert got[key] == ({name: a.sum() for name, a in arrays.items()}, sorted(arrays))
+    assert all(where) if threads == 1 else not any(where)
+    chunk = min((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))
+    data = bytearray(chunk.read_bytes())
+    data[40:60] = bytes(20)
+    chunk.write_bytes(bytes(data))
+    damaged = MotionStore(str(tmp_path / "s"), read_only=True)
+    bad = [k for k, a in damaged.iter_web_arrays(list(written)) if a is None]
+    got, alone = damaged.map_web_arrays(list(written), fn, threads=threads)
+    assert bad and sorted(alone) == sorted(bad) and set(got) == set(written) - set(bad)
+
+
 def test_damaged_or_missing_chunks_raise_naming_the_object(tmp_path):
     from motionweb.store.zarr_store import StoreIntegrityError
 

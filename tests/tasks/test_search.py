@@ -329,6 +329,17 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     src3, ms3 = fresh()
     assert ms3.graph(pc.query.clip).n_states == ms1.graph(pc.query.clip).n_states and src3.reads > 0
     assert files.get(fkey)[1]["layout"] == WalkGraph.LAYOUT
+    # a pass over the scope's webs with the shards read in threads answers as the webs one by one
+    from motionweb.tasks.search import finite_path_values
+
+    srcm, _ = fresh()
+    want_v = [finite_path_values(w) for w in srcm.all_webs()]  # in records() order, now all in the cache
+    reads = srcm.reads
+    fresh_src, _ = fresh()
+    for src in (fresh_src, srcm):  # read from the store, then from srcm's cache
+        got_v = src.map_webs(finite_path_values, threads=2)
+        assert len(got_v) == len(want_v) and all(np.array_equal(a, b) for a, b in zip(got_v, want_v, strict=True))
+        assert src.reads == reads > 0  # each web read once by the pass; none by srcm's (all cached)
     # a scope's quantile of web values is kept too: a later search of the scope reads no web for it
     src4, ms4 = fresh()
     want_q = epsilon_from_quantile(list(src4.iter_webs()), 0.3)
