@@ -53,6 +53,7 @@ import hashlib
 import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from motionweb.store.cache import LRU, array_bytes
@@ -1127,12 +1128,35 @@ def check_quantile(q: float) -> None:
 
 
 def quantile_of_sorted(values: np.ndarray, q: float) -> float:
-    """ε as the ``q`` quantile (0..1) of ``values`` (:func:`sorted_path_values`; numpy's linear
-    rule, which reads only the order statistics: the same as of the values unsorted)."""
+    """ε as the ``q`` quantile (0..1) of ``values`` sorted ``(N,)`` (:func:`sorted_path_values`):
+    numpy's linear rule, which reads the two order statistics around ``q·(N − 1)``, so it is taken
+    of those two alone (``np.quantile`` of the pair at the same fraction: the same float as of all
+    ``values``, tests/tasks/test_search_props.py), O(1) instead of numpy's O(N) partition."""
     check_quantile(q)
-    if not len(values):
+    n = len(values)
+    if not n:
         raise ValueError("no match web values to take a quantile of (empty index or chunk)")
-    return float(np.quantile(values, q))
+    at = (n - 1) * float(q)
+    lo = min(int(np.floor(at)), n - 1)
+    return float(np.quantile(np.asarray(values[lo:lo + 2]), at - lo))
+
+
+#: values checked per step of :func:`_sorted_values` (4 bytes each: a 64 MB temporary)
+_CHECK_BLOCK = 1 << 24
+
+
+def _sorted_values(arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> np.ndarray:
+    """The opener of a scope's kept sorted values (:meth:`MatchSearch.path_values`): the array
+    ``(N,)`` after checking it is one flat array of ``meta["n"]`` finite values in increasing
+    order (ValueError otherwise: the file is computed again and replaced). O(N), in blocks."""
+    v = arrays.get("values")
+    if set(arrays) != {"values"} or v is None or v.ndim != 1 or len(v) != meta.get("n"):
+        raise ValueError("not a scope's sorted path values")
+    for lo in range(0, len(v), _CHECK_BLOCK):
+        block = v[lo:lo + _CHECK_BLOCK + 1]
+        if not np.isfinite(block).all() or np.any(block[1:] < block[:-1]):
+            raise ValueError("a scope's path values out of order or not finite")
+    return v
 
 
 def epsilon_from_quantile(webs: Iterable[MatchWeb], q: float) -> float:
@@ -1258,8 +1282,8 @@ class MatchSearch:
         """ε as the ``q`` quantile of the searched webs' path values (:func:`epsilon_from_quantile`).
         The scope's sorted values (:meth:`path_values`) are kept in the file cache when the source
         names its content, so any quantile of a scope costs one pass over its webs, once for every
-        process (about 3 s for a 16,290-web category of the 381k-frame demo store), then a file
-        read; each quantile's value is kept too (a few bytes). ``stream``: see :meth:`path_values`."""
+        process (about 3 s for a 16,290-web category of the 381k-frame demo store), then a lookup
+        in the mapped file; each quantile's value is kept too (a few bytes). ``stream``: see :meth:`path_values`."""
         check_quantile(q)
         key = self._scope_file(f"path value quantile {float(q)!r}")
         if key is not None:
@@ -1273,25 +1297,24 @@ class MatchSearch:
 
     def path_values(self, stream: bool = False) -> np.ndarray:
         """The scope's finite path values sorted ``(N,)`` float32 (:func:`sorted_path_values`),
-        from the file cache, else one pass over every web of the scope (then kept there).
+        from the file cache (kept raw and mapped, :meth:`FileCache.open_mapped`: checked once per
+        process, then a quantile reads two of its values), else one pass over every web of the
+        scope (then kept there).
         ``stream``: the webs read and not kept, their shards shared among one thread per core
         (``StoreWebs.map_webs``; ``iter_webs`` for a source without it), else kept in the source's
         cache. O(N log N) + O(bytes of the webs) / threads the first time, O(N) read back."""
         key = self._scope_file("path values sorted")
-        if key is not None:
-            kept = self.files.get(key)
-            if kept is not None and set(kept[0]) == {"values"} and kept[0]["values"].ndim == 1:
-                values = kept[0]["values"]
-                if (len(values) == kept[1].get("n") and np.isfinite(values).all()
-                        and not (len(values) > 1 and np.any(values[1:] < values[:-1]))):
-                    return values
+        if key is not None and (values := self.files.open_mapped(key, _sorted_values)) is not None:
+            return values
         if stream and hasattr(self.webs, "map_webs"):  # the shards read by as many threads as cores
             values = sorted_values(self.webs.map_webs(finite_path_values))
         else:
             values = sorted_path_values(self.webs.iter_webs() if stream and hasattr(self.webs, "iter_webs")
                                         else self.webs.all_webs())
-        if key is not None:
-            self.files.put(key, {"values": values}, {"n": len(values)})
+        if key is not None and len(values) and self.files.put(key, {"values": values}, {"n": len(values)}, raw=True):
+            mapped = self.files.open_mapped(key, _sorted_values, count=False)
+            if mapped is not None:  # the file's pages, not a second copy in this process
+                return mapped
         return values
 
     def _scope_file(self, salt: str) -> str | None:

@@ -356,10 +356,16 @@ def test_graph_files_give_the_packed_graph_and_the_same_search(chain, tmp_path) 
     vkey = src6.scope_key("path values sorted")
     values = files.get(vkey)[0]["values"]
     assert values.dtype == np.float32 and np.all(np.diff(values) >= 0)
-    files.put(vkey, {"values": values[::-1].copy()}, {"n": len(values)})  # not sorted: taken again
-    src7, ms7 = fresh()
-    assert np.array_equal(ms7.path_values(), values) and src7.reads > 0
-    assert np.array_equal(files.get(vkey)[0]["values"], values)
+    kept = ms6.path_values()
+    assert not kept.flags.owndata and ms6.path_values() is kept  # a view of the mapped file, opened once
+    for raw in (False, True):  # not sorted (compressed, or raw and mapped): taken again, and replaced
+        files.put(vkey, {"values": values[::-1].copy()}, {"n": len(values)}, raw=raw)
+        src7, ms7 = fresh()
+        assert np.array_equal(ms7.path_values(), values) and src7.reads > 0
+        assert np.array_equal(files.get(vkey)[0]["values"], values)
+    files.put(vkey, {"values": values}, {"n": len(values) + 1}, raw=True)  # another count: refused too
+    src8, ms8 = fresh()
+    assert np.array_equal(ms8.path_values(), values) and src8.reads > 0
     # a source that does not name its webs' content (a plain mapping) keeps no files
     assert MatchSearch(webs, files=files).files is None
 

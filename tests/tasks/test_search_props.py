@@ -320,3 +320,16 @@ def test_malformed_webs_are_refused_or_cut_not_walked_out_of_bounds() -> None:
         for b in range(a, 4):
             for m in walk_web(back, a, b, 1e30):
                 assert np.all(np.diff(m.cells.astype(np.int64), axis=0) >= 0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(0, 1e3, width=32, allow_subnormal=False), min_size=1, max_size=60),
+       st.one_of(st.sampled_from([0.0, 1.0, 0.5, 0.05, 1 / 3]), st.floats(0, 1)))
+def test_a_quantile_of_sorted_values_is_numpys_of_them_all(values, q) -> None:
+    """``quantile_of_sorted`` reads the two order statistics around q·(N − 1): the same float as
+    ``np.quantile`` of all the values (numpy's linear rule), any size, any q in [0, 1]."""
+    from motionweb.tasks.search import quantile_of_sorted
+
+    v = np.sort(np.array(values, np.float32))
+    assert quantile_of_sorted(v, q) == float(np.quantile(v, q))
+    assert quantile_of_sorted(v, q) == float(np.quantile(v[::-1].copy(), q))
