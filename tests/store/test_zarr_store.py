@@ -186,6 +186,17 @@ def test_a_reader_reads_local_shards_directly_as_zarr_does(tmp_path):
         damaged.read_web_arrays(keys[0])
 
 
+def _damage_a_shard(root, keys):
+    """Zero 20 bytes of the first shard file of ``root``'s webs: (a reader opened after it, the
+    keys of ``keys`` its one-pass read no longer gives)."""
+    chunk = min((root / "webs" / "shards" / "wd").rglob("c/0"))
+    data = bytearray(chunk.read_bytes())
+    data[40:60] = bytes(20)
+    chunk.write_bytes(bytes(data))
+    damaged = MotionStore(str(root), read_only=True)
+    return damaged, [k for k, a in damaged.iter_web_arrays(keys) if a is None]
+
+
 def test_a_pass_over_many_webs_reads_each_chunk_once_and_gives_each_web(tmp_path, monkeypatch):
     """``iter_web_arrays`` gives every asked web once, equal to a read alone, over shards and
     chunk boundaries, in the store's order, each inner chunk decompressed once; a web whose bytes
@@ -223,12 +234,7 @@ def test_a_pass_over_many_webs_reads_each_chunk_once_and_gives_each_web(tmp_path
     assert len(runs) == len(set(runs)) == 3  # shard by shard
     assert all(a[1] < b[1] for a, b in itertools.pairwise(order) if a[0] == b[0])  # by offset in each
     monkeypatch.undo()
-    chunk = min((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))
-    data = bytearray(chunk.read_bytes())
-    data[40:60] = bytes(20)
-    chunk.write_bytes(bytes(data))
-    damaged = MotionStore(str(tmp_path / "s"), read_only=True)
-    bad = [k for k, a in damaged.iter_web_arrays(list(written)) if a is None]
+    damaged, bad = _damage_a_shard(tmp_path / "s", list(written))
     assert bad
     with pytest.raises(StoreIntegrityError, match=bad[0]):
         damaged.read_web_arrays(bad[0])
@@ -263,12 +269,7 @@ def test_map_web_arrays_answers_as_the_one_thread_pass(tmp_path, threads):
     for key, arrays in reader.iter_web_arrays(list(written)):
         assert got[key] == ({name: a.sum() for name, a in arrays.items()}, sorted(arrays))
     assert all(where) if threads == 1 else not any(where)
-    chunk = min((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))
-    data = bytearray(chunk.read_bytes())
-    data[40:60] = bytes(20)
-    chunk.write_bytes(bytes(data))
-    damaged = MotionStore(str(tmp_path / "s"), read_only=True)
-    bad = [k for k, a in damaged.iter_web_arrays(list(written)) if a is None]
+    damaged, bad = _damage_a_shard(tmp_path / "s", list(written))
     got, alone = damaged.map_web_arrays(list(written), fn, threads=threads)
     assert bad and sorted(alone) == sorted(bad) and set(got) == set(written) - set(bad)
 
