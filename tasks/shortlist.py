@@ -40,11 +40,11 @@ windows' least nearest, but a match's cost is a path average at the finest rate 
 rules, often 10-100 × its windows' descriptor distances (bench corpus: a sitting query's windows
 are at 0.06 ε on average, some at 0: exact copies of a still pose), so 4 leaves the bench's sitting
 hubs at recall 0 and 8 recovers them. A query whose nearest match is far (nothing in the library
-moves like it, though each of its windows has near copies) gets an ε up to ~1000 × its windows'
-nearest distances, and its tiers 2-3 return thousands of matches along most pairs of the library
+moves like it, though each of its windows has near copies) gets an ε hundreds of times its windows'
+nearest distances (one bench query: 300 ×), and its tiers 2-3 return thousands of matches along most pairs of the library
 (one bench query: 5,589 matches along 80% of the cross pairs). Those few queries decide recall
 pooled over queries: on the bench corpus (``bench/shortlist.py``, 100 queries, 3 tiers) 8 keeps 23%
-of the pairs at recall 0.22 pooled (0.95 per query on average), 12 and 16 keep 35% and 42% at
+of the pairs at recall 0.22 pooled (0.95 per query on average), 12 to 24 keep 35% to 56% at
 0.70, 32 keeps 67% at 0.957 (0.994 per query). The default is 32, the least measured ratio that
 meets recall ≥ 0.95 pooled; a library that can give up those queries' far matches saves more
 pairs with 8-12. The radius r = ``hub_ratio`` × d₁ is taken from the window's own nearest, so it scales with the
