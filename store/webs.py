@@ -62,6 +62,7 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         np.minimum.at(first, end, np.concatenate([2 * ids, 2 * other + 1]))
         order = np.lexsort((web, end))
         self._ids = web[order]
+        self._scope_text: bytes | None = None  # the restriction's web keys, one a line (scope_key)
         self._ptr = np.concatenate([[0], np.cumsum(np.bincount(end, minlength=len(paths)))])
         self._row = {p: i for i, p in enumerate(paths) if self._ptr[i + 1] > self._ptr[i]}
         self._order = [paths[i] for i in np.argsort(first, kind="stable") if paths[i] in self._row]
@@ -149,10 +150,13 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
     def scope_key(self, salt: str) -> str:
         """A hex key of every web of the restriction (:meth:`records`'s, by their content keys, in
         the manifest's order) and ``salt``: e.g. a quantile of their values kept under it. O(webs)
-        in numpy, no web read."""
-        values, codes = self.table.strings("key")
+        in numpy the first time (~0.13 s for a 16,290-web category of the 381k store: the keys' text,
+        then kept), O(bytes of the keys) after, no web read."""
+        if self._scope_text is None:
+            values, codes = self.table.strings("key")
+            self._scope_text = "\n".join(values[c] for c in codes[np.unique(self._ids)]).encode()
         h = hashlib.sha256(salt.encode())
-        h.update("\n".join(values[c] for c in codes[np.unique(self._ids)]).encode())
+        h.update(self._scope_text)
         return h.hexdigest()
 
     def __getitem__(self, clip: str) -> list[tuple[str, MatchWeb]]:
