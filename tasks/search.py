@@ -1300,17 +1300,15 @@ class MatchSearch:
         from the file cache (kept raw and mapped, :meth:`FileCache.open_mapped`: checked once per
         process, then a quantile reads two of its values), else one pass over every web of the
         scope (then kept there).
-        ``stream``: the webs read and not kept, their shards shared among one thread per core
-        (``StoreWebs.map_webs``; ``iter_webs`` for a source without it), else kept in the source's
-        cache. O(N log N) + O(bytes of the webs) / threads the first time, O(N) read back."""
+        ``stream`` (a source with ``map_webs``, the store's): the webs read and not kept, their
+        shards shared among one thread per core, else kept in the source's cache. O(N log N) + O(bytes of the webs) / threads the first time, O(N) read back."""
         key = self._scope_file("path values sorted")
         if key is not None and (values := self.files.open_mapped(key, _sorted_values)) is not None:
             return values
         if stream and hasattr(self.webs, "map_webs"):  # the shards read by as many threads as cores
             values = sorted_values(self.webs.map_webs(finite_path_values))
         else:
-            values = sorted_path_values(self.webs.iter_webs() if stream and hasattr(self.webs, "iter_webs")
-                                        else self.webs.all_webs())
+            values = sorted_path_values(self.webs.all_webs())
         if key is not None and len(values) and self.files.put(key, {"values": values}, {"n": len(values)}, raw=True):
             mapped = self.files.open_mapped(key, _sorted_values, count=False)
             if mapped is not None:  # the file's pages, not a second copy in this process
