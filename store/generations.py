@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from typing import Any
 
+from motionweb.store.gcpause import gc_paused
 from motionweb.store.keys import SHARDS, STORE_SCHEMA, grid_key
 from motionweb.store.webtable import parse_manifest
 from motionweb.store.zarr_store import MotionStore, StoreError, now_iso
@@ -158,13 +159,14 @@ def _manifest(store: MotionStore, gen_id: str, sha256: str | None = None, lean: 
     raw = store.fs.cat_file(store.path(_manifest_path(gen_id)))
     digest = hashlib.sha256(raw).hexdigest() if sha256 is not None else None
     try:
-        if lean:
-            text = raw.decode()
-            del raw  # the bytes and their text are each as large as the manifest
-            data = parse_manifest(text)
-            del text
-        else:
-            data = json.loads(raw)
+        with gc_paused(keep=not lean):  # a manifest is O(webs) objects (lean: a compact table)
+            if lean:
+                text = raw.decode()
+                del raw  # the bytes and their text are each as large as the manifest
+                data = parse_manifest(text)
+                del text
+            else:
+                data = json.loads(raw)
     except UnicodeDecodeError:
         raise ValueError("is not text (garbage bytes)") from None
     except ValueError as exc:

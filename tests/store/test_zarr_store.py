@@ -358,3 +358,70 @@ def test_verify_webs_in_one_pass_says_what_verify_says_of_each(tmp_path, threads
     assert got == want and list(got) == ask
     assert got[keys[1]] is None and got[keys[0]] == "checksum differs from the manifest's" and got[ask[-1]] == "missing"
     assert 0 < sum(v is not None and v != "missing" and k != keys[0] for k, v in got.items()) < len(keys)
+
+
+@pytest.mark.parametrize("pass_bytes", [1, 5000, 1 << 25])
+def test_a_pass_in_runs_of_any_size_answers_as_reads_alone(tmp_path, monkeypatch, pass_bytes):
+    """``_shard_pass`` takes a shard's webs in runs of at most ``PASS_BYTES`` decompressed bytes
+    (a larger web alone): whatever the run size, verify_webs and map_web_arrays answer as each
+    web read alone does, a damaged chunk costing only the webs of its run (read alone, they say
+    why)."""
+    from motionweb.store import zarr_store
+
+    monkeypatch.setattr(zarr_store, "PASS_BYTES", pass_bytes)
+    store = MotionStore(str(tmp_path / "s"))
+    rng = np.random.default_rng(31)
+    keys = []
+    for s in range(2):
+        batch = [(web_key(f"{s}{i:063d}", SHA_A, "wd"), ragged_web(rng), {}) for i in range(14)]
+        store.write_webs(batch)
+        keys += [k for k, _, _ in batch]
+    alone = {k: store.read_web_arrays(k)[0] for k in keys}
+    got, missed = MotionStore(str(tmp_path / "s")).map_web_arrays(keys, lambda a: {n: v.copy() for n, v in a.items()})
+    assert missed == [] and sorted(got) == sorted(keys)
+    for k in keys:
+        assert alone[k].keys() == got[k].keys()
+        for name in alone[k]:
+            np.testing.assert_array_equal(got[k][name], alone[k][name])
+    assert MotionStore(str(tmp_path / "s")).verify_webs(keys) == dict.fromkeys(keys)
+    chunk = sorted((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))[0]
+    data = bytearray(chunk.read_bytes())
+    data[60:80] = bytes(20)  # inside the first inner chunk of the first shard
+    chunk.write_bytes(bytes(data))
+    fresh = MotionStore(str(tmp_path / "s"))
+    want = {k: MotionStore(str(tmp_path / "s")).verify(k) for k in keys}
+    assert fresh.verify_webs(keys) == want
+    assert any(v is not None for v in want.values()) and want[keys[-1]] is None
+
+
+def test_features_are_read_from_their_chunk_files_as_zarr_reads_them(tmp_path, monkeypatch):
+    """A packed object on a local disk is read from its chunk files without zarr (the edge chunk
+    padded, a missing chunk the fill value) and gives zarr's bytes; damage is found and named as
+    through zarr; the header an instance keeps is dropped when it rewrites the object."""
+    from motionweb.store import zarr_store
+    from motionweb.store.zarr_store import StoreIntegrityError
+
+    monkeypatch.setattr(zarr_store, "PACKED_CHUNK", 4096)  # several chunks, the last one short
+    rng = np.random.default_rng(4)
+    feats = {30.0: rng.random((40, 30, 3)).astype(np.float32)}
+    store = MotionStore(str(tmp_path / "s"))
+    key = store.write_features(SHA_A, "fd", feats, np.ones(30))
+    fresh = MotionStore(str(tmp_path / "s"))
+    got, _ = fresh.read_features(SHA_A, "fd")
+    np.testing.assert_array_equal(got[30.0], feats[30.0])
+    assert key in fresh._plain and fresh.verify(key) is None
+    z = zarr.open_array(str(tmp_path / "s" / key), mode="r")
+    n = z.shape[0]
+    assert n % 4096 and n > 3 * 4096
+    np.testing.assert_array_equal(fresh._read_plain(key, n, None), np.asarray(z[:]))
+    again = {30.0: feats[30.0] + 1}
+    fresh.write_features(SHA_A, "fd", again, np.ones(30))  # rewritten by this instance: read afresh
+    np.testing.assert_array_equal(fresh.read_features(SHA_A, "fd")[0][30.0], again[30.0])
+    chunks = sorted(p for p in (tmp_path / "s" / key / "c").iterdir())
+    chunks[1].unlink()  # zarr reads a missing chunk as zeros: the checksum tells
+    fresh = MotionStore(str(tmp_path / "s"))
+    assert fresh.verify(key).startswith("is damaged")
+    with pytest.raises(StoreIntegrityError, match=key):
+        fresh.read_features(SHA_A, "fd")
+    chunks[2].write_bytes(b"not blosc")
+    assert MotionStore(str(tmp_path / "s")).verify(key).startswith("is unreadable")
