@@ -576,7 +576,7 @@ def catalog_task(cfg: Config) -> Catalog:
 @task(name="plan", no_cache=True)
 def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
               keep: dict[str, ShortlistReport] | None = None, stage: str = "all",
-              verified: dict[str, str | None] | None = None) -> list[ChunkPlan]:
+              verified: dict[str, str | None] | None = None, store: MotionStore | None = None) -> list[ChunkPlan]:
     """Pair plan of every chunk, split into cached and to-compute by the store.
 
     Every object reused is verified first (read whole, checksum against the one recorded with
@@ -586,9 +586,12 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
     A shortlist run plans twice: ``stage="features"`` the clips lacking features (no pairs),
     then ``stage="pairs"`` the pairs of each chunk's shortlist (``keep``, by chunk name).
     ``verified``: the answers by object key, filled here (and those already in it taken: a
-    plan of the same store and generation, see :data:`VERIFIED`).
+    plan of the same store and generation, see :data:`VERIFIED`). ``store``: the run's instance of
+    the store, whose index of the web shards the commit then reuses (else one of its own): only
+    for a run that writes no web in between (:func:`unchanged_summary`), as an instance that has
+    taken in a web's shard does not look for a newer shard holding it.
     """
-    store = MotionStore(cfg.store.path)
+    store = store if store is not None else MotionStore(cfg.store.path)
     fdig = feature_digest(cfg)
     rates = [float(r) for r in cfg.features.rates]
     expected = prev.checksums if prev else {}
@@ -802,7 +805,8 @@ def unchanged_summary(cfg: Config, handover: dict[str, Any] | None = None) -> di
             shortlists = shortlist_task.fn(chunks, cfg, set(), prev)
             timings["shortlist_s"] = time.perf_counter() - t
         verified: dict[str, str | None] = {}
-        plans = plan_task.fn(chunks, cfg, prev, shortlists, stage="pairs" if shortlists else "all", verified=verified)
+        plans = plan_task.fn(chunks, cfg, prev, shortlists, stage="pairs" if shortlists else "all", verified=verified,
+                             store=store)
         if handover is not None:
             handover.update({"store": store.url, "generation": prev.id, "objects": verified})
         timings["plan_s"] = time.perf_counter() - t

@@ -643,7 +643,9 @@ class MotionStore:
         except FileNotFoundError:
             return
         seen = self._shards if not self.read_only else self._seen_shards
-        with gc_paused(keep=True):  # O(webs) entries kept: see store/gcpause.py
+        # a writer keeps O(webs) parsed entries: out of the collector's reach once in (store/gcpause.py);
+        # a reader (a long-lived service) keeps them compact and freezes nothing
+        with gc_paused(keep=not self.read_only):
             self._take_in_shards(wdig, entries, seen)
 
     def _take_in_shards(self, wdig: str, entries: list[dict[str, Any]], seen: Mapping[str, Any]) -> None:

@@ -210,6 +210,30 @@ def test_current_generation_parses_the_manifest_once(tmp_path, monkeypatch, lean
     assert current_generation(MotionStore(str(tmp_path / "empty"))) is None
 
 
+def test_the_current_manifest_is_parsed_once_per_run_unless_its_bytes_change(tmp_path, monkeypatch):
+    """A rerun reads the current manifest at its start, then gc checks it and lists what it keeps:
+    the same bytes are parsed once (each read still hashed); other kept manifests are parsed, and
+    the current one again once its bytes differ (an edit is then damage the pointer's checksum
+    finds)."""
+    store, g1, g2 = _two_generations(tmp_path)
+    parsed: list[str] = []
+    real = Generation.from_dict
+
+    def counting(data):
+        parsed.append(data.get("id"))
+        return real(data)
+
+    monkeypatch.setattr(Generation, "from_dict", staticmethod(counting))
+    assert current_generation(store, strict=True).id == g2.id
+    assert check_current(store) == g2.id
+    assert gc(store) == []
+    assert sorted(parsed) == sorted([g1.id, g2.id]) and parsed.count(g2.id) == 1
+    _damage(tmp_path, "edited manifest", g2)
+    with pytest.raises(PointerError, match="differs from the checksum"):
+        check_current(store)
+    assert parsed.count(g2.id) == 2
+
+
 @pytest.mark.parametrize("kind", ["truncated pointer", "edited manifest"])
 def test_current_generation_strict_raises_reader_falls_back(tmp_path, caplog, kind):
     store, g1, g2 = _two_generations(tmp_path)
