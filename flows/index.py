@@ -565,10 +565,24 @@ def _workers(address: str) -> int:
 
 
 # ---------------------------------------------------------------------------- Prefect tasks
+def known_clips(prev: Generation | None, cfg: Config) -> dict[str, dict[str, Any]]:
+    """The clip records of generation ``prev`` by corpus path, for the scan to describe unchanged
+    BVH files from (``store.catalog.scan_corpus`` ``known``); {} when there is none, or when it
+    was scanned with other corpus settings or another version of this package (a description
+    could then differ)."""
+    if prev is None or not isinstance(prev.config, dict):
+        return {}
+    if (prev.config.get("corpus") != cfg.corpus.model_dump(mode="json")
+            or prev.versions.get("motionweb") != package_versions().get("motionweb")):
+        return {}
+    return {c["path"]: c for c in prev.clips if isinstance(c, dict) and isinstance(c.get("path"), str)}
+
+
 @task(name="catalog", no_cache=True)
-def catalog_task(cfg: Config) -> Catalog:
-    """Scan the corpus (hash, label, describe every clip; broken files listed, not fatal)."""
-    cat = scan_corpus(cfg.corpus.path, cfg.corpus)
+def catalog_task(cfg: Config, known: dict[str, dict[str, Any]] | None = None) -> Catalog:
+    """Scan the corpus (hash, label, describe every clip; broken files listed, not fatal;
+    ``known``: see :func:`known_clips`)."""
+    cat = scan_corpus(cfg.corpus.path, cfg.corpus, known=known)
     run_logger().info("catalog: %d clips, %d unreadable", len(cat.entries), len(cat.errors))
     return cat
 
@@ -792,7 +806,7 @@ def unchanged_summary(cfg: Config, handover: dict[str, Any] | None = None) -> di
     plain = logging.getLogger("motionweb.flows")
     level, plain.level = plain.level, logging.ERROR  # what the plan finds damaged, the flow's run reports
     try:
-        catalog = catalog_task.fn(cfg)
+        catalog = catalog_task.fn(cfg, known_clips(prev, cfg))
         if not catalog.entries:
             return None
         timings["catalog_s"] = time.perf_counter() - t0

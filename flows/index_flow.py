@@ -23,6 +23,7 @@ from motionweb.flows.index import (
     features_task,
     finish,
     frames_at,
+    known_clips,
     plan_chunks,
     plan_task,
     repair_note,
@@ -61,7 +62,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     if repaired:
         logger.warning("%s: %s", store.url, repaired)
 
-    catalog = catalog_task(cfg)
+    catalog = catalog_task(cfg, quote(known_clips(prev, cfg)))
     if not catalog.entries:
         raise ValueError(f"corpus {catalog.root} holds no readable clip ({len(catalog.errors)} unreadable "
                          "files): nothing to index")

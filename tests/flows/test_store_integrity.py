@@ -264,3 +264,29 @@ def test_corpus_through_symlinks(tmp_path: Path) -> None:
 def _quiet(monkeypatch):
     for var, value in [("PREFECT_LOGGING_LEVEL", "WARNING"), ("DASK_LOGGING__DISTRIBUTED", "warning")]:
         monkeypatch.setenv(var, value)
+
+
+def test_a_rerun_parses_only_the_clips_that_changed(prefect_harness, tmp_path: Path, monkeypatch) -> None:
+    """The scan of a rerun describes the unchanged clips from the current generation's records
+    (hashed, not parsed; ``flows.index.known_clips``), through the CLI's check without Prefect and
+    through the flow; a changed clip is parsed, and indexed as a full scan would index it."""
+    import motionweb.store.catalog as catalog
+    from motionweb.flows.index import unchanged_summary
+
+    corpus = small_corpus(tmp_path / "corpus")
+    cfg, _ = config(tmp_path, corpus)
+    first = index_library(cfg)
+    parsed: list[str] = []
+    real = catalog.read_motion
+    monkeypatch.setattr(catalog, "read_motion", lambda path, **kw: parsed.append(Path(path).name) or real(path, **kw))
+    assert unchanged_summary(cfg)["generation"] == first["generation"]
+    assert index_library(cfg)["generation"] == first["generation"]
+    assert parsed == []
+    write_bvh(wiggle(50, 30.0, seed=9), corpus / "walk" / "w1.bvh")
+    second = index_library(cfg)
+    assert set(parsed) == {"w1.bvh"} and second["pairs_computed"] >= 1  # by the scan, then for its features
+    monkeypatch.undo()
+    gen = load_generation(MotionStore(cfg.store.path))
+    full = {e.path: e for e in catalog.scan_corpus(corpus, cfg.corpus).entries}
+    assert {c["path"]: (c["sha256"], c["frames"], c["skeleton"]) for c in gen.clips} == {
+        p: (e.sha256, e.frames, e.skeleton) for p, e in full.items()}

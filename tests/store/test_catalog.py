@@ -81,3 +81,44 @@ def test_load_clip_and_change_detection(corpus: Path) -> None:
         load_clip(entry, CorpusParams())
     with pytest.raises(KeyError, match="nope"):
         cat.find("nope")
+
+
+def test_unchanged_clips_described_before_are_not_parsed_again(corpus: Path, monkeypatch) -> None:
+    """A scan given the records of an earlier one (``known``, as a generation lists its clips)
+    describes each BVH whose bytes are unchanged from its record, without parsing it: the same
+    catalog as a full scan. A changed file, one whose sidecar now gives another unit, a record
+    for another path, and a broken file are read as before; a sidecar that keeps the unit is
+    read, not the clip."""
+    import json
+    from dataclasses import asdict
+
+    import motionweb.store.catalog as catalog
+
+    full = scan_corpus(corpus)
+    known = {e.path: {k: v for k, v in asdict(e).items() if k != "abs_path"} | {"chunk": e.category}
+             for e in full.entries}
+    parsed: list[str] = []
+    real = catalog.read_motion
+
+    def counting(path, **kw):
+        parsed.append(Path(path).name)
+        return real(path, **kw)
+
+    monkeypatch.setattr(catalog, "read_motion", counting)
+    assert scan_corpus(corpus, known=known).to_dict() == full.to_dict()
+    assert parsed == ["broken.bvh"]
+
+    (corpus / "walk" / "w1.json").write_text(json.dumps({"actions": [], "unit": known["walk/w1.bvh"]["unit"]}))
+    parsed.clear()
+    assert scan_corpus(corpus, known=known).to_dict() == full.to_dict() and parsed == ["broken.bvh"]
+    write_bvh(tiny_motion(40, 30.0), corpus / "walk" / "w1.bvh")  # changed: 40 frames now
+    (corpus / "loose.json").write_text(json.dumps({"unit": "cm"}))  # a sidecar beside loose.bvh
+    known["walk/w2.bvh"] = known["jump/deep/j1.bvh"]  # a record for another path's bytes
+    write_bvh(tiny_motion(30, 30.0), corpus / "walk" / "w2.bvh")
+    parsed.clear()
+    again = scan_corpus(corpus, known=known)
+    monkeypatch.undo()
+    assert sorted(parsed) == ["broken.bvh", "loose.bvh", "w1.bvh", "w2.bvh"]
+    assert again.to_dict() == scan_corpus(corpus).to_dict()
+    by = {e.path: e for e in again.entries}
+    assert by["walk/w1.bvh"].frames == 40 and by["loose.bvh"].unit == "cm"
