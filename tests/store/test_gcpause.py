@@ -57,3 +57,21 @@ def test_kept_objects_leave_the_collectors_reach() -> None:
         assert gc.get_freeze_count() >= before + len(held)
     finally:
         gc.unfreeze()
+
+
+def test_garbage_made_before_a_kept_block_is_collected_not_frozen() -> None:
+    import weakref
+
+    class Node:
+        pass
+
+    a, b = Node(), Node()
+    a.other, b.other = b, a  # a reference cycle: only the collector frees it
+    gone = weakref.ref(a)
+    del a, b
+    try:
+        with gc_paused(keep=True):
+            pass
+        assert gone() is None
+    finally:
+        gc.unfreeze()
