@@ -15,6 +15,17 @@ SHA_A = "a" * 64
 SHA_B = "b" * 64
 
 
+def write_shards(store: MotionStore, seed: int, shards: int, per_shard: int, sha: str) -> list[str]:
+    """Write ``shards`` batches of ``per_shard`` random ragged webs (one shard each); their keys."""
+    rng = np.random.default_rng(seed)
+    keys = []
+    for s in range(shards):
+        batch = [(web_key(f"{s}{i:063d}", sha, "wd"), ragged_web(rng), {}) for i in range(per_shard)]
+        store.write_webs(batch)
+        keys += [k for k, _, _ in batch]
+    return keys
+
+
 @pytest.fixture(params=["local", "memory"])
 def store(request, tmp_path) -> MotionStore:
     if request.param == "local":
@@ -340,12 +351,7 @@ def test_verify_webs_in_one_pass_says_what_verify_says_of_each(tmp_path, threads
     each web the answer verify gives it, in the order asked: sound, missing, damaged bytes, a
     checksum that differs from the manifest's."""
     store = MotionStore(str(tmp_path / "s"))
-    rng = np.random.default_rng(12)
-    keys = []
-    for s in range(3):
-        batch = [(web_key(f"{s}{i:063d}", SHA_B, "wd"), ragged_web(rng), {}) for i in range(6)]
-        store.write_webs(batch)
-        keys += [k for k, _, _ in batch]
+    keys = write_shards(store, 12, 3, 6, SHA_B)
     chunk = sorted((tmp_path / "s" / "webs" / "shards" / "wd").rglob("c/0"))[1]
     data = bytearray(chunk.read_bytes())
     data[40:60] = bytes(20)
@@ -370,12 +376,7 @@ def test_a_pass_in_runs_of_any_size_answers_as_reads_alone(tmp_path, monkeypatch
 
     monkeypatch.setattr(zarr_store, "PASS_BYTES", pass_bytes)
     store = MotionStore(str(tmp_path / "s"))
-    rng = np.random.default_rng(31)
-    keys = []
-    for s in range(2):
-        batch = [(web_key(f"{s}{i:063d}", SHA_A, "wd"), ragged_web(rng), {}) for i in range(14)]
-        store.write_webs(batch)
-        keys += [k for k, _, _ in batch]
+    keys = write_shards(store, 31, 2, 14, SHA_A)
     alone = {k: store.read_web_arrays(k)[0] for k in keys}
     got, missed = MotionStore(str(tmp_path / "s")).map_web_arrays(keys, lambda a: {n: v.copy() for n, v in a.items()})
     assert missed == [] and sorted(got) == sorted(keys)
