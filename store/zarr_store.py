@@ -54,7 +54,7 @@ from numcodecs import Blosc
 from zarr.codecs import BloscCodec
 from zarr.storage import FsspecStore, LocalStore, StorePath
 
-try:  # zarr's own classes, to open a shard from metadata already read (MotionStore._take_in_shard)
+try:  # zarr's own classes, to open an object from metadata already read (MotionStore._header)
     from zarr.core.array import AsyncArray
     from zarr.core.metadata import ArrayV3Metadata
 except ImportError:  # a zarr that moved them: readers open shards with zarr.open (attributes and all)
@@ -592,31 +592,35 @@ class MotionStore:
             return self._reader_shards[self._seen_shards[shard]].array
         return self._shards.get(shard) or self._open(shard)
 
+    def _shard_header(self, shard: str) -> tuple[zarr.Array, dict[str, Any]] | None:
+        """(its array, its index of webs by key) of a complete shard (:meth:`_header`, not kept
+        there: the caller keeps the entries its own way), None when it is not complete (being
+        written, its writer died, or damaged: its webs are not seen)."""
+        head = self._header(shard)
+        self._headers.pop(shard, None)
+        if head is None or head[0] is None or not isinstance(head[1].get("webs"), dict):
+            return None
+        return head[0], head[1]["webs"]
+
     def _take_in_shard(self, shard: str) -> bool:
-        """A reader takes in a shard: its zarr.json read once, its array opened from that metadata
-        without the attributes, each web entry kept as compact JSON in one blob (about 0.9 kB a
-        web; a parsed entry is several times that). False when the shard is not complete (being
-        written, its writer died, or damaged: its webs are not seen). Cost O(its webs)."""
+        """A reader takes in a shard: its zarr.json read once (:meth:`_shard_header`), each web
+        entry kept as compact JSON in one blob (about 0.9 kB a web; a parsed entry is several
+        times that). False when the shard is not complete. Cost O(its webs)."""
+        found = self._shard_header(shard)
+        if found is None:
+            return False
+        z, webs = found
         try:
-            raw = self.fs.cat_file(self.path(f"{shard}/zarr.json"))
-            meta = load_json(raw)
-            attrs = meta.pop("attributes", {})
-            if not (attrs.get("complete", False) and isinstance(attrs.get("webs"), dict)):
-                return False
-            z = (zarr.Array(AsyncArray(metadata=ArrayV3Metadata.from_dict(meta), store_path=StorePath(self.zstore, shard)))
-                 if AsyncArray is not None else self._open(shard))
-            if z is None:
-                return False
-            texts = [orjson.dumps(e) for e in attrs["webs"].values()]  # compact, ~4x json's speed
+            texts = [orjson.dumps(e) for e in webs.values()]  # compact, ~4x json's speed
         except Exception:  # noqa: BLE001 - a damaged shard header: its webs are missing
             return False
         n = len(self._reader_shards)
         ends = np.zeros(len(texts) + 1, np.int64)
         np.cumsum([len(t) for t in texts], out=ends[1:])
         self._reader_shards.append(_ReaderShard(shard, z, b"".join(texts), ends))
-        self._key_entry.update({k: (n, i) for i, k in enumerate(attrs["webs"])})
+        self._key_entry.update({k: (n, i) for i, k in enumerate(webs)})
         self._seen_shards[shard] = n
-        self._note_layout(shard, meta)
+        self._note_layout(shard, z.metadata.to_dict())
         return True
 
     def _note_layout(self, shard: str, meta: dict[str, Any]) -> None:
@@ -657,12 +661,11 @@ class MotionStore:
             if self.read_only:
                 self._take_in_shard(shard)
                 continue
-            head = self._header(shard)
-            self._headers.pop(shard, None)  # its entries are kept below, once
-            if head is None or head[0] is None or not isinstance(head[1].get("webs"), dict):
-                continue  # being written, its writer died, or damaged: its webs are not seen
-            z = self._shards[shard] = head[0]
-            self._webs.update({key: (shard, e) for key, e in head[1]["webs"].items()})
+            found = self._shard_header(shard)
+            if found is None:
+                continue
+            z = self._shards[shard] = found[0]
+            self._webs.update({key: (shard, e) for key, e in found[1].items()})
             if self._local:  # a writer verifying many webs reads them as a reader does (verify_webs)
                 self._note_layout(shard, z.metadata.to_dict())
 
