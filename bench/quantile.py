@@ -44,7 +44,7 @@ for run, asks in ((0, qs), (1, [q_last])):
         v = sc.search.quantile(q, stream=True)
         out["asks"].append([run, q, time.perf_counter() - t, v])
 out["webs"] = len(sc.webs.records())
-vals = np.concatenate([w.paths_values for w in sc.webs.iter_webs()])
+vals = np.concatenate(sc.webs.map_webs(lambda w: w.paths_values.copy()))
 t = time.perf_counter()
 np.quantile(vals, qs[0])
 out["floor_s"], out["values"] = time.perf_counter() - t, int(vals.size)

@@ -219,17 +219,3 @@ class StoreWebs(Mapping[str, list[tuple[str, MatchWeb]]]):
         for key in alone:
             out[key] = fn(self._load(missing[key]))
         return [out[r["key"]] for r in recs]
-
-    def iter_webs(self) -> Iterator[MatchWeb]:
-        """Every web of the restriction once, those not in the cache read and not kept: one pass
-        over the scope (e.g. a quantile of its values) in the memory of one web, in the store's
-        order (``MotionStore.iter_web_arrays``: each shard's chunks decompressed once)."""
-        missing = {}
-        for r in self.records():
-            web = self.cache.get(("web", r["key"]))
-            if web is not None:
-                yield web
-            else:
-                missing[r["key"]] = r
-        for _, web in self._read_pass(missing):
-            yield web
