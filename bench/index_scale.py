@@ -25,6 +25,12 @@ the sampled pairs: those cells at the per-cell kernel's rate (``tasks.distance.c
 whose float64 sums the stored webs' values are), and every level's whole grid by the GEMM path
 the coarsest level uses (float32 sums in BLAS's order: values that differ in the last bits).
 
+With ``--store STORE --corpus DIR`` (an indexed store and its corpus, e.g. bench/scale.py's, whose
+long takes have grids ~100x a demo clip's) the same comparison runs on a category of that store
+(``--category``, default the one of most pairs) with the config of its current generation, each
+code computing into a copy of the store's features; with ``--breakdown N`` as well, the breakdown
+runs on that category instead.
+
 With ``--commit-store STORE`` (an indexed store, e.g. bench/app_scale.py's 381k one) it measures
 the index flow's serial tail instead: the commit task called inside a Prefect flow with that
 store's generation (146,610 web records for the 381k corpus) as its argument, as the previous
@@ -34,6 +40,7 @@ task's body is the same no-op in both, so the difference is Prefect's walk over 
 
     .venv/bin/python -m bench.index_scale [--clips 180] [--batches 1] [--keep DIR] [--base REV]
     .venv/bin/python -m bench.index_scale --breakdown 300 [--clips 180]
+    .venv/bin/python -m bench.index_scale --store DIR --corpus DIR [--category C] [--batches 1] [--breakdown N]
     .venv/bin/python -m bench.index_scale --commit-store DIR
 """
 
@@ -315,10 +322,10 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
         raise SystemExit("nothing measured")
 
 
-def store_breakdown(store: Path, corpus: Path, category: str | None, n: int) -> None:
-    """:func:`breakdown` on a category of an indexed store (e.g. bench/scale.py's long takes, whose
-    grids are ~100x a demo clip's), with the config of its current generation; stops unless every
-    clip of the category has its features there."""
+def store_category(store: Path, corpus: Path, category: str | None) -> tuple[Config, str, list]:
+    """(config of the store's current generation with ``corpus`` as its corpus, category, its
+    catalog entries); the category of most pairs by default. Stops unless every clip of the
+    category has its features in the store."""
     from motionweb.store.generations import current_generation
 
     gen = current_generation(MotionStore(str(store), read_only=True))
@@ -336,10 +343,20 @@ def store_breakdown(store: Path, corpus: Path, category: str | None, n: int) -> 
     indexed = {c["sha256"] for c in gen.clips}
     if missing := [e.path for e in entries if e.sha256 not in indexed]:
         raise CorpusError(f"{store} did not index {len(missing)} clips of {category}: {missing[:3]}")
+    return cfg, category, entries
+
+
+def store_breakdown(store: Path, corpus: Path, category: str | None, n: int) -> None:
+    """:func:`breakdown` on a category of an indexed store (e.g. bench/scale.py's long takes, whose
+    grids are ~100x a demo clip's), with the config of its current generation."""
+    from motionweb.store.generations import current_generation
+
+    cfg, category, entries = store_category(store, corpus, category)
+    n_webs = len(current_generation(MotionStore(str(store), read_only=True)).webs)
     frames = sum(frames60(e.duration) for e in entries)
     print(f"category {category}: {len(entries)} clips, {frames} frames at 60 Hz; rates {cfg.features.rates} "
-          f"(store {store}, {len(gen.webs)} webs)")
-    breakdown(store, entries, cfg, n, (f"the store's {len(gen.webs)} webs", len(gen.webs)))
+          f"(store {store}, {n_webs} webs)")
+    breakdown(store, entries, cfg, n, (f"the store's {n_webs} webs", n_webs))
 
 
 def main() -> None:
@@ -359,36 +376,56 @@ def main() -> None:
         commit_tail(args.commit_store)
         return
     if args.store:
-        if not (args.breakdown and args.corpus):
-            raise SystemExit("--store needs --breakdown N and --corpus DIR")
-        store_breakdown(Path(args.store), Path(args.corpus), args.category, args.breakdown)
+        if not args.corpus:
+            raise SystemExit("--store needs --corpus DIR")
+        store, corpus = Path(args.store), Path(args.corpus)
+        if args.breakdown:
+            store_breakdown(store, corpus, args.category, args.breakdown)
+            return
+        cfg, category, entries = store_category(store, corpus, args.category)
+        work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
+        work.mkdir(parents=True, exist_ok=True)
+        features = work / "features-of-store"  # the store's features alone: the codes write webs afresh
+        if not features.is_dir():
+            shutil.copytree(store, features, ignore=lambda d, names: [n for n in names if Path(d) == store
+                                                                      and n in ("webs", "generations", "current")])
+        compare(work, features, category, entries, cfg, args.batches, args.base, args.keep is None)
         return
     work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
     work.mkdir(parents=True, exist_ok=True)
     cfg = Config.model_validate({"corpus": {"path": str(work), "length_unit": "m"},
                                  "features": {"rates": [10.0, 20.0, 30.0]}})
-    t = time.perf_counter()
     store, entries = build(work, args.clips, cfg)
     if args.breakdown:
         breakdown(store, entries, cfg, args.breakdown)
         return
+    compare(work, store, "walk", entries, cfg, args.batches, args.base, args.keep is None)
+
+
+def compare(work: Path, store: Path, category: str, entries: list, cfg: Config, n_batches: int, base: str | None,
+            remove: bool) -> None:
+    """The first ``n_batches`` batches of the flow's plan for the category, computed by the previous
+    code and by this checkout (each into a copy of ``store``), then their webs compared byte for
+    byte; exits 1 when any differs."""
     frames = sum(frames60(e.duration) for e in entries)
     rate = working_rate(cfg)
-    jobs = plan_pairs(Chunk("walk", tuple(entries)), web_digest(cfg), rate)
+    jobs = plan_pairs(Chunk(category, tuple(entries)), web_digest(cfg), rate)
     batches = balance_batches(jobs, batch_count(jobs, 2))
-    todo = [[(j.key, j.a.sha256, j.b.sha256, j.self_pair) for j in b] for b in batches[:args.batches]]
+    if len(batches) <= n_batches:
+        raise CorpusError(f"{category}: {len(batches)} batches, {n_batches} asked for and one more kept for the warm-up")
+    todo = [[(j.key, j.a.sha256, j.b.sha256, j.self_pair) for j in b] for b in batches[:n_batches]]
     # the warm-up (compiled kernels loaded): a self pair and another pair, outside the measured batches
-    rest = [j for b in batches[args.batches:] for j in b]
+    rest = [j for b in batches[n_batches:] for j in b]
     warm = [(j.key, j.a.sha256, j.b.sha256, j.self_pair) for flag in (True, False)
             for j in [next(j for j in rest if j.self_pair == flag)]]
     n = sum(len(b) for b in todo)
     clips_used = len({s for b in todo for _, a, b_, _ in b for s in (a, b_)})
-    print(f"category: {len(entries)} walks, {frames} frames at 60 Hz (features in {time.perf_counter() - t:.0f} s); "
+    print(f"category {category}: {len(entries)} clips, {frames} frames at 60 Hz; rates {cfg.features.rates}; "
           f"{len(jobs)} pairs in {len(batches)} batches for 2 workers; measured: {n} pairs of "
           f"{len(todo)} batch(es) touching {clips_used} clips; {os.cpu_count()} cores")
     print(f"{'code':>8} {'load':>5} {'seconds':>8} {'ms/pair':>8} {'feature reads':>13}  (floor: {clips_used})")
     stores = {}
-    base = args.base or previous_revision()[:10]
+    base = base or previous_revision()[:10]
     for name, pkg in ((base[:10], base_code(work, base)), ("this", None)):
         dst = work / f"store-{name.replace('/', '-')}"
         shutil.rmtree(dst, ignore_errors=True)
@@ -402,7 +439,7 @@ def main() -> None:
     print(f"webs: {len(keys) - len(bad)} of {len(keys)} byte-identical between the two codes"
           + (f"; DIFFERENT: {bad[:5]}" if bad else ""))
     print(f"load average at the end {os.getloadavg()[0]:.1f}")
-    if not args.keep:
+    if remove:
         shutil.rmtree(work, ignore_errors=True)
     if bad:
         raise SystemExit(1)

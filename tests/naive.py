@@ -719,6 +719,26 @@ def ref_upsample_band(cells: np.ndarray, s: float, h: float, fa: int, fb: int) -
     return out
 
 
+def ref_path_cells_near(row0: int, lo: np.ndarray, hi: np.ndarray, off: np.ndarray, path: np.ndarray, ci: float,
+                        cj: float, radius: int) -> list[int]:
+    """``tasks.matchweb.refine._path_cells_near`` as a scan of the whole path: the band's flat
+    indices of the path cells within Chebyshev ``radius`` of (ci, cj), in path order."""
+    out = []
+    for i, j in np.asarray(path).tolist():
+        t = i - row0
+        if abs(i - ci) <= radius and abs(j - cj) <= radius and 0 <= t < len(lo) and lo[t] <= j <= hi[t]:
+            out.append(int(off[t] + j - lo[t]))
+    return out
+
+
+def ref_position(path: np.ndarray, i: int, j: int) -> int:
+    """Index of the first cell (i, j) of ``path``, or −1, by a scan."""
+    for q, (a, b) in enumerate(np.asarray(path).tolist()):
+        if (a, b) == (i, j):
+            return q
+    return -1
+
+
 def ref_timing_distances(polys, fps: float, p: np.ndarray, pd: np.ndarray, pdd: np.ndarray):
     """The loop ``tasks.retime.polygons.timing_distances`` compiles: each output frame's (p̈, ṗ²)
     against its nearest source frame's polygon through ``closest_point`` (the fan centre for an

@@ -156,23 +156,40 @@ def _near_cells(row0, lo, hi, off, ci, cj, radius):
 
 
 @njit(cache=True, nogil=True)
-def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
+def _dp_buffers(n, mrun):
+    """Scratch of :func:`_solve` for bands of up to ``n`` cells: (cost, length, ptr, init, flags).
+
+    ``flags`` is all zeros (no blocked or terminal cell) and stays so: :func:`_solve` only reads it.
+    """
+    ns = 2 * mrun + 1
+    return (np.empty((n, ns), np.float64), np.empty((n, ns), np.int32), np.empty((n, ns), np.int8),
+            np.empty(n, np.float64), np.zeros(n, np.uint8))
+
+
+@njit(cache=True, nogil=True)
+def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average, buf):
     """Best slope-ruled path in a band from any source to any target, by total or average cost.
 
-    Returns its cells (n, 2) (absolute), or an empty array when no target is reachable.
+    Returns its cells (n, 2) (absolute), or an empty array when no target is reachable. ``buf``:
+    :func:`_dp_buffers` of at least the band's cells, reused from band to band (a refinement
+    solves one band per chain and per bridge, ~10⁴ bridges on a pair of long takes); its first
+    ``off[-1]`` rows are written before they are read, so what an earlier band left there does
+    not matter.
 
-    Bounds: its DP buffers hold the band's ``off[-1]`` cells; ``sources``/``targets`` are flat
-    indices of band cells (< ``off[-1]``).
+    Bounds: band_dp writes the first ``off[-1]`` rows of the buffers, which hold at least that
+    many (checked: a smaller ``buf`` raises); ``sources``/``targets`` are flat indices of band
+    cells (< ``off[-1]``).
     """
     n = off[-1]
+    cost, length, ptr, init, flags = buf
+    if init.shape[0] < n:
+        raise ValueError("_solve: scratch smaller than the band")
     ns = 2 * mrun + 1
-    init = np.full(n, INF)
+    for k in range(n):
+        init[k] = INF
     for k in sources:
         init[k] = vals[k]
-    cost = np.empty((n, ns), np.float64)
-    length = np.empty((n, ns), np.int32)
-    ptr = np.empty((n, ns), np.int8)
-    band_dp(lo, hi, off, vals, init, np.zeros(n, np.uint8), mrun, cost, length, ptr)
+    band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr)
     best = INF
     bk = -1
     bs = 0
@@ -191,6 +208,22 @@ def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average):
     while off[t + 1] <= bk:
         t += 1
     return band_backtrack(row0, lo, hi, off, ptr, t, lo[t] + bk - off[t], bs, mrun)
+
+
+@njit(cache=True, nogil=True)
+def _fit(buf, n, mrun):
+    """``buf`` when it holds ``n`` cells, else new buffers of twice that (amortised growth)."""
+    if buf[3].shape[0] >= n:
+        return buf
+    return _dp_buffers(2 * n, mrun)
+
+
+@njit(cache=True, nogil=True)
+def _fit_values(vbuf, n):
+    """``vbuf`` when it holds ``n`` values, else a new buffer of twice that."""
+    if vbuf.shape[0] >= n:
+        return vbuf
+    return np.empty(2 * n, np.float64)
 
 
 @njit(cache=True, nogil=True)
@@ -218,10 +251,14 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
     out_c = []
     out_v = []
     n_out = 0
+    buf = _dp_buffers(0, mrun)
+    vbuf = np.empty(0, np.float64)
     for p in range(nch):
         cc = cells[offsets[p]:offsets[p + 1]]
         row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
-        vals = np.empty(off[-1], np.float64)
+        buf = _fit(buf, off[-1], mrun)
+        vbuf = _fit_values(vbuf, off[-1])
+        vals = vbuf[:off[-1]]
         _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         i0 = cc[0, 0] * s
         j0 = cc[0, 1] * s
@@ -229,12 +266,12 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
         j1 = cc[-1, 1] * s
         src = _argmin_of(vals, _near_cells(row0, lo, hi, off, i0, j0, radius))
         dst = _argmin_of(vals, _near_cells(row0, lo, hi, off, i1, j1, radius))
-        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, False)
+        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, False, buf)
         if path.shape[0] == 0:  # fall back on the upsampled endpoints themselves
             k0 = _flat_index(row0, lo, hi, off, math.floor(i0 + 0.5), math.floor(j0 + 0.5))
             k1 = _flat_index(row0, lo, hi, off, math.floor(i1 + 0.5), math.floor(j1 + 0.5))
             if k0 >= 0 and k1 >= 0:
-                path = _solve(row0, lo, hi, off, vals, np.array([k0]), np.array([k1]), mrun, False)
+                path = _solve(row0, lo, hi, off, vals, np.array([k0]), np.array([k1]), mrun, False, buf)
         if path.shape[0] == 0:
             continue
         pv = np.empty(path.shape[0], np.float32)
@@ -289,14 +326,46 @@ def _offsets_of(parts):
 
 
 @njit(cache=True, nogil=True)
-def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
-    """Band indices of the cells of ``path`` within Chebyshev ``radius`` of (ci, cj).
+def _rows_window(path, r0, r1):
+    """[q0, q1): the cells of ``path`` with rows in r0..r1, found by bisection.
 
-    Bounds: at most one per path cell, into scratch of the path's length.
+    A refined path (:func:`~motionweb.tasks.matchweb.band.band_backtrack`) is monotone: its rows
+    never decrease, so those cells are one contiguous run. O(log n) instead of a scan of the path
+    (a long take's chain has thousands of cells and ~10⁴ bridges look into it per level).
     """
+    a = 0
+    b = path.shape[0]
+    while a < b:  # first q with row >= r0
+        m = (a + b) // 2
+        if path[m, 0] < r0:
+            a = m + 1
+        else:
+            b = m
+    q0 = a
+    b = path.shape[0]
+    while a < b:  # first q with row > r1
+        m = (a + b) // 2
+        if path[m, 0] <= r1:
+            a = m + 1
+        else:
+            b = m
+    return q0, a
+
+
+@njit(cache=True, nogil=True)
+def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
+    """Band indices of the cells of ``path`` within Chebyshev ``radius`` of (ci, cj), in path order.
+
+    Only the run of cells whose rows lie within ``radius`` (plus one row each side, so the test
+    below decides, not the rounding of the window's ends) is tested: the same cells as a scan of
+    the whole path (``tests/naive.ref_path_cells_near``), since the path's rows are monotone.
+
+    Bounds: at most one per cell of the run, into scratch of the run's length.
+    """
+    q0, q1 = _rows_window(path, math.floor(ci - radius) - 1, math.ceil(ci + radius) + 1)
     n = 0
-    tmp = np.empty(path.shape[0], np.int64)
-    for q in range(path.shape[0]):
+    tmp = np.empty(q1 - q0, np.int64)
+    for q in range(q0, q1):
         if abs(path[q, 0] - ci) <= radius and abs(path[q, 1] - cj) <= radius:
             k = _flat_index(row0, lo, hi, off, path[q, 0], path[q, 1])
             if k >= 0:
@@ -307,10 +376,89 @@ def _path_cells_near(row0, lo, hi, off, path, ci, cj, radius):
 
 @njit(cache=True, nogil=True)
 def _position(path, i, j) -> int:
-    for q in range(path.shape[0]):
-        if path[q, 0] == i and path[q, 1] == j:
+    """Index of the first cell (i, j) of the monotone ``path``, or −1 (bisection on the rows)."""
+    q0, q1 = _rows_window(path, i, i)
+    for q in range(q0, q1):
+        if path[q, 1] == j:
             return q
     return -1
+
+
+@njit(cache=True, nogil=True)
+def _band_cell(row0, lo, off, k):
+    """(row, column) of band cell ``k`` (flat index < ``off[-1]``), by bisection on ``off``."""
+    a = 0
+    b = lo.shape[0] - 1
+    while a < b:  # last row t with off[t] <= k
+        m = (a + b + 1) // 2
+        if off[m] <= k:
+            a = m
+        else:
+            b = m - 1
+    return row0 + a, lo[a] + k - off[a]
+
+
+@njit(cache=True, nogil=True)
+def _crop_to_ends(row0, lo, hi, off, sources, targets):
+    """The part of a band that a path from a source to a target can cross, with the sources and
+    targets as its flat indices (in their order; those that cannot be on such a path dropped).
+
+    Paths are monotone (up, right, diagonal), so every cell of one lies in rows from the lowest
+    source row to the highest target row and columns from the lowest source column to the highest
+    target column. A cell left of or below that rectangle is reached from no source, so in the
+    whole band its DP states are unreached (infinite cost) and the cells of the rectangle get the
+    same costs, lengths and predecessors from their neighbours inside it; cells right of or above
+    it come after every target. :func:`_solve` on the cropped band therefore returns the same
+    path, and evaluates and searches ~3/4 of a bridge band's cells (measured on long takes).
+
+    Bounds: rows and intervals are those of the band clipped to the rectangle (an emptied row has
+    hi < lo and counts no cell), so ``off`` grows by at most the band's cells; the index arrays
+    are sized by the inputs.
+    """
+    nr = lo.shape[0]
+    r0 = 1 << 62
+    c0 = 1 << 62
+    r1 = -1
+    c1 = -1
+    for k in sources:
+        i, j = _band_cell(row0, lo, off, k)
+        r0 = min(r0, i)
+        c0 = min(c0, j)
+    for k in targets:
+        i, j = _band_cell(row0, lo, off, k)
+        r1 = max(r1, i)
+        c1 = max(c1, j)
+    t0 = max(0, r0 - row0)
+    t1 = min(nr - 1, r1 - row0)
+    if t1 < t0 or c1 < c0:
+        e = np.zeros(0, np.int64)
+        return row0, e, e, np.zeros(1, np.int64), e, e
+    m = t1 - t0 + 1
+    clo = np.empty(m, np.int64)
+    chi = np.empty(m, np.int64)
+    coff = np.zeros(m + 1, np.int64)
+    for u in range(m):
+        clo[u] = max(lo[t0 + u], c0)
+        chi[u] = min(hi[t0 + u], c1)
+        coff[u + 1] = coff[u] + max(0, chi[u] - clo[u] + 1)
+    crow0 = row0 + t0
+    return (crow0, clo, chi, coff, _recount(row0, lo, off, crow0, clo, chi, coff, sources),
+            _recount(row0, lo, off, crow0, clo, chi, coff, targets))
+
+
+@njit(cache=True, nogil=True)
+def _recount(row0, lo, off, crow0, clo, chi, coff, ends):
+    """Flat indices in the cropped band (``crow0, clo, chi, coff``) of the band cells ``ends``
+    that lie in it, in their order. Bounds: at most one per input, into an array as long."""
+    idx = np.empty(ends.shape[0], np.int64)
+    n = 0
+    for k in ends:
+        i, j = _band_cell(row0, lo, off, k)
+        kk = band_index(clo, chi, coff, i - crow0, j)
+        if kk >= 0:
+            idx[n] = kk
+            n += 1
+    return idx[:n].copy()
 
 
 @njit(cache=True, nogil=True)
@@ -320,6 +468,8 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
     junctions = []
     out_c = []
     out_v = []
+    buf = _dp_buffers(0, mrun)
+    vbuf = np.empty(0, np.float64)
     for b in range(bridges.shape[0]):
         p = bridges[b, 0]
         q = bridges[b, 2]
@@ -329,8 +479,6 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
             continue
         cc = b_cells[b_offsets[b]:b_offsets[b + 1]]
         row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
-        vals = np.empty(off[-1], np.float64)
-        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         sp = new_cells[new_offsets[np_]:new_offsets[np_ + 1]]
         dp = new_cells[new_offsets[nq]:new_offsets[nq + 1]]
         a = old_offsets[p] + bridges[b, 1]
@@ -339,7 +487,14 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
         dst = _path_cells_near(row0, lo, hi, off, dp, old_cells[c, 0] * s, old_cells[c, 1] * s, radius)
         if src.shape[0] == 0 or dst.shape[0] == 0:
             continue
-        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, True)
+        row0, lo, hi, off, src, dst = _crop_to_ends(row0, lo, hi, off, src, dst)
+        if src.shape[0] == 0 or dst.shape[0] == 0:
+            continue
+        buf = _fit(buf, off[-1], mrun)
+        vbuf = _fit_values(vbuf, off[-1])
+        vals = vbuf[:off[-1]]
+        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
+        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, True, buf)
         if path.shape[0] == 0:
             continue
         pv = np.empty(path.shape[0], np.float32)

@@ -23,7 +23,7 @@ from motionweb.tasks.matchweb.band import band_buffers, band_dp, optimal_path
 from motionweb.tasks.matchweb.bridges import find_bridges
 from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
 from motionweb.tasks.matchweb.params import max_run
-from motionweb.tasks.matchweb.refine import upsample_band
+from motionweb.tasks.matchweb.refine import _crop_to_ends, _dp_buffers, _path_cells_near, _position, _solve, upsample_band
 from motionweb.tasks.register import Band, band_alignment, band_valid_region
 from motionweb.tasks.retime.objective import _evaluate_kernel
 from motionweb.tasks.retime.reachable import _clip, fastest_timing, interval_polygons, padded, set_interval
@@ -38,6 +38,8 @@ from naive import (
     ref_bridges,
     ref_chains,
     ref_minima,
+    ref_path_cells_near,
+    ref_position,
     ref_upsample_band,
     ref_valid,
     slope_ok,
@@ -199,6 +201,89 @@ def test_upsample_band_matches_the_reference(cells: np.ndarray, s: float, h: flo
     assert len(off) == len(lo) + 1 and off[0] == 0 and np.all(np.diff(off) >= 0)
     assert off[-1] == sum(b - a + 1 for a, b in want.values())
     assert np.all((lo > hi) | ((lo >= 0) & (hi < fb)))
+
+
+def monotone_path(rng: np.random.Generator, n: int, mrun: int) -> np.ndarray:
+    """(n, 2) cells of a random slope-ruled path (up, right, diagonal; at most ``mrun`` steps in a
+    row along one axis), as band_backtrack returns refined chains."""
+    cells = [(int(rng.integers(0, 5)), int(rng.integers(0, 5)))]
+    run = 0  # > 0: up steps in a row, < 0: right steps in a row
+    while len(cells) < n:
+        i, j = cells[-1]
+        move = int(rng.integers(0, 3))
+        if move == 1 and max(run, 0) < mrun:
+            cells.append((i + 1, j))
+            run = max(run, 0) + 1
+        elif move == 2 and max(-run, 0) < mrun:
+            cells.append((i, j + 1))
+            run = min(run, 0) - 1
+        else:
+            cells.append((i + 1, j + 1))
+            run = 0
+    return np.array(cells[:n], np.int64).reshape(-1, 2)
+
+
+@SETTINGS
+@given(st.integers(0, 40), st.integers(0, 3), st.integers(0, 4), st.sampled_from([1.0, 2.4, 3.0]),
+       st.integers(0, 2**32 - 1))
+def test_path_lookups_match_a_scan_of_the_path(n: int, mrun: int, radius: int, s: float, seed: int) -> None:
+    """_path_cells_near and _position bisect the path's monotone rows: the same cells, in the same
+    order, as scans of the whole path, for centres on, near and off the path (empty paths, one
+    cell, rows of several cells, non-integer centres)."""
+    rng = np.random.default_rng(seed)
+    path = monotone_path(rng, n, mrun)
+    row0, lo, hi, off = upsample_band(path // 2 if n else np.zeros((1, 2), np.int64), 2.0, 1.5, 60, 60)
+    centres = [(float(i), float(j)) for i, j in path[:: max(1, n // 4)].tolist()]
+    centres += [(float(rng.integers(-3, 30)) * s / 2, float(rng.integers(-3, 30)) * s / 2) for _ in range(4)]
+    for ci, cj in centres:
+        got = _path_cells_near(row0, lo, hi, off, path, ci, cj, radius).tolist()
+        assert got == ref_path_cells_near(row0, lo, hi, off, path, ci, cj, radius)
+    probes = path.tolist() + rng.integers(-2, 30, (6, 2)).tolist()
+    for i, j in probes:
+        assert _position(path, i, j) == ref_position(path, i, j)
+
+
+@SETTINGS
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(-1, 6)), min_size=1, max_size=14), st.integers(0, 3),
+       st.booleans(), st.integers(0, 2**32 - 1))
+def test_a_band_cropped_to_its_ends_solves_to_the_same_path(rows, mrun: int, by_average: bool, seed: int) -> None:
+    """_solve on the band cropped by _crop_to_ends (the rectangle from the lowest source to the
+    highest target) returns the same path as on the whole band: random bands (empty rows, rows
+    that jump right), tied costs (0-3), blocked cells (inf, NaN), sources and targets anywhere,
+    in any order, overlapping or not reachable."""
+    rng = np.random.default_rng(seed)
+    lo = np.cumsum([step for step, _ in rows]).astype(np.int64)
+    hi = lo + np.array([width for _, width in rows], np.int64)
+    off = np.zeros(len(rows) + 1, np.int64)
+    off[1:] = np.cumsum(np.maximum(hi - lo + 1, 0))
+    n = int(off[-1])
+    if n == 0:
+        return
+    row0 = int(rng.integers(0, 5))
+    vals = rng.integers(0, 4, n).astype(np.float64)
+    vals[rng.random(n) < 0.1] = np.inf
+    vals[rng.random(n) < 0.05] = np.nan
+    src = rng.permutation(n)[:int(rng.integers(1, min(n, 6) + 1))].astype(np.int64)
+    dst = rng.permutation(n)[:int(rng.integers(1, min(n, 6) + 1))].astype(np.int64)
+    want = _solve(row0, lo, hi, off, vals, src, dst, mrun, by_average, _dp_buffers(n, mrun))
+    cell = {(row0 + t, j): off[t] + j - lo[t] for t in range(len(lo)) for j in range(lo[t], hi[t] + 1)}
+    crow0, clo, chi, coff, csrc, cdst = _crop_to_ends(row0, lo, hi, off, src, dst)
+    cvals = np.full(int(coff[-1]), -1.0)
+    for t in range(len(clo)):
+        for j in range(clo[t], chi[t] + 1):
+            cvals[coff[t] + j - clo[t]] = vals[cell[(crow0 + t, j)]]
+    assert not np.any(cvals == -1.0) and coff[-1] <= n
+    if len(csrc) == 0 or len(cdst) == 0:
+        assert len(want) == 0
+        return
+    got = _solve(crow0, clo, chi, coff, cvals, csrc, cdst, mrun, by_average, _dp_buffers(int(coff[-1]) + 3, mrun))
+    np.testing.assert_array_equal(got, want)
+
+
+def test_solve_refuses_scratch_smaller_than_its_band() -> None:
+    lo, hi, off = np.array([0, 0]), np.array([2, 2]), np.array([0, 3, 6])
+    with pytest.raises(ValueError, match="scratch"):
+        _solve(0, lo, hi, off, np.ones(6), np.array([0]), np.array([5]), 1, False, _dp_buffers(5, 1))
 
 
 # ------------------------------------------------------------------------------------ distances
