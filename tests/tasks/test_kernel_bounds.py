@@ -23,7 +23,14 @@ from motionweb.tasks.matchweb.band import band_buffers, band_dp, optimal_path
 from motionweb.tasks.matchweb.bridges import find_bridges
 from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
 from motionweb.tasks.matchweb.params import max_run
-from motionweb.tasks.matchweb.refine import _crop_to_ends, _dp_buffers, _path_cells_near, _position, _solve, upsample_band
+from motionweb.tasks.matchweb.refine import (
+    _crop_to_ends,
+    _dp_buffers,
+    _path_cells_near,
+    _position,
+    _solve,
+    upsample_band,
+)
 from motionweb.tasks.register import Band, band_alignment, band_valid_region
 from motionweb.tasks.retime.objective import _evaluate_kernel
 from motionweb.tasks.retime.reachable import _clip, fastest_timing, interval_polygons, padded, set_interval
