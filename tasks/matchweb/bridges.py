@@ -16,19 +16,23 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags, src_a, src_b, row_v,
+def _triangle(g, valid, gid, chain_of, c, i0, j0, L, mrun, lo, hi, off, vals, init, flags, src_a, src_b, row_v,
               row_f) -> tuple[int, int]:
     """Fill the band of a bridge search from (i0, j0): the cells (i0 + t, j0 + d), t + d < L,
     that a path can reach from the start (KG04 §3.2: "bridges must be inside the valid region",
     which "makes bridge calculation more efficient because the dynamic programming algorithm
     processes fewer cells").
 
-    A cell is reached when it is valid, not a cell of chain ``c`` (other than the start), and
-    entered by an up, right or diagonal move from a reached cell that is not a terminal (a cell of
-    another chain: entered, not left). Row t keeps only the span of its reached cells and rows stop
-    at the first with none, so the band's rows and intervals hold every cell the DP could give a
-    finite cost (the slope rule only removes more): the search result is unchanged. Cost
-    O(reached cells + their row spans), at most O(L²). ``src_a``, ``src_b``, ``row_v``, ``row_f``
+    A cell is reached when it is valid, not a cell of chain ``c`` (other than the start), inside
+    the slope rule's cone from the start (row t, columns t // (mrun + 1) .. mrun + (mrun + 1)·t:
+    each run of at most ``mrun`` steps along one axis ends with a step along the other, so no
+    slope-ruled path reaches a cell outside it; this halves the triangle), and entered by an up,
+    right or diagonal move from a reached cell that is not a terminal (a cell of another chain:
+    entered, not left). Every cell of a slope-ruled path from the start is reached (by induction
+    along the path), and row t keeps only the span of its reached cells and rows stop at the
+    first with none, so the band holds every cell the DP could give a finite cost, and each with
+    the same finite-cost neighbours: the search result is unchanged. Cost O(reached cells + their
+    row spans), at most O(L²). ``src_a``, ``src_b``, ``row_v``, ``row_f``
     are (L,) scratch rows. Returns (rows, number of reached terminal cells).
 
     Bounds: writes at most L·(L+1)/2 cells (row t holds columns d ≤ L − 1 − t: the triangle of
@@ -43,13 +47,14 @@ def _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, fl
     nt = 0
     for t in range(min(L, fa - i0)):
         i = i0 + t
-        dmax = min(fb - 1 - j0, L - 1 - t)
+        # the slope rule's cone: a path reaches row t only at columns t // (mrun + 1) .. mrun + (mrun + 1)·t
+        dmax = min(fb - 1 - j0, L - 1 - t, mrun + (mrun + 1) * t)
         first = -1
         last = -1
         cf = dmax + 1
         cl = -1
         left = False
-        for d in range(pf if t > 0 else 0, dmax + 1):
+        for d in range(max(pf if t > 0 else 0, t // (mrun + 1)), dmax + 1):
             below = (pf <= d <= pl and sp[d]) or (pf <= d - 1 <= pl and sp[d - 1])
             if not (left or below or (t == 0 and d == 0)):
                 if d > pl + 1:  # only a move from the left could reach further cells
@@ -172,7 +177,7 @@ def _find_bridges(g, valid, gid, chain_of, cells, offsets, mrun, L):
         for p in range(offsets[c], offsets[c + 1]):
             i0 = cells[p, 0]
             j0 = cells[p, 1]
-            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, lo, hi, off, vals, init, flags,
+            nt, nterm = _triangle(g, valid, gid, chain_of, c, i0, j0, L, mrun, lo, hi, off, vals, init, flags,
                                   src_a, src_b, row_v, row_f)
             if nterm == 0 or not vals[0] < INF:
                 continue

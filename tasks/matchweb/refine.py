@@ -399,35 +399,43 @@ def _band_cell(row0, lo, off, k):
 
 
 @njit(cache=True, nogil=True)
-def _crop_to_ends(row0, lo, hi, off, sources, targets):
-    """The part of a band that a path from a source to a target can cross, with the sources and
-    targets as its flat indices (in their order; those that cannot be on such a path dropped).
+def _crop_to_ends(row0, lo, hi, off, sources, targets, mrun):
+    """The part of a band that a slope-ruled path from a source to a target can cross, with the
+    sources and targets as its flat indices (in their order; those on no such path dropped).
 
-    Paths are monotone (up, right, diagonal), so every cell of one lies in rows from the lowest
-    source row to the highest target row and columns from the lowest source column to the highest
-    target column. A cell left of or below that rectangle is reached from no source, so in the
-    whole band its DP states are unreached (infinite cost) and the cells of the rectangle get the
-    same costs, lengths and predecessors from their neighbours inside it; cells right of or above
-    it come after every target. :func:`_solve` on the cropped band therefore returns the same
-    path, and evaluates and searches ~3/4 of a bridge band's cells (measured on long takes).
+    Paths are monotone (up, right, diagonal) with at most ``mrun`` steps in a row along one axis,
+    so a path from (i0, j0) reaches (i0 + d, j) only for ``j0 + d // (mrun + 1) ≤ j ≤ j0 + mrun +
+    (mrun + 1)·d`` (each run of ≤ mrun up steps ends with a step that moves right; likewise for
+    columns), and reaches a target (i1, j1) from (i1 − d, j) only for ``j1 − mrun − (mrun + 1)·d ≤
+    j ≤ j1 − d // (mrun + 1)``. Each row keeps the hull of what the sources' cones allow, within
+    the hull of what the targets' cones allow, within the rectangle from the lowest source to the
+    highest target. A cell cut off is reached from no source or reaches no target. Every
+    predecessor of a kept cell that lies on a source-to-target path lies on one too, so is kept:
+    such cells get the same costs, lengths and predecessors as in the whole band, the targets
+    the same values, and :func:`_solve` returns the same path, while evaluating and searching
+    ~half of a bridge band's cells (measured on long takes).
 
-    Bounds: rows and intervals are those of the band clipped to the rectangle (an emptied row has
-    hi < lo and counts no cell), so ``off`` grows by at most the band's cells; the index arrays
-    are sized by the inputs.
+    Bounds: each row's interval is the band's clipped (an emptied row has hi < lo and counts no
+    cell), so ``off`` grows by at most the band's cells; the index arrays are sized by the inputs.
     """
     nr = lo.shape[0]
-    r0 = 1 << 62
-    c0 = 1 << 62
+    big = 1 << 62
+    si = np.empty(sources.shape[0], np.int64)
+    sj = np.empty(sources.shape[0], np.int64)
+    ti = np.empty(targets.shape[0], np.int64)
+    tj = np.empty(targets.shape[0], np.int64)
+    r0 = big
+    c0 = big
     r1 = -1
     c1 = -1
-    for k in sources:
-        i, j = _band_cell(row0, lo, off, k)
-        r0 = min(r0, i)
-        c0 = min(c0, j)
-    for k in targets:
-        i, j = _band_cell(row0, lo, off, k)
-        r1 = max(r1, i)
-        c1 = max(c1, j)
+    for q in range(sources.shape[0]):
+        si[q], sj[q] = _band_cell(row0, lo, off, sources[q])
+        r0 = min(r0, si[q])
+        c0 = min(c0, sj[q])
+    for q in range(targets.shape[0]):
+        ti[q], tj[q] = _band_cell(row0, lo, off, targets[q])
+        r1 = max(r1, ti[q])
+        c1 = max(c1, tj[q])
     t0 = max(0, r0 - row0)
     t1 = min(nr - 1, r1 - row0)
     if t1 < t0 or c1 < c0:
@@ -438,8 +446,25 @@ def _crop_to_ends(row0, lo, hi, off, sources, targets):
     chi = np.empty(m, np.int64)
     coff = np.zeros(m + 1, np.int64)
     for u in range(m):
-        clo[u] = max(lo[t0 + u], c0)
-        chi[u] = min(hi[t0 + u], c1)
+        i = row0 + t0 + u
+        a = max(lo[t0 + u], c0)
+        b = min(hi[t0 + u], c1)
+        slo = big  # hull of the sources' cones on row i
+        shi = -1
+        for q in range(si.shape[0]):
+            d = i - si[q]
+            if d >= 0:
+                slo = min(slo, sj[q] + d // (mrun + 1))
+                shi = max(shi, sj[q] + mrun + (mrun + 1) * d)
+        tlo = big  # hull of the targets' reverse cones on row i
+        thi = -1
+        for q in range(ti.shape[0]):
+            d = ti[q] - i
+            if d >= 0:
+                tlo = min(tlo, tj[q] - mrun - (mrun + 1) * d)
+                thi = max(thi, tj[q] - d // (mrun + 1))
+        clo[u] = max(a, max(slo, tlo))
+        chi[u] = min(b, min(shi, thi))
         coff[u + 1] = coff[u] + max(0, chi[u] - clo[u] + 1)
     crow0 = row0 + t0
     return (crow0, clo, chi, coff, _recount(row0, lo, off, crow0, clo, chi, coff, sources),
@@ -487,7 +512,7 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
         dst = _path_cells_near(row0, lo, hi, off, dp, old_cells[c, 0] * s, old_cells[c, 1] * s, radius)
         if src.shape[0] == 0 or dst.shape[0] == 0:
             continue
-        row0, lo, hi, off, src, dst = _crop_to_ends(row0, lo, hi, off, src, dst)
+        row0, lo, hi, off, src, dst = _crop_to_ends(row0, lo, hi, off, src, dst, mrun)
         if src.shape[0] == 0 or dst.shape[0] == 0:
             continue
         buf = _fit(buf, off[-1], mrun)

@@ -254,8 +254,8 @@ def test_path_lookups_match_a_scan_of_the_path(n: int, mrun: int, radius: int, s
 @given(st.lists(st.tuples(st.integers(0, 3), st.integers(-1, 6)), min_size=1, max_size=14), st.integers(0, 3),
        st.booleans(), st.integers(0, 2**32 - 1))
 def test_a_band_cropped_to_its_ends_solves_to_the_same_path(rows, mrun: int, by_average: bool, seed: int) -> None:
-    """_solve on the band cropped by _crop_to_ends (the rectangle from the lowest source to the
-    highest target) returns the same path as on the whole band: random bands (empty rows, rows
+    """_solve on the band cropped by _crop_to_ends (the slope-ruled cones of the sources and the
+    targets within the rectangle they span) returns the same path as on the whole band: random bands (empty rows, rows
     that jump right), tied costs (0-3), blocked cells (inf, NaN), sources and targets anywhere,
     in any order, overlapping or not reachable."""
     rng = np.random.default_rng(seed)
@@ -274,7 +274,7 @@ def test_a_band_cropped_to_its_ends_solves_to_the_same_path(rows, mrun: int, by_
     dst = rng.permutation(n)[:int(rng.integers(1, min(n, 6) + 1))].astype(np.int64)
     want = _solve(row0, lo, hi, off, vals, src, dst, mrun, by_average, _dp_buffers(n, mrun))
     cell = {(row0 + t, j): off[t] + j - lo[t] for t in range(len(lo)) for j in range(lo[t], hi[t] + 1)}
-    crow0, clo, chi, coff, csrc, cdst = _crop_to_ends(row0, lo, hi, off, src, dst)
+    crow0, clo, chi, coff, csrc, cdst = _crop_to_ends(row0, lo, hi, off, src, dst, mrun)
     cvals = np.full(int(coff[-1]), -1.0)
     for t in range(len(clo)):
         for j in range(clo[t], chi[t] + 1):
