@@ -49,10 +49,10 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
         ("motionweb.tasks.matchweb.refine", "_mark_tiles", "i8[:,:] i8[:] f8 f8 i8 i8 i8[:,:]", 1.1),
         ("motionweb.tasks.matchweb.refine", "_alloc_tiles", "i8[:,:]", 0.3),
         ("motionweb.tasks.matchweb.refine", "_refine_chains",
-         "i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] i8 i8", 6.7),
+         "i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] i8 i8", 13.2),
         ("motionweb.tasks.matchweb.refine", "_refine_bridges",
          ("i8[:,:] i8[:] i8[:,:] i8[:,:] i8[:] i8[:] i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] "
-          "f4[:] f4[:,:] f4[:,:] f4[:] i8 i8"), 3.6),
+          "f4[:] f4[:,:] f4[:,:] f4[:] i8 i8"), 3.0),
     ),
     # KG04 §3.3-3.4: the match walk, redundancy removal, the match graph; §4 registration
     "search": (

@@ -3,9 +3,11 @@
 Each chain is padded by one coarse cell and upsampled into a band (:func:`upsample_band`), its
 endpoints move to the smallest cells near the old ones, and an optimal (least total cost,
 slope-ruled) path joins them inside the band; each bridge likewise, with endpoints on the refined
-chains it joins. Only the cells of the bands are evaluated at the finer rates (cell by cell,
-``tasks.distance.cell_distance``, once per cell however many bands overlap it), so a fine level
-costs linearly in the cells of its search regions rather than Fa·Fb.
+chains it joins. Only cells of the bands are evaluated at the finer rates (cell by cell,
+``tasks.distance.cell_distance``, once per cell however many bands overlap it), and of each band
+only the cells near the old endpoints and those a slope-ruled path between the new ones can cross
+(:func:`_crop_to_ends`): the paths are those of the whole band, so a fine level costs linearly in
+the cells of its search regions rather than Fa·Fb.
 """
 
 from __future__ import annotations
@@ -67,6 +69,11 @@ def upsample_band(cells, s, h, fa, fb):
 
 #: side of the square tiles of the lazily evaluated fine grid of one refinement level
 TILE = 32
+
+#: how :func:`_solve` ranks paths: chains by total cost, bridges by average cost (KG04 §3.2). Numbers,
+#: not the literals True/False, which numba compiles into a specialisation of each solver apiece.
+TOTAL = 0
+AVERAGE = 1
 
 
 @njit(cache=True, nogil=True)
@@ -133,25 +140,45 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
 
 
 @njit(cache=True, nogil=True)
-def _near_cells(row0, lo, hi, off, ci, cj, radius):
-    """Flat indices of band cells within Chebyshev distance ``radius`` of (ci, cj).
+def _near_band(row0, lo, hi, ci, cj, radius):
+    """The band cells within Chebyshev distance ``radius`` of (ci, cj), as a band of their own
+    (row0, lo, hi, off): rows and column intervals of the band clipped to the square.
 
-    Bounds: the output is sized by a first pass over the same rows and column ranges.
+    Bounds: at most the band's rows; an emptied row has hi < lo and counts no cell.
     """
     nr = lo.shape[0]
     t_lo = max(0, math.floor(ci - radius) - row0)
     t_hi = min(nr - 1, math.ceil(ci + radius) - row0)
     j_lo = math.floor(cj - radius)
     j_hi = math.ceil(cj + radius)
-    n = 0
-    for t in range(t_lo, t_hi + 1):
-        n += max(0, min(hi[t], j_hi) - max(lo[t], j_lo) + 1)
-    out = np.empty(n, np.int64)
-    n = 0
-    for t in range(t_lo, t_hi + 1):
-        for j in range(max(lo[t], j_lo), min(hi[t], j_hi) + 1):
-            out[n] = off[t] + j - lo[t]
-            n += 1
+    m = max(0, t_hi - t_lo + 1)
+    nlo = np.empty(m, np.int64)
+    nhi = np.empty(m, np.int64)
+    noff = np.zeros(m + 1, np.int64)
+    for u in range(m):
+        nlo[u] = max(lo[t_lo + u], j_lo)
+        nhi[u] = min(hi[t_lo + u], j_hi)
+        noff[u + 1] = noff[u] + max(0, nhi[u] - nlo[u] + 1)
+    return row0 + t_lo, nlo, nhi, noff
+
+
+@njit(cache=True, nogil=True)
+def _least_near(row0, lo, hi, off, ci, cj, radius, index, pool, left, left_y, na, right, right_y, nb, band):
+    """The band cell of least value within Chebyshev ``radius`` of (ci, cj), the first in row
+    order on ties, as a one-element array of its flat index (empty when every such cell is inf
+    or there is none). Only those cells are evaluated (:func:`_eval_band` on :func:`_near_band`).
+    """
+    nrow0, nlo, nhi, noff = _near_band(row0, lo, hi, ci, cj, radius)
+    vals = np.empty(noff[-1], np.float64)
+    _eval_band(nrow0, nlo, nhi, noff, index, pool, left, left_y, na, right, right_y, nb, band, vals)
+    best = INF
+    out = np.zeros(0, np.int64)
+    for u in range(nlo.shape[0]):
+        for j in range(nlo[u], nhi[u] + 1):
+            v = vals[noff[u] + j - nlo[u]]
+            if v < best:
+                best = v
+                out = np.array([_flat_index(row0, lo, hi, off, nrow0 + u, j)], np.int64)
     return out
 
 
@@ -197,7 +224,7 @@ def _solve(row0, lo, hi, off, vals, sources, targets, mrun, by_average, buf):
         for s in range(ns):
             if length[k, s] == 0:
                 continue
-            v = cost[k, s] / length[k, s] if by_average else cost[k, s]
+            v = cost[k, s] / length[k, s] if by_average == AVERAGE else cost[k, s]
             if v < best:
                 best = v
                 bk = k
@@ -227,19 +254,29 @@ def _fit_values(vbuf, n):
 
 
 @njit(cache=True, nogil=True)
-def _argmin_of(vals, idx):
-    best = INF
-    out = np.zeros(0, np.int64)
-    for k in idx:
-        if vals[k] < best:
-            best = vals[k]
-            out = np.array([k], np.int64)
-    return out
+def _flat_index(row0, lo, hi, off, i, j) -> int:
+    return band_index(lo, hi, off, i - row0, j)
 
 
 @njit(cache=True, nogil=True)
-def _flat_index(row0, lo, hi, off, i, j) -> int:
-    return band_index(lo, hi, off, i - row0, j)
+def _solve_between(row0, lo, hi, off, sources, targets, mrun, by_average, buf, vbuf, index, pool, left, left_y, na,
+                   right, right_y, nb, band):
+    """:func:`_solve` from ``sources`` to ``targets`` (flat indices of the band) on the part of the
+    band a path between them can cross (:func:`_crop_to_ends`), whose cells alone are evaluated:
+    the same path as on the whole band. Returns (path (n, 2), its cells' values (n,) float32, and
+    the scratch ``buf``/``vbuf``, grown when the band needed more)."""
+    row0, lo, hi, off, src, dst = _crop_to_ends(row0, lo, hi, off, sources, targets, mrun)
+    if src.shape[0] == 0 or dst.shape[0] == 0:
+        return np.zeros((0, 2), np.int32), np.zeros(0, np.float32), buf, vbuf
+    buf = _fit(buf, off[-1], mrun)
+    vbuf = _fit_values(vbuf, off[-1])
+    vals = vbuf[:off[-1]]
+    _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
+    path = _solve(row0, lo, hi, off, vals, src, dst, mrun, by_average, buf)
+    pv = np.empty(path.shape[0], np.float32)
+    for u in range(path.shape[0]):
+        pv[u] = vals[_flat_index(row0, lo, hi, off, path[u, 0], path[u, 1])]
+    return path, pv, buf, vbuf
 
 
 @njit(cache=True, nogil=True)
@@ -256,27 +293,24 @@ def _refine_chains(cells, offsets, s, h, radius, fa, fb, index, pool, left, left
     for p in range(nch):
         cc = cells[offsets[p]:offsets[p + 1]]
         row0, lo, hi, off = upsample_band(cc, s, h, fa, fb)
-        buf = _fit(buf, off[-1], mrun)
-        vbuf = _fit_values(vbuf, off[-1])
-        vals = vbuf[:off[-1]]
-        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
         i0 = cc[0, 0] * s
         j0 = cc[0, 1] * s
         i1 = cc[-1, 0] * s
         j1 = cc[-1, 1] * s
-        src = _argmin_of(vals, _near_cells(row0, lo, hi, off, i0, j0, radius))
-        dst = _argmin_of(vals, _near_cells(row0, lo, hi, off, i1, j1, radius))
-        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, False, buf)
+        # the new ends: the least cells near the old ones (KG04 Fig. 8 step 3)
+        src = _least_near(row0, lo, hi, off, i0, j0, radius, index, pool, left, left_y, na, right, right_y, nb, band)
+        dst = _least_near(row0, lo, hi, off, i1, j1, radius, index, pool, left, left_y, na, right, right_y, nb, band)
+        path, pv, buf, vbuf = _solve_between(row0, lo, hi, off, src, dst, mrun, np.int64(TOTAL), buf, vbuf, index, pool, left,
+                                             left_y, na, right, right_y, nb, band)
         if path.shape[0] == 0:  # fall back on the upsampled endpoints themselves
             k0 = _flat_index(row0, lo, hi, off, math.floor(i0 + 0.5), math.floor(j0 + 0.5))
             k1 = _flat_index(row0, lo, hi, off, math.floor(i1 + 0.5), math.floor(j1 + 0.5))
             if k0 >= 0 and k1 >= 0:
-                path = _solve(row0, lo, hi, off, vals, np.array([k0]), np.array([k1]), mrun, False, buf)
+                path, pv, buf, vbuf = _solve_between(row0, lo, hi, off, np.array([k0]), np.array([k1]), mrun, np.int64(TOTAL),
+                                                     buf, vbuf, index, pool, left, left_y, na, right, right_y, nb,
+                                                     band)
         if path.shape[0] == 0:
             continue
-        pv = np.empty(path.shape[0], np.float32)
-        for q in range(path.shape[0]):
-            pv[q] = vals[_flat_index(row0, lo, hi, off, path[q, 0], path[q, 1])]
         new_id[p] = n_out
         n_out += 1
         out_c.append(path)
@@ -512,19 +546,10 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
         dst = _path_cells_near(row0, lo, hi, off, dp, old_cells[c, 0] * s, old_cells[c, 1] * s, radius)
         if src.shape[0] == 0 or dst.shape[0] == 0:
             continue
-        row0, lo, hi, off, src, dst = _crop_to_ends(row0, lo, hi, off, src, dst, mrun)
-        if src.shape[0] == 0 or dst.shape[0] == 0:
-            continue
-        buf = _fit(buf, off[-1], mrun)
-        vbuf = _fit_values(vbuf, off[-1])
-        vals = vbuf[:off[-1]]
-        _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
-        path = _solve(row0, lo, hi, off, vals, src, dst, mrun, True, buf)
+        path, pv, buf, vbuf = _solve_between(row0, lo, hi, off, src, dst, mrun, np.int64(AVERAGE), buf, vbuf, index, pool, left,
+                                             left_y, na, right, right_y, nb, band)
         if path.shape[0] == 0:
             continue
-        pv = np.empty(path.shape[0], np.float32)
-        for u in range(path.shape[0]):
-            pv[u] = vals[_flat_index(row0, lo, hi, off, path[u, 0], path[u, 1])]
         ia = _position(sp, path[0, 0], path[0, 1])
         ic = _position(dp, path[-1, 0], path[-1, 1])
         junctions.append((np_, np.int64(ia), nq, np.int64(ic)))
@@ -546,11 +571,12 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
     path in the band joins them. Each bridge is refined likewise inside its own band, from any
     cell of its refined from-chain to any cell of its refined to-chain within one coarse cell of
     the upsampled old junctions, keeping the least-average path. Chains or bridges with no
-    feasible path are dropped (with their bridges). The union of all bands is evaluated once, each
-    cell on first use, into TILE×TILE tiles allocated for the tiles the bands touch (chain and
-    bridge bands overlap, ~2× on real webs). Cost: O(union of band cells · P) for the values plus
-    O(band cells · k) for the DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search
-    regions.
+    feasible path are dropped (with their bridges). Each search runs on the part of its band that
+    a slope-ruled path from its sources to its targets can cross (:func:`_crop_to_ends`, the same
+    path as on the whole band), whose cells are evaluated once, on first use, into TILE×TILE tiles
+    allocated for the tiles the bands touch (chain and bridge bands overlap, ~2× on real webs).
+    Cost: O(union of cropped band cells · P) for the values plus O(cropped band cells · k) for the
+    DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search regions.
     """
     fa, fb = pa.n_frames, pb.n_frames
     s = float(rate / web.rate)
