@@ -17,10 +17,10 @@ attributes): the webs must be identical.
 
 With ``--breakdown N`` it measures where a pair's time goes instead, in this process on ``N``
 random pairs of the category (the worker's own functions, stage by stage): preparing the pair's
-operands, the coarse grid (GEMM) and web, and per finer level the band cells' values
-(``refine._eval_band``) apart from the rest of the refinement (paths, bridges), then the write.
-It counts the cells each level evaluates (unique cells of the union of bands) against the full
-grid, and prints two arithmetic floors measured in the same run on the working-rate grids of
+operands, the coarse grid (GEMM) and web, and per finer level the refinement (the band cells'
+values and the paths, chains and bridges: ``refine.refine_web``), then the write. It counts the
+cells each level evaluates (``refine_web``'s own count: unique cells of the cropped bands) against
+the full grid, and prints two arithmetic floors measured in the same run on the working-rate grids of
 the sampled pairs: those cells at the per-cell kernel's rate (``tasks.distance.cell_distance``,
 whose float64 sums the stored webs' values are), and every level's whole grid by the GEMM path
 the coarsest level uses (float32 sums in BLAS's order: values that differ in the last bits).
@@ -192,7 +192,6 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
     from motionweb.tasks.distance import _cells_kernel, distance_grid_prepared, prepare_operands_pair
     from motionweb.tasks.matchweb import refine as R
     from motionweb.tasks.matchweb.build import build_web_full
-    from motionweb.tasks.matchweb.params import self_band
 
     pin_blas_threads()
     rate = working_rate(cfg)
@@ -209,7 +208,7 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
     read_s = (time.perf_counter() - t) / len(ops)
     rates = sorted(ops[sample[0].a.sha256])
     mw = cfg.matchweb
-    stages = ["prepare", "coarse grid", "coarse web"] + [f"{r:g} Hz {k}" for r in rates[1:] for k in ("values", "rest")] \
+    stages = ["prepare", "coarse grid", "coarse web"] + [f"{r:g} Hz refine" for r in rates[1:]] \
         + ["arrays, pack, checksum"]
     sec = dict.fromkeys(stages, 0.0)
     cells = {"full": dict.fromkeys(rates, 0), "evaluated": dict.fromkeys(rates, 0)}
@@ -232,28 +231,13 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
             cells["evaluated"][rates[0]] += grid0.size
         for r in rates[1:]:
             pa, pb = pairs[r]
-            fa, fb = pa.n_frames, pb.n_frames
-            s, h = float(r / web.rate), 1.5
-            band_w = self_band(mw, r) if j.self_pair else -1
+            counts: dict[str, int] = {}
             ta = time.perf_counter()
-            index = np.full((-(-fa // R.TILE), -(-fb // R.TILE)), -1, np.int64)
-            pc, bc = web.paths_cells.astype(np.int64), web.bridges_cells.astype(np.int64)
-            R._mark_tiles(pc, web.paths_offsets, s, h, fa, fb, index)
-            R._mark_tiles(bc, web.bridges_offsets, s, h, fa, fb, index)
-            pool = R._alloc_tiles(index)
-            for c, o in ((pc, web.paths_offsets), (bc, web.bridges_offsets)):
-                for q in range(len(o) - 1):
-                    row0, lo, hi, off = R.upsample_band(c[o[q]:o[q + 1]], s, h, fa, fb)
-                    R._eval_band(row0, lo, hi, off, index, pool, pa.left, pa.left_y, pa.norms, pb.right,
-                                 pb.right_y, pb.norms, band_w, np.empty(off[-1]))
-            tb = time.perf_counter()
-            web = R.refine_web(web, pa, pb, r, mw, j.self_pair)
-            tc = time.perf_counter()
-            sec[f"{r:g} Hz values"] += tb - ta
-            sec[f"{r:g} Hz rest"] += max(0.0, (tc - tb) - (tb - ta))  # refine_web evaluates the same cells again
+            web = R.refine_web(web, pa, pb, r, mw, j.self_pair, counts=counts)
+            sec[f"{r:g} Hz refine"] += time.perf_counter() - ta
             if count:
-                cells["full"][r] += fa * fb
-                cells["evaluated"][r] += int(np.count_nonzero(~np.isnan(pool)))
+                cells["full"][r] += pa.n_frames * pb.n_frames
+                cells["evaluated"][r] += counts["evaluated"]
         t4 = time.perf_counter()
         arrays = web.to_arrays()
         parts, _, _ = pack_arrays(arrays)

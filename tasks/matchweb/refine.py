@@ -562,7 +562,7 @@ def _refine_bridges(old_cells, old_offsets, bridges, b_cells, b_offsets, new_id,
 
 
 def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: float, cfg: MatchWebParams,
-               self_pair: bool, pad: float = 1.0) -> MatchWeb:
+               self_pair: bool, pad: float = 1.0, counts: dict[str, int] | None = None) -> MatchWeb:
     """One coarse-to-fine step (KG04 §3.2, Fig. 8) from ``web`` to ``rate``.
 
     (1-2) each chain is padded by ``pad`` coarse cells and upsampled into a band, and only the
@@ -576,7 +576,8 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
     path as on the whole band), whose cells are evaluated once, on first use, into TILE×TILE tiles
     allocated for the tiles the bands touch (chain and bridge bands overlap, ~2× on real webs).
     Cost: O(union of cropped band cells · P) for the values plus O(cropped band cells · k) for the
-    DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search regions.
+    DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search regions. With ``counts``,
+    its ``"evaluated"`` is increased by the cells whose values were computed (bench/index_scale.py).
     """
     fa, fb = pa.n_frames, pb.n_frames
     s = float(rate / web.rate)
@@ -597,5 +598,7 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
                                          new_id, pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
     else:
         jn, bc, bv, bo = np.zeros((0, 4), np.int64), empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
+    if counts is not None:
+        counts["evaluated"] = counts.get("evaluated", 0) + int(np.count_nonzero(~np.isnan(pool)))
     return MatchWeb(rate=rate, shape=(fa, fb), paths_cells=pc, paths_values=pv, paths_offsets=po, bridges=jn,
                     bridges_cells=bc, bridges_values=bv, bridges_offsets=bo, self_pair=self_pair)
