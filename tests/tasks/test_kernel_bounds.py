@@ -24,6 +24,8 @@ from motionweb.tasks.matchweb.bridges import find_bridges
 from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
 from motionweb.tasks.matchweb.params import max_run
 from motionweb.tasks.matchweb.refine import (
+    AVERAGE,
+    TOTAL,
     _crop_to_ends,
     _dp_buffers,
     _path_cells_near,
@@ -147,6 +149,22 @@ def test_band_dp_matches_the_reference(g: np.ndarray, k: int) -> None:
         assert float(g[path[:, 0], path[:, 1]].astype(np.float64).sum()) == pytest.approx(want, rel=1e-6)
 
 
+def random_band(rows: list[tuple[int, int]], rng: np.random.Generator
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, off, values) of a band whose rows start ``step`` right of the previous one and are
+    ``width`` + 1 wide (−1: empty), for (step, width) in ``rows``; values 0-3 (ties), some inf
+    and NaN (blocked)."""
+    lo = np.cumsum([step for step, _ in rows]).astype(np.int64)
+    hi = lo + np.array([width for _, width in rows], np.int64)
+    off = np.zeros(len(rows) + 1, np.int64)
+    off[1:] = np.cumsum(np.maximum(hi - lo + 1, 0))
+    n = int(off[-1])
+    vals = rng.integers(0, 4, n).astype(np.float64)
+    vals[rng.random(n) < 0.1] = np.inf
+    vals[rng.random(n) < 0.05] = np.nan
+    return lo, hi, off, vals
+
+
 @SETTINGS
 @given(st.lists(st.tuples(st.integers(0, 3), st.integers(-1, 6)), min_size=0, max_size=12), st.integers(0, 4),
        st.integers(0, 2**32 - 1))
@@ -156,14 +174,8 @@ def test_band_dp_equals_the_transition_by_transition_reference(rows, mrun: int, 
     flag 1), terminal cells (flag 2) and sources anywhere: the exact values the reference gives,
     so ties resolve to the same path."""
     rng = np.random.default_rng(seed)
-    lo = np.cumsum([step for step, _ in rows]).astype(np.int64)
-    hi = lo + np.array([width for _, width in rows], np.int64)
-    off = np.zeros(len(rows) + 1, np.int64)
-    off[1:] = np.cumsum(np.maximum(hi - lo + 1, 0))
-    n = int(off[-1])
-    vals = rng.integers(0, 4, n).astype(np.float64)
-    vals[rng.random(n) < 0.1] = np.inf
-    vals[rng.random(n) < 0.05] = np.nan
+    lo, hi, off, vals = random_band(rows, rng)
+    n = len(vals)
     init = np.where(rng.random(n) < 0.3, vals, np.inf)
     flags = rng.choice(np.array([0, 0, 0, 1, 2], np.uint8), n)
     got = band_buffers(n, mrun)
@@ -259,20 +271,15 @@ def test_a_band_cropped_to_its_ends_solves_to_the_same_path(rows, mrun: int, by_
     that jump right), tied costs (0-3), blocked cells (inf, NaN), sources and targets anywhere,
     in any order, overlapping or not reachable."""
     rng = np.random.default_rng(seed)
-    lo = np.cumsum([step for step, _ in rows]).astype(np.int64)
-    hi = lo + np.array([width for _, width in rows], np.int64)
-    off = np.zeros(len(rows) + 1, np.int64)
-    off[1:] = np.cumsum(np.maximum(hi - lo + 1, 0))
-    n = int(off[-1])
+    lo, hi, off, vals = random_band(rows, rng)
+    n = len(vals)
     if n == 0:
         return
     row0 = int(rng.integers(0, 5))
-    vals = rng.integers(0, 4, n).astype(np.float64)
-    vals[rng.random(n) < 0.1] = np.inf
-    vals[rng.random(n) < 0.05] = np.nan
+    rank = AVERAGE if by_average else TOTAL
     src = rng.permutation(n)[:int(rng.integers(1, min(n, 6) + 1))].astype(np.int64)
     dst = rng.permutation(n)[:int(rng.integers(1, min(n, 6) + 1))].astype(np.int64)
-    want = _solve(row0, lo, hi, off, vals, src, dst, mrun, by_average, _dp_buffers(n, mrun))
+    want = _solve(row0, lo, hi, off, vals, src, dst, mrun, rank, _dp_buffers(n, mrun))
     cell = {(row0 + t, j): off[t] + j - lo[t] for t in range(len(lo)) for j in range(lo[t], hi[t] + 1)}
     crow0, clo, chi, coff, csrc, cdst = _crop_to_ends(row0, lo, hi, off, src, dst, mrun)
     cvals = np.full(int(coff[-1]), -1.0)
@@ -283,14 +290,14 @@ def test_a_band_cropped_to_its_ends_solves_to_the_same_path(rows, mrun: int, by_
     if len(csrc) == 0 or len(cdst) == 0:
         assert len(want) == 0
         return
-    got = _solve(crow0, clo, chi, coff, cvals, csrc, cdst, mrun, by_average, _dp_buffers(int(coff[-1]) + 3, mrun))
+    got = _solve(crow0, clo, chi, coff, cvals, csrc, cdst, mrun, rank, _dp_buffers(int(coff[-1]) + 3, mrun))
     np.testing.assert_array_equal(got, want)
 
 
 def test_solve_refuses_scratch_smaller_than_its_band() -> None:
     lo, hi, off = np.array([0, 0]), np.array([2, 2]), np.array([0, 3, 6])
     with pytest.raises(ValueError, match="scratch"):
-        _solve(0, lo, hi, off, np.ones(6), np.array([0]), np.array([5]), 1, False, _dp_buffers(5, 1))
+        _solve(0, lo, hi, off, np.ones(6), np.array([0]), np.array([5]), 1, TOTAL, _dp_buffers(5, 1))
 
 
 # ------------------------------------------------------------------------------------ distances
