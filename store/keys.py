@@ -34,6 +34,10 @@ class IndexSettings(Protocol):
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
 STORE_SCHEMA = 2
+#: how a web's values are summed: 2 = every level's cells by the per-cell kernel (float64 sums in one
+#: order on every CPU, tasks.distance.distance_grid_cells); webs of other versions are recomputed
+#: (1, before: the coarsest grid by BLAS GEMMs, whose bits depend on the CPU's kernel)
+WEB_VALUES = 2
 #: web shards live under webs/ next to the (logical) web keys webs/<sha_a[:2]>/...
 SHARDS = "webs/shards"
 
@@ -67,6 +71,7 @@ def web_params(cfg: IndexSettings) -> dict[str, Any]:
     mw.pop("keep_grids", None)  # storing grids on the side does not change a web
     return {
         "schema": STORE_SCHEMA,
+        "values": WEB_VALUES,
         "features": feature_params(cfg),
         "rates": sorted(float(r) for r in cfg.features.rates),
         "matchweb": mw,

@@ -325,6 +325,29 @@ def _cells_kernel(left, left_y, na, right, right_y, nb, rows, cols, out) -> None
         out[k] = cell_distance(left, left_y, na, right, right_y, nb, rows[k], cols[k])
 
 
+@njit(cache=True, nogil=True)
+def _grid_kernel(left, left_y, na, right, right_y, nb, out) -> None:
+    """Bounds: writes out[i, j] for i < out.shape[0] ≤ Fa, j < out.shape[1] ≤ Fb (checked by
+    :func:`distance_grid_cells`, which allocates ``out`` as (Fa, Fb))."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = cell_distance(left, left_y, na, right, right_y, nb, i, j)
+
+
+def distance_grid_cells(pa: PreparedFeatures, pb: PreparedFeatures) -> np.ndarray:
+    """The full (Fa, Fb) grid cell by cell (:func:`cell_distance`, float64 sums, stored as the
+    operands' dtype): the values the finer levels of a match web evaluate, in the same order of
+    operations whatever the CPU (KG04 §3.1-3.2, the coarsest level of Fig. 8).
+
+    The GEMM path (:func:`distance_grid_prepared`) is ~4x faster but sums in float32 in the order
+    of the BLAS kernel the CPU gets, so its last bits, and through them a web's minima, chains and
+    bridges, differed between machines of one cluster (bench/cpu_bytes.py). O(Fa·Fb·P), one thread.
+    """
+    out = np.empty((pa.n_frames, pb.n_frames), dtype=pa.norms.dtype)
+    _grid_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, out)
+    return out
+
+
 def distance_cells(pa: PreparedFeatures, pb: PreparedFeatures, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """D at scattered cells ``(rows[k], cols[k])`` (no GEMM: O(P) per cell, single thread).
 

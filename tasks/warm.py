@@ -40,6 +40,7 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
     # KG04 §3.1-3.2: frame distances, local minima, chains, bridges, refinement
     "index": (
         ("motionweb.tasks.distance", "_combine", "f4[:,:] f4[:,:] f4[:,:] f4[:] f4[:] f4[:,:]", 0.2),
+        ("motionweb.tasks.distance", "_grid_kernel", "f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] f4[:,:]", 1.0),
         ("motionweb.tasks.distance", "_shift_heights", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8 f8[:,:] f4[:,:] f4[:,:]", 0.2),
         ("motionweb.tasks.matchweb.minima", "_local_minima", "f4[:,:]", 0.45),
         ("motionweb.tasks.matchweb.minima", "_valid_region", "f4[:,:] u1[:,:] f8", 0.5),

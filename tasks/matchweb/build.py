@@ -12,6 +12,7 @@ from motionweb.store.web import MatchWeb
 from motionweb.tasks.distance import (
     ClipOperands,
     DTypeLike,
+    distance_grid_cells,
     distance_grid_prepared,
     prepare_operands_pair,
 )
@@ -66,8 +67,10 @@ def build_web_operands(oa_by_rate: dict[float, ClipOperands], ob_by_rate: dict[f
     """Match web from per-clip operands (``tasks.distance.ClipOperands``, prepared once per clip
     and rate, e.g. once per index worker; KG04 §3.2, Fig. 8).
 
-    The coarsest level evaluates its full grid (O(Fa·Fb·P) at the coarsest rate, 1/9 of the
-    working-rate cost for 10 → 30 Hz) and runs :func:`build_web_full`; every finer level
+    The coarsest level evaluates its full grid cell by cell (``distance_grid_cells``: the same
+    float64 sums as the finer levels, the same bits on the CPUs bench/cpu_bytes.py compiles for;
+    O(Fa·Fb·P) at the coarsest rate, 1/9 of the working-rate cost for 10 → 30 Hz) and runs
+    :func:`build_web_full`; every finer level
     evaluates only the cells of the padded, upsampled chains and bridges (:func:`refine_web`).
     Per level the pair's shared vertical shift finishes the operands (O((Fa + Fb)·P)). With
     ``cfg.keep_grids`` the full grid at the working rate is also computed and kept (O(Fa·Fb)
@@ -78,7 +81,7 @@ def build_web_operands(oa_by_rate: dict[float, ClipOperands], ob_by_rate: dict[f
         raise ValueError(f"clips A and B must have features at the same rates, got {sorted(oa_by_rate)} "
                          f"and {sorted(ob_by_rate)}")
     r0 = rates[0]
-    grid0 = distance_grid_prepared(*prepare_operands_pair(oa_by_rate[r0], ob_by_rate[r0]))
+    grid0 = distance_grid_cells(*prepare_operands_pair(oa_by_rate[r0], ob_by_rate[r0]))
     web = build_web_full(grid0, r0, cfg.model_copy(update={"keep_grids": False}), self_pair)
     for r in rates[1:]:
         pa, pb = prepare_operands_pair(oa_by_rate[r], ob_by_rate[r])

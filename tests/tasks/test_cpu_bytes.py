@@ -1,0 +1,64 @@
+"""Webs are the same bytes whatever CPU computes them (the brief: "the same inputs give the same
+bytes whatever the worker kind"; store.keys.WEB_VALUES 2).
+
+A Dask cluster may mix machines, and numba compiles for the CPU it runs on. Every level of a web
+takes its values from tasks.distance.cell_distance (the coarsest grid through
+distance_grid_cells): here they are computed again in a child process with the kernels compiled
+for older x86-64 CPUs (NUMBA_CPU_NAME, a cache of its own) and must be the same bytes.
+bench/cpu_bytes.py prints the same comparison for the GEMM path, which differs.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from motionweb.tasks.distance import _cells_kernel, distance_cells, distance_grid_cells, prepare_pair
+
+CHILD = r"""
+import sys
+import numpy as np
+from motionweb.tasks.distance import _cells_kernel, distance_grid_cells, prepare_pair
+rng = np.random.default_rng(3)
+fa = rng.normal(size=(41, 110, 3)).astype(np.float32)
+fb = rng.normal(size=(37, 110, 3)).astype(np.float32)
+pa, pb = prepare_pair(fa, fb, rng.uniform(0.5, 1.5, 110))
+rows = np.repeat(np.arange(41), 37).astype(np.int64)
+cols = np.tile(np.arange(37), 41).astype(np.int64)
+cells = np.empty(len(rows))
+_cells_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, rows, cols, cells)
+np.savez(sys.argv[1], grid=distance_grid_cells(pa, pb), cells=cells)
+"""
+
+
+def here() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(3)
+    fa = rng.normal(size=(41, 110, 3)).astype(np.float32)
+    fb = rng.normal(size=(37, 110, 3)).astype(np.float32)
+    pa, pb = prepare_pair(fa, fb, rng.uniform(0.5, 1.5, 110))
+    rows = np.repeat(np.arange(41), 37).astype(np.int64)
+    cols = np.tile(np.arange(37), 41).astype(np.int64)
+    cells = np.empty(len(rows))
+    _cells_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, rows, cols, cells)
+    grid = distance_grid_cells(pa, pb)
+    np.testing.assert_array_equal(grid.reshape(-1), distance_cells(pa, pb, rows, cols))
+    return {"grid": grid, "cells": cells}
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="compares x86-64 CPU targets")
+@pytest.mark.parametrize("cpu", ["haswell", "sandybridge"])
+def test_web_values_are_the_same_bytes_compiled_for_another_cpu(cpu: str, tmp_path: Path) -> None:
+    env = {**os.environ, "NUMBA_CPU_NAME": cpu, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("NUMBA_CPU_FEATURES", None)
+    out = tmp_path / "values.npz"
+    r = subprocess.run([sys.executable, "-c", CHILD, str(out)], env=env, capture_output=True, text=True,
+                       timeout=600, check=False)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got, want = dict(np.load(out)), here()
+    for key in ("grid", "cells"):
+        assert got[key].dtype == want[key].dtype and got[key].tobytes() == want[key].tobytes(), key
