@@ -22,8 +22,9 @@ values and the paths, chains and bridges: ``refine.refine_web``), then the write
 cells each level evaluates (``refine_web``'s own count: unique cells of the cropped bands) against
 the full grid, and prints two arithmetic floors measured in the same run on the working-rate grids of
 the sampled pairs: those cells at the per-cell kernel's rate (``tasks.distance.cell_distance``,
-whose float64 sums the stored webs' values are), and every level's whole grid by the GEMM path
-the coarsest level uses (float32 sums in BLAS's order: values that differ in the last bits).
+whose float64 sums the stored webs' values are, every level's since ``store.keys.WEB_VALUES`` 2),
+and every level's whole grid by the GEMM path (float32 sums in BLAS's order: values that differ
+in the last bits, and from CPU to CPU, bench/cpu_bytes.py).
 
 With ``--store STORE --corpus DIR`` (an indexed store and its corpus, e.g. bench/scale.py's, whose
 long takes have grids ~100x a demo clip's) the same comparison runs on a category of that store
@@ -189,7 +190,12 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
     from motionweb.flows.runtime.workers import clip_operands, pin_blas_threads, web_counts
     from motionweb.store.keys import feature_digest
     from motionweb.store.zarr_store import checksum, pack_arrays
-    from motionweb.tasks.distance import _cells_kernel, distance_grid_prepared, prepare_operands_pair
+    from motionweb.tasks.distance import (
+        _cells_kernel,
+        distance_grid_cells,
+        distance_grid_prepared,
+        prepare_operands_pair,
+    )
     from motionweb.tasks.matchweb import refine as R
     from motionweb.tasks.matchweb.build import build_web_full
 
@@ -219,7 +225,7 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
         t0 = time.perf_counter()
         pairs = {r: prepare_operands_pair(oa[r], ob[r]) for r in rates}
         t1 = time.perf_counter()
-        grid0 = distance_grid_prepared(*pairs[rates[0]])
+        grid0 = distance_grid_cells(*pairs[rates[0]])  # as build_web_operands
         t2 = time.perf_counter()
         web = build_web_full(grid0, rates[0], mw, j.self_pair)
         t3 = time.perf_counter()
@@ -292,10 +298,10 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
     print(f"a cell at the working rate: {per_cell * 1e9:.1f} ns by the per-cell kernel "
           f"(tasks.distance.cell_distance, {flops_cell / per_cell / 1e9:.1f} GFLOP/s), {gemm_cell * 1e9:.1f} ns "
           f"by the GEMM path on the whole grid (distance_grid_prepared, {flops_cell / gemm_cell / 1e9:.1f} GFLOP/s)")
-    floor_cells = fine * per_cell + coarse * gemm_cell
+    floor_cells = (fine + coarse) * per_cell
     floor_gemm = sum(cells["full"][r] for r in rates) / m * gemm_cell
-    print(f"floors per pair: the evaluated cells at the per-cell kernel's rate (fine levels) and the GEMM "
-          f"path's (coarsest) {floor_cells * 1e3:.3f} ms; every level's whole grid by the GEMM path "
+    print(f"floors per pair: the evaluated cells at the per-cell kernel's rate (every level's values since "
+          f"store.keys.WEB_VALUES 2) {floor_cells * 1e3:.3f} ms; every level's whole grid by the GEMM path "
           f"{floor_gemm * 1e3:.3f} ms; measured {total * 1e3:.3f} ms = {total / floor_cells:.1f}x / "
           f"{total / floor_gemm:.1f}x")
     what, n_pairs = scale_to
