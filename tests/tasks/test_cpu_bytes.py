@@ -18,25 +18,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from motionweb.tasks.distance import _cells_kernel, distance_cells, distance_grid_cells, prepare_pair
+from motionweb.tasks.distance import distance_cells
 
-CHILD = r"""
-import sys
+#: the values of one pair, as a source both this process and the child run
+VALUES = r"""
 import numpy as np
 from motionweb.tasks.distance import _cells_kernel, distance_grid_cells, prepare_pair
-rng = np.random.default_rng(3)
-fa = rng.normal(size=(41, 110, 3)).astype(np.float32)
-fb = rng.normal(size=(37, 110, 3)).astype(np.float32)
-pa, pb = prepare_pair(fa, fb, rng.uniform(0.5, 1.5, 110))
-rows = np.repeat(np.arange(41), 37).astype(np.int64)
-cols = np.tile(np.arange(37), 41).astype(np.int64)
-cells = np.empty(len(rows))
-_cells_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, rows, cols, cells)
-np.savez(sys.argv[1], grid=distance_grid_cells(pa, pb), cells=cells)
-"""
 
 
-def here() -> dict[str, np.ndarray]:
+def values():
     rng = np.random.default_rng(3)
     fa = rng.normal(size=(41, 110, 3)).astype(np.float32)
     fb = rng.normal(size=(37, 110, 3)).astype(np.float32)
@@ -45,9 +35,22 @@ def here() -> dict[str, np.ndarray]:
     cols = np.tile(np.arange(37), 41).astype(np.int64)
     cells = np.empty(len(rows))
     _cells_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, rows, cols, cells)
-    grid = distance_grid_cells(pa, pb)
-    np.testing.assert_array_equal(grid.reshape(-1), distance_cells(pa, pb, rows, cols))
-    return {"grid": grid, "cells": cells}
+    return {"grid": distance_grid_cells(pa, pb), "cells": cells, "pair": (pa, pb, rows, cols)}
+"""
+CHILD = VALUES + """
+import sys
+got = values()
+np.savez(sys.argv[1], grid=got["grid"], cells=got["cells"])
+"""
+
+
+def here() -> dict[str, np.ndarray]:
+    space: dict = {}
+    exec(VALUES, space)  # noqa: S102 - the test's own source, run here as the child runs it
+    got = space["values"]()
+    pa, pb, rows, cols = got["pair"]
+    np.testing.assert_array_equal(got["grid"].reshape(-1), distance_cells(pa, pb, rows, cols))
+    return got
 
 
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="compares x86-64 CPU targets")
