@@ -34,9 +34,10 @@ class IndexSettings(Protocol):
 
 #: bump when the layout or the meaning of stored arrays changes (enters every parameter digest)
 STORE_SCHEMA = 2
-#: how a web's values are summed: 2 = every level's cells by the per-cell kernel (float64 sums in one
-#: order on every CPU, tasks.distance.distance_grid_cells); webs of other versions are recomputed
-#: (1, before: the coarsest grid by BLAS GEMMs, whose bits depend on the CPU's kernel)
+#: how a web's values are summed: 2 = every level's cells by the per-cell kernel (float64 sums,
+#: tasks.distance.distance_grid_cells: the same bytes on the x86-64 CPUs tests/tasks/test_cpu_bytes.py
+#: compiles for); webs of other versions are recomputed (1, before: the coarsest grid by BLAS GEMMs,
+#: whose bits depend on the CPU's kernel)
 WEB_VALUES = 2
 #: web shards live under webs/ next to the (logical) web keys webs/<sha_a[:2]>/...
 SHARDS = "webs/shards"

@@ -336,8 +336,9 @@ def _grid_kernel(left, left_y, na, right, right_y, nb, out) -> None:
 
 def distance_grid_cells(pa: PreparedFeatures, pb: PreparedFeatures) -> np.ndarray:
     """The full (Fa, Fb) grid cell by cell (:func:`cell_distance`, float64 sums, stored as the
-    operands' dtype): the values the finer levels of a match web evaluate, in the same order of
-    operations whatever the CPU (KG04 §3.1-3.2, the coarsest level of Fig. 8).
+    operands' dtype): the values the finer levels of a match web evaluate, the same bytes on the
+    x86-64 CPUs tests/tasks/test_cpu_bytes.py compiles for (KG04 §3.1-3.2, the coarsest level of
+    Fig. 8; ``cell_distance`` is compiled with fastmath, so other architectures are untested).
 
     The GEMM path (:func:`distance_grid_prepared`) is ~4x faster but sums in float32 in the order
     of the BLAS kernel the CPU gets, so its last bits, and through them a web's minima, chains and
