@@ -1,5 +1,5 @@
-"""Webs are the same bytes whatever CPU computes them (the brief: "the same inputs give the same
-bytes whatever the worker kind"; store.keys.WEB_VALUES 2).
+"""Webs are the same bytes on the x86-64 CPUs compared here, whichever computes them (the brief:
+"the same inputs give the same bytes whatever the worker kind"; store.keys.WEB_VALUES 2).
 
 A Dask cluster may mix machines, and numba compiles for the CPU it runs on. Every level of a web
 takes its values from tasks.distance.cell_distance (the coarsest grid through
