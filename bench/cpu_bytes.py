@@ -65,7 +65,7 @@ from motionweb.flows.runtime.workers import clip_operands, pin_blas_threads
 from motionweb.store.keys import feature_digest, web_digest
 from motionweb.tasks.matchweb.build import build_web_operands
 store, corpus, category, n, out = sys.argv[1], Path(sys.argv[2]), sys.argv[3] or None, int(sys.argv[4]), sys.argv[5]
-cfg, category, entries = store_category(Path(store), corpus, category)
+cfg, category, entries, _ = store_category(Path(store), corpus, category)
 pin_blas_threads()
 jobs = plan_pairs(Chunk(category, tuple(entries)), web_digest(cfg), working_rate(cfg))
 hashes = []

@@ -312,9 +312,9 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
         raise SystemExit("nothing measured")
 
 
-def store_category(store: Path, corpus: Path, category: str | None) -> tuple[Config, str, list]:
+def store_category(store: Path, corpus: Path, category: str | None) -> tuple[Config, str, list, int]:
     """(config of the store's current generation with ``corpus`` as its corpus, category, its
-    catalog entries); the category of most pairs by default. Stops unless every clip of the
+    catalog entries, the generation's webs); the category of most pairs by default. Stops unless every clip of the
     category has its features in the store."""
     from motionweb.store.generations import current_generation
 
@@ -333,16 +333,13 @@ def store_category(store: Path, corpus: Path, category: str | None) -> tuple[Con
     indexed = {c["sha256"] for c in gen.clips}
     if missing := [e.path for e in entries if e.sha256 not in indexed]:
         raise CorpusError(f"{store} did not index {len(missing)} clips of {category}: {missing[:3]}")
-    return cfg, category, entries
+    return cfg, category, entries, len(gen.webs)
 
 
 def store_breakdown(store: Path, corpus: Path, category: str | None, n: int) -> None:
     """:func:`breakdown` on a category of an indexed store (e.g. bench/scale.py's long takes, whose
     grids are ~100x a demo clip's), with the config of its current generation."""
-    from motionweb.store.generations import current_generation
-
-    cfg, category, entries = store_category(store, corpus, category)
-    n_webs = len(current_generation(MotionStore(str(store), read_only=True)).webs)
+    cfg, category, entries, n_webs = store_category(store, corpus, category)
     frames = sum(frames60(e.duration) for e in entries)
     print(f"category {category}: {len(entries)} clips, {frames} frames at 60 Hz; rates {cfg.features.rates} "
           f"(store {store}, {n_webs} webs)")
@@ -372,7 +369,7 @@ def main() -> None:
         if args.breakdown:
             store_breakdown(store, corpus, args.category, args.breakdown)
             return
-        cfg, category, entries = store_category(store, corpus, args.category)
+        cfg, category, entries, _ = store_category(store, corpus, args.category)
         work = Path(args.keep or tempfile.mkdtemp(prefix="motionweb-bench-index-scale-"))
         work.mkdir(parents=True, exist_ok=True)
         features = work / "features-of-store"  # the store's features alone: the codes write webs afresh

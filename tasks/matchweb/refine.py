@@ -501,19 +501,18 @@ def _crop_to_ends(row0, lo, hi, off, sources, targets, mrun):
         chi[u] = min(b, min(shi, thi))
         coff[u + 1] = coff[u] + max(0, chi[u] - clo[u] + 1)
     crow0 = row0 + t0
-    return (crow0, clo, chi, coff, _recount(row0, lo, off, crow0, clo, chi, coff, sources),
-            _recount(row0, lo, off, crow0, clo, chi, coff, targets))
+    return (crow0, clo, chi, coff, _recount(crow0, clo, chi, coff, si, sj),
+            _recount(crow0, clo, chi, coff, ti, tj))
 
 
 @njit(cache=True, nogil=True)
-def _recount(row0, lo, off, crow0, clo, chi, coff, ends):
-    """Flat indices in the cropped band (``crow0, clo, chi, coff``) of the band cells ``ends``
+def _recount(crow0, clo, chi, coff, rows, cols):
+    """Flat indices in the cropped band (``crow0, clo, chi, coff``) of the cells (rows[q], cols[q])
     that lie in it, in their order. Bounds: at most one per input, into an array as long."""
-    idx = np.empty(ends.shape[0], np.int64)
+    idx = np.empty(rows.shape[0], np.int64)
     n = 0
-    for k in ends:
-        i, j = _band_cell(row0, lo, off, k)
-        kk = band_index(clo, chi, coff, i - crow0, j)
+    for q in range(rows.shape[0]):
+        kk = band_index(clo, chi, coff, rows[q] - crow0, cols[q])
         if kk >= 0:
             idx[n] = kk
             n += 1
