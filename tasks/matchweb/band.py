@@ -36,11 +36,7 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     Each state has its own few candidates, taken in a fixed order with a strict ``<`` (ties keep
     the first): state 0 (diagonal) the source, then the diagonal predecessor's states in order;
     up-run 1 the up predecessor's states r ≤ 0 in order, up-run r + 1 its state r; right runs
-    likewise from the left neighbour. Each cell's states are found in registers (each candidate a
-    select, not a branch) and written once. The default slope rule (k = 3, ``mrun`` 2, 5 states)
-    runs a copy compiled with its state count as a constant (:func:`_band_dp_k3`, ~30% faster per
-    cell: its loops unroll); any other ``mrun`` the same rows with the count as a variable
-    (:func:`_band_dp_any`). Both are :func:`_band_dp_rows`, so the outputs are the same bytes.
+    likewise from the left neighbour. Each cell's states are found in registers and written once.
     ``tests/naive.ref_band_dp`` is the same rule written out per transition.
 
     Bounds: writes rows ``off[t] .. off[t] + hi[t] − lo[t]`` of ``cost``/``length``/``ptr`` (so at
@@ -48,33 +44,8 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     + 1``, empty rows have ``hi < lo``) and states ``0 .. 2·mrun`` (≤ 126, held by the int8 ``ptr``:
     ``params.max_run`` caps slope_k at 64).
     """
-    cf = cost.reshape(-1)
-    lf = length.reshape(-1)
-    pf = ptr.reshape(-1)
-    if mrun == 2:
-        _band_dp_k3(lo, hi, off, vals, init, flags, cf, lf, pf)
-    else:
-        _band_dp_any(lo, hi, off, vals, init, flags, mrun, cf, lf, pf)
-
-
-@njit(cache=True, nogil=True)
-def _band_dp_k3(lo, hi, off, vals, init, flags, cf, lf, pf) -> None:
-    """:func:`_band_dp_rows` for slope_k 3 (the default): 5 states, known when compiled."""
-    _band_dp_rows(lo, hi, off, vals, init, flags, 5, 2, cf, lf, pf)
-
-
-@njit(cache=True, nogil=True)
-def _band_dp_any(lo, hi, off, vals, init, flags, mrun, cf, lf, pf) -> None:
-    """:func:`_band_dp_rows` for any ``mrun``."""
-    _band_dp_rows(lo, hi, off, vals, init, flags, 2 * mrun + 1, mrun, cf, lf, pf)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _band_dp_rows(lo, hi, off, vals, init, flags, ns, c0, cf, lf, pf) -> None:
-    """The body of :func:`band_dp` on flat (cells·ns) outputs, ``ns = 2·c0 + 1`` states, state
-    ``c0`` the diagonal one; cell k's state s is entry ``k·ns + s``. Inlined into its two callers,
-    so that one of them sees ``ns`` as a constant. Bounds: as :func:`band_dp` (entries below
-    ``off[-1]·ns``)."""
+    ns = 2 * mrun + 1
+    c0 = mrun
     for t in range(lo.shape[0]):
         # previous row's interval (empty for the first row)
         plo = lo[t - 1] if t > 0 else 0
@@ -83,13 +54,12 @@ def _band_dp_rows(lo, hi, off, vals, init, flags, ns, c0, cf, lf, pf) -> None:
         base = off[t] - lo[t]
         for j in range(lo[t], hi[t] + 1):
             k = base + j
-            q = k * ns
             v = vals[k]
             if not v < INF or flags[k] == 1:
                 for s in range(ns):
-                    cf[q + s] = INF
-                    lf[q + s] = 0
-                    pf[q + s] = -2
+                    cost[k, s] = INF
+                    length[k, s] = 0
+                    ptr[k, s] = -2
                 continue
             # diagonal (and source) → state c0
             bc = INF
@@ -100,70 +70,78 @@ def _band_dp_rows(lo, hi, off, vals, init, flags, ns, c0, cf, lf, pf) -> None:
                 bl = 1
                 bp = -1
             if plo <= j - 1 <= phi and flags[pbase + j - 1] != 2:
-                qd = (pbase + j - 1) * ns
+                kd = pbase + j - 1
                 for s in range(ns):
-                    c = cf[qd + s] + v
-                    better = c < bc
-                    bc = c if better else bc
-                    bl = lf[qd + s] + 1 if better else bl
-                    bp = s if better else bp
-            cf[q + c0] = bc
-            lf[q + c0] = bl
-            pf[q + c0] = bp
-            if c0 == 0:
+                    c = cost[kd, s] + v
+                    if c < bc:
+                        bc = c
+                        bl = length[kd, s] + 1
+                        bp = s
+            cost[k, c0] = bc
+            length[k, c0] = bl
+            ptr[k, c0] = bp
+            if mrun == 0:
                 continue
             # up: states r ≤ 0 → run 1; run r → r + 1 (≤ mrun)
             if plo <= j <= phi and flags[pbase + j] != 2:
-                qv = (pbase + j) * ns
+                kv = pbase + j
                 bc = INF
                 bl = 0
                 bp = -2
                 for s in range(c0 + 1):
-                    c = cf[qv + s] + v
-                    better = c < bc
-                    bc = c if better else bc
-                    bl = lf[qv + s] + 1 if better else bl
-                    bp = s if better else bp
-                cf[q + c0 + 1] = bc
-                lf[q + c0 + 1] = bl
-                pf[q + c0 + 1] = bp
+                    c = cost[kv, s] + v
+                    if c < bc:
+                        bc = c
+                        bl = length[kv, s] + 1
+                        bp = s
+                cost[k, c0 + 1] = bc
+                length[k, c0 + 1] = bl
+                ptr[k, c0 + 1] = bp
                 for s in range(c0 + 1, ns - 1):
-                    c = cf[qv + s] + v
-                    ok = c < INF
-                    cf[q + s + 1] = c if ok else INF
-                    lf[q + s + 1] = lf[qv + s] + 1 if ok else 0
-                    pf[q + s + 1] = s if ok else -2
+                    c = cost[kv, s] + v
+                    if c < INF:
+                        cost[k, s + 1] = c
+                        length[k, s + 1] = length[kv, s] + 1
+                        ptr[k, s + 1] = s
+                    else:
+                        cost[k, s + 1] = INF
+                        length[k, s + 1] = 0
+                        ptr[k, s + 1] = -2
             else:
                 for s in range(c0 + 1, ns):
-                    cf[q + s] = INF
-                    lf[q + s] = 0
-                    pf[q + s] = -2
+                    cost[k, s] = INF
+                    length[k, s] = 0
+                    ptr[k, s] = -2
             # right: states r ≥ 0 → run −1; run r < 0 → r − 1 (≥ −mrun)
             if j > lo[t] and flags[k - 1] != 2:
-                qh = q - ns
+                kh = k - 1
                 bc = INF
                 bl = 0
                 bp = -2
                 for s in range(c0, ns):
-                    c = cf[qh + s] + v
-                    better = c < bc
-                    bc = c if better else bc
-                    bl = lf[qh + s] + 1 if better else bl
-                    bp = s if better else bp
-                cf[q + c0 - 1] = bc
-                lf[q + c0 - 1] = bl
-                pf[q + c0 - 1] = bp
+                    c = cost[kh, s] + v
+                    if c < bc:
+                        bc = c
+                        bl = length[kh, s] + 1
+                        bp = s
+                cost[k, c0 - 1] = bc
+                length[k, c0 - 1] = bl
+                ptr[k, c0 - 1] = bp
                 for s in range(1, c0):
-                    c = cf[qh + s] + v
-                    ok = c < INF
-                    cf[q + s - 1] = c if ok else INF
-                    lf[q + s - 1] = lf[qh + s] + 1 if ok else 0
-                    pf[q + s - 1] = s if ok else -2
+                    c = cost[kh, s] + v
+                    if c < INF:
+                        cost[k, s - 1] = c
+                        length[k, s - 1] = length[kh, s] + 1
+                        ptr[k, s - 1] = s
+                    else:
+                        cost[k, s - 1] = INF
+                        length[k, s - 1] = 0
+                        ptr[k, s - 1] = -2
             else:
                 for s in range(c0):
-                    cf[q + s] = INF
-                    lf[q + s] = 0
-                    pf[q + s] = -2
+                    cost[k, s] = INF
+                    length[k, s] = 0
+                    ptr[k, s] = -2
 
 
 @njit(cache=True, nogil=True)

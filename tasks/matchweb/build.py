@@ -16,8 +16,8 @@ from motionweb.tasks.distance import (
     distance_grid_prepared,
     prepare_operands_pair,
 )
-from motionweb.tasks.matchweb.bridges import _find_bridges
-from motionweb.tasks.matchweb.minima import _find_chains, _local_minima, _valid_region, as_grid
+from motionweb.tasks.matchweb.bridges import chain_bridges
+from motionweb.tasks.matchweb.minima import as_grid, dense_chains
 from motionweb.tasks.matchweb.params import INF, MatchWebParams, bridge_cells, max_run, min_chain_extent, self_band
 from motionweb.tasks.matchweb.refine import refine_level
 from numba import njit
@@ -40,9 +40,8 @@ def _values_at(g, cells):
 def _coarse_level(grid, band, valid_a, mrun, min_extent, max_len):
     """:func:`build_web_full`'s web as :data:`WebArrays`, in one compiled call: the self band
     |i − j| ≤ ``band`` masked (a copy; ``band`` < 0: none), minima, valid region, chains and
-    bridges (the kernels of :mod:`.minima` and :mod:`.bridges`, whose Python wrappers check what
-    this passes them by construction). Bounds: the chain index (``gid``) is the grid's shape and
-    the chain cells lie in the grid (``_find_chains``)."""
+    bridges (``minima.dense_chains``, ``bridges.chain_bridges``: the kernels without the checks of
+    their Python wrappers, which what this passes them meets by construction)."""
     fa, fb = grid.shape
     g = grid
     if band >= 0:
@@ -50,20 +49,8 @@ def _coarse_level(grid, band, valid_a, mrun, min_extent, max_len):
         for i in range(fa):
             for j in range(max(0, i - band), min(fb, i + band + 1)):
                 g[i, j] = INF
-    minima = _local_minima(g)
-    valid = _valid_region(g, minima, valid_a)
-    cells, offsets = _find_chains(g, minima, mrun, min_extent)
-    n = cells.shape[0]
-    c64 = np.empty((n, 2), np.int64)
-    gid = np.full((fa, fb), -1, np.int64)
-    chain_of = np.empty(n, np.int64)
-    for c in range(offsets.shape[0] - 1):
-        for q in range(offsets[c], offsets[c + 1]):
-            c64[q, 0] = cells[q, 0]
-            c64[q, 1] = cells[q, 1]
-            gid[cells[q, 0], cells[q, 1]] = q
-            chain_of[q] = c
-    br, bcells, boff = _find_bridges(g, valid, gid, chain_of, c64, offsets, mrun, max_len)
+    valid, cells, offsets = dense_chains(g, valid_a, mrun, min_extent)
+    br, bcells, boff = chain_bridges(g, valid, cells, offsets, mrun, max_len)
     return cells, _values_at(g, cells), offsets, br, bcells, _values_at(g, bcells), boff
 
 

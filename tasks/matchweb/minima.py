@@ -188,6 +188,17 @@ def find_chains(grid: np.ndarray, minima: np.ndarray, slope_k: int, min_extent: 
     return _find_chains(g, _same_shape(minima, g), max_run(slope_k), int(min_extent))
 
 
+@njit(cache=True, nogil=True)
+def dense_chains(g, a, mrun, min_extent):
+    """(valid region (Fa, Fb) bool, chain cells (N, 2) int32, chain offsets (C + 1,)) of a float32
+    grid in one compiled call: :func:`local_minima`, :func:`valid_region` and :func:`find_chains`
+    without their checks (``g`` C-contiguous float32, ``mrun`` = slope_k − 1). O(Fa·Fb)."""
+    minima = _local_minima(g)
+    valid = _valid_region(g, minima, a)
+    cells, offsets = _find_chains(g, minima, mrun, min_extent)
+    return valid, cells, offsets
+
+
 def mask_self_band(grid: np.ndarray, band: int) -> np.ndarray:
     """A copy of ``grid`` with cells |i − j| ≤ band set to +inf (the ignored self-pair diagonal)."""
     g = np.array(grid, copy=True)
