@@ -17,8 +17,8 @@ from motionweb.tasks.distance import (
     prepare_operands_pair,
 )
 from motionweb.tasks.matchweb.bridges import chain_bridges
-from motionweb.tasks.matchweb.minima import as_grid, dense_chains
-from motionweb.tasks.matchweb.params import INF, MatchWebParams, bridge_cells, max_run, min_chain_extent, self_band
+from motionweb.tasks.matchweb.minima import as_grid, dense_chains, self_band_masked
+from motionweb.tasks.matchweb.params import MatchWebParams, bridge_cells, max_run, min_chain_extent, self_band
 from motionweb.tasks.matchweb.refine import refine_level
 from numba import njit
 
@@ -39,16 +39,11 @@ def _values_at(g, cells):
 @njit(cache=True, nogil=True)
 def _coarse_level(grid, band, valid_a, mrun, min_extent, max_len):
     """:func:`build_web_full`'s web as :data:`WebArrays`, in one compiled call: the self band
-    |i − j| ≤ ``band`` masked (a copy; ``band`` < 0: none), minima, valid region, chains and
-    bridges (``minima.dense_chains``, ``bridges.chain_bridges``: the kernels without the checks of
-    their Python wrappers, which what this passes them meets by construction)."""
-    fa, fb = grid.shape
-    g = grid
-    if band >= 0:
-        g = grid.copy()
-        for i in range(fa):
-            for j in range(max(0, i - band), min(fb, i + band + 1)):
-                g[i, j] = INF
+    |i − j| ≤ ``band`` masked (``minima.self_band_masked``, a copy; ``band`` < 0: none), minima,
+    valid region, chains and bridges (``minima.dense_chains``, ``bridges.chain_bridges``: the
+    kernels without the checks of their Python wrappers, which what this passes them meets by
+    construction)."""
+    g = self_band_masked(grid, band) if band >= 0 else grid
     valid, cells, offsets = dense_chains(g, valid_a, mrun, min_extent)
     br, bcells, boff = chain_bridges(g, valid, cells, offsets, mrun, max_len)
     return cells, _values_at(g, cells), offsets, br, bcells, _values_at(g, bcells), boff
