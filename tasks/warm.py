@@ -42,10 +42,15 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
         ("motionweb.tasks.distance", "_combine", "f4[:,:] f4[:,:] f4[:,:] f4[:] f4[:] f4[:,:]", 0.2),
         ("motionweb.tasks.distance", "_grid_kernel", "f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] f4[:,:]", 1.0),
         ("motionweb.tasks.distance", "_shift_heights", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8 f8[:,:] f4[:,:] f4[:,:]", 0.2),
-        # the coarsest level (its minima, valid region, chains, bridges) and each finer level in one call apiece
+        # the coarsest level in one call: its minima, valid region, chains and bridges
         ("motionweb.tasks.matchweb.build", "_coarse_level", "f4[:,:] i8 f8 i8 i8 i8", 9.2),
-        ("motionweb.tasks.matchweb.refine", "_refine_level",
-         "i4[:,:] i8[:] i8[:,:] i4[:,:] i8[:] f8 f8 i8 i8 i8 f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] i8 i8 b1", 17.6),
+        ("motionweb.tasks.matchweb.refine", "_mark_tiles", "i8[:,:] i8[:] f8 f8 i8 i8 i8[:,:]", 1.1),
+        ("motionweb.tasks.matchweb.refine", "_alloc_tiles", "i8[:,:]", 0.3),
+        ("motionweb.tasks.matchweb.refine", "_refine_chains",
+         "i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] i8 i8", 13.2),
+        ("motionweb.tasks.matchweb.refine", "_refine_bridges",
+         ("i8[:,:] i8[:] i8[:,:] i8[:,:] i8[:] i8[:] i8[:,:] i8[:] f8 f8 i8 i8 i8 i8[:,:] f8[:,:,:] f4[:,:] f4[:,:] "
+          "f4[:] f4[:,:] f4[:,:] f4[:] i8 i8"), 3.0),
     ),
     # KG04 §3.3-3.4: the match walk, redundancy removal, the match graph; §4 registration
     "search": (
@@ -109,7 +114,9 @@ def kernels(groups: list[str]) -> list[tuple[str, str, str, float]]:
 def shares(groups: list[str], n: int) -> list[list[tuple[str, str, str, float]]]:
     """``groups``' kernels in ``n`` shares of about equal compile time. A module's kernels stay in
     one share (they call the same helpers, which would otherwise compile in two processes); the
-    modules go, longest first, to the share with the least so far (LPT)."""
+    modules go, longest first, to the share with the least so far (LPT). Each share then compiles
+    its kernels in the table's order, so that what a command calls first (the BVH reader, then the
+    frame distances) is cached first rather than after a long kernel of the same share."""
     by_module: dict[str, list[tuple[str, str, str, float]]] = {}
     for row in kernels(groups):
         by_module.setdefault(row[0], []).append(row)
@@ -119,7 +126,8 @@ def shares(groups: list[str], n: int) -> list[list[tuple[str, str, str, float]]]
         i = load.index(min(load))
         out[i] += rows
         load[i] += sum(x[3] for x in rows)
-    return [s for s in out if s]
+    order = {row: k for k, row in enumerate(kernels(groups))}
+    return [sorted(s, key=order.__getitem__) for s in out if s]
 
 
 def compile_share(rows: list[tuple[str, str, str, float]]) -> int:

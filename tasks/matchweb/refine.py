@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from motionweb.store.web import MatchWeb
+from motionweb.store.web import MatchWeb, empty_cells
 from motionweb.tasks.distance import PreparedFeatures, cell_distance
 from motionweb.tasks.matchweb.band import band_backtrack, band_dp, band_index
 from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run, self_band
@@ -589,44 +589,33 @@ def refine_level(arrays: tuple, from_rate: float, pa: PreparedFeatures, pb: Prep
                  cfg: MatchWebParams, self_pair: bool, pad: float = 1.0,
                  counts: dict[str, int] | None = None) -> tuple:
     """:func:`refine_web` on a web's arrays (``build.WebArrays``: path cells, values, offsets,
-    bridges, bridge cells, values, offsets) at ``from_rate``, returning the refined arrays: one
-    compiled call (:func:`_refine_level`)."""
+    bridges, bridge cells, values, offsets) at ``from_rate``, returning the refined arrays: the
+    tile index of the bands, the chains, then the bridges whose chains survived.
+
+    The kernels are called from here, not from one compiled function of the level: numba links
+    and optimises a caller's callees again in the caller, and such a function cost ~2 s more of
+    compilation on the longest share of the warm-up (``tasks.warm``; ``motionweb demo`` cold, issue
+    23) for ~40 µs of Python per level."""
+    fa, fb = pa.n_frames, pb.n_frames
     s = float(rate / from_rate)
+    h = 0.5 + float(pad)
+    radius = math.ceil(s)
+    mrun = max_run(cfg.slope_k)
     band_w = self_band(cfg, rate) if self_pair else -1
     cells, _, offsets, bridges, bcells, _, boffsets = arrays
-    *out, evaluated = _refine_level(cells, offsets, bridges, bcells, boffsets, s, 0.5 + float(pad), math.ceil(s),
-                                    pa.n_frames, pb.n_frames, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y,
-                                    pb.norms, band_w, max_run(cfg.slope_k), counts is not None)
-    if counts is not None:
-        counts["evaluated"] = counts.get("evaluated", 0) + int(evaluated)
-    return tuple(out)
-
-
-@njit(cache=True, nogil=True)
-def _refine_level(cells, offsets, bridges, bcells, boffsets, s, h, radius, fa, fb, left, left_y, na, right, right_y,
-                  nb, band, mrun, count):
-    """The body of :func:`refine_level`: the tile index of the bands, the chains, then the bridges
-    whose chains survived; returns the refined arrays and, with ``count``, the cells evaluated
-    (else −1). Bounds: the tile index is ⌈fa/TILE⌉ × ⌈fb/TILE⌉ (:func:`_mark_tiles`)."""
     old_cells = cells.astype(np.int64)
     old_bcells = bcells.astype(np.int64)
     index = np.full((-(-fa // TILE), -(-fb // TILE)), -1, np.int64)
     _mark_tiles(old_cells, offsets, s, h, fa, fb, index)
     _mark_tiles(old_bcells, boffsets, s, h, fa, fb, index)
     pool = _alloc_tiles(index)
-    pc, pv, po, new_id = _refine_chains(old_cells, offsets, s, h, radius, fa, fb, index, pool, left, left_y, na,
-                                        right, right_y, nb, band, mrun)
-    if bridges.shape[0] > 0:
+    feats = (index, pool, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms)
+    pc, pv, po, new_id = _refine_chains(old_cells, offsets, s, h, radius, fa, fb, *feats, band_w, mrun)
+    if len(bridges):
         jn, bc, bv, bo = _refine_bridges(old_cells, offsets, bridges, old_bcells, boffsets, new_id,
-                                         pc.astype(np.int64), po, s, h, radius, fa, fb, index, pool, left, left_y,
-                                         na, right, right_y, nb, band, mrun)
+                                         pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
     else:
-        jn, bc, bv, bo = (np.zeros((0, 4), np.int64), np.zeros((0, 2), np.int32), np.zeros(0, np.float32),
-                          np.zeros(1, np.int64))
-    evaluated = -1
-    if count:
-        evaluated = 0
-        for x in pool.ravel():
-            if not math.isnan(x):
-                evaluated += 1
-    return pc, pv, po, jn, bc, bv, bo, evaluated
+        jn, bc, bv, bo = np.zeros((0, 4), np.int64), empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
+    if counts is not None:
+        counts["evaluated"] = counts.get("evaluated", 0) + int(np.count_nonzero(~np.isnan(pool)))
+    return pc, pv, po, jn, bc, bv, bo
