@@ -42,8 +42,11 @@ GROUPS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
         ("motionweb.tasks.distance", "_combine", "f4[:,:] f4[:,:] f4[:,:] f4[:] f4[:] f4[:,:]", 0.2),
         ("motionweb.tasks.distance", "_grid_kernel", "f4[:,:] f4[:,:] f4[:] f4[:,:] f4[:,:] f4[:] f4[:,:]", 1.0),
         ("motionweb.tasks.distance", "_shift_heights", "f8[:,:] f8[:,:] f8[:,:] f8[:] f8 f8[:,:] f4[:,:] f4[:,:]", 0.2),
-        # the coarsest level in one call: its minima, valid region, chains and bridges
-        ("motionweb.tasks.matchweb.build", "_coarse_level", "f4[:,:] i8 f8 i8 i8 i8", 9.2),
+        ("motionweb.tasks.matchweb.minima", "_local_minima", "f4[:,:]", 0.45),
+        ("motionweb.tasks.matchweb.minima", "_valid_region", "f4[:,:] u1[:,:] f8", 0.5),
+        ("motionweb.tasks.matchweb.minima", "_find_chains", "f4[:,:] u1[:,:] i8 i8", 0.9),
+        ("motionweb.tasks.matchweb.bridges", "_find_bridges", "f4[:,:] b1[:,:] i8[:,:] i8[:] i8[:,:] i8[:] i8 i8",
+         7.3),
         ("motionweb.tasks.matchweb.refine", "_mark_tiles", "i8[:,:] i8[:] f8 f8 i8 i8 i8[:,:]", 1.1),
         ("motionweb.tasks.matchweb.refine", "_alloc_tiles", "i8[:,:]", 0.3),
         ("motionweb.tasks.matchweb.refine", "_refine_chains",

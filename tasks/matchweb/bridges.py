@@ -256,26 +256,8 @@ def find_bridges(grid: np.ndarray, valid: np.ndarray, chain_cells: np.ndarray, c
     if (len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != len(cells) or np.any(np.diff(offsets) < 0)
             or (len(cells) and (cells.min() < 0 or cells[:, 0].max() >= fa or cells[:, 1].max() >= fb))):
         raise ValueError("chain cells and offsets do not describe chains inside the grid")
-    return chain_bridges(g, np.ascontiguousarray(valid, dtype=np.bool_), cells, offsets, max_run(slope_k),
-                         int(max_len))
-
-
-@njit(cache=True, nogil=True)
-def chain_bridges(g, valid, cells, offsets, mrun, max_len):
-    """:func:`find_bridges` without its checks, in one compiled call: ``cells`` (N, 2) chain cells
-    inside the (Fa, Fb) grid ``g`` (float32), ``offsets`` (C + 1,) from 0 to N, never decreasing;
-    ``valid`` bool (Fa, Fb); ``mrun`` = slope_k − 1. Bounds: the chain index ``gid`` is the grid's
-    shape and the cells lie in it (as checked by :func:`find_bridges` or made by
-    ``minima.find_chains``)."""
-    fa, fb = g.shape
-    n = cells.shape[0]
-    c64 = np.empty((n, 2), np.int64)
-    gid = np.full((fa, fb), -1, np.int64)
-    chain_of = np.empty(n, np.int64)
-    for c in range(offsets.shape[0] - 1):
-        for q in range(offsets[c], offsets[c + 1]):
-            c64[q, 0] = cells[q, 0]
-            c64[q, 1] = cells[q, 1]
-            gid[cells[q, 0], cells[q, 1]] = q
-            chain_of[q] = c
-    return _find_bridges(g, valid, gid, chain_of, c64, offsets, mrun, max_len)
+    gid = np.full((fa, fb), -1, dtype=np.int64)
+    gid[cells[:, 0], cells[:, 1]] = np.arange(len(cells))
+    chain_of = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)).astype(np.int64)
+    return _find_bridges(g, np.ascontiguousarray(valid, dtype=np.bool_), gid, chain_of, cells, offsets,
+                         max_run(slope_k), int(max_len))

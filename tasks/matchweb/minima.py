@@ -188,29 +188,12 @@ def find_chains(grid: np.ndarray, minima: np.ndarray, slope_k: int, min_extent: 
     return _find_chains(g, _same_shape(minima, g), max_run(slope_k), int(min_extent))
 
 
-@njit(cache=True, nogil=True)
-def dense_chains(g, a, mrun, min_extent):
-    """(valid region (Fa, Fb) bool, chain cells (N, 2) int32, chain offsets (C + 1,)) of a float32
-    grid in one compiled call: :func:`local_minima`, :func:`valid_region` and :func:`find_chains`
-    without their checks (``g`` C-contiguous float32, ``mrun`` = slope_k − 1). O(Fa·Fb)."""
-    minima = _local_minima(g)
-    valid = _valid_region(g, minima, a)
-    cells, offsets = _find_chains(g, minima, mrun, min_extent)
-    return valid, cells, offsets
-
-
 def mask_self_band(grid: np.ndarray, band: int) -> np.ndarray:
     """A copy of ``grid`` with cells |i − j| ≤ band set to +inf (the ignored self-pair diagonal)."""
-    return self_band_masked(np.asarray(grid), int(band))
-
-
-@njit(cache=True, nogil=True)
-def self_band_masked(g, band):
-    """:func:`mask_self_band` compiled: a copy of the 2-D ``g`` with |i − j| ≤ ``band`` set to +inf
-    (``band`` < 0: a plain copy). O(Fa·Fb) for the copy."""
-    out = g.copy()
-    fa, fb = out.shape
-    for i in range(fa):
-        for j in range(max(0, i - band), min(fb, i + band + 1)):
-            out[i, j] = INF
-    return out
+    g = np.array(grid, copy=True)
+    fa, fb = g.shape
+    for d in range(-band, band + 1):
+        if -fa < d < fb:
+            idx = np.arange(max(0, -d), min(fa, fb - d))
+            g[idx, idx + d] = np.inf
+    return g

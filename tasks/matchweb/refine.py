@@ -578,44 +578,26 @@ def refine_web(web: MatchWeb, pa: PreparedFeatures, pb: PreparedFeatures, rate: 
     DPs and O(Fa·Fb / TILE²) for the tile index — linear in the search regions. With ``counts``,
     its ``"evaluated"`` is increased by the cells whose values were computed (bench/index_scale.py).
     """
-    arrays = (web.paths_cells, web.paths_values, web.paths_offsets, web.bridges, web.bridges_cells,
-              web.bridges_values, web.bridges_offsets)
-    pc, pv, po, jn, bc, bv, bo = refine_level(arrays, web.rate, pa, pb, rate, cfg, self_pair, pad, counts)
-    return MatchWeb(rate=rate, shape=(pa.n_frames, pb.n_frames), paths_cells=pc, paths_values=pv, paths_offsets=po,
-                    bridges=jn, bridges_cells=bc, bridges_values=bv, bridges_offsets=bo, self_pair=self_pair)
-
-
-def refine_level(arrays: tuple, from_rate: float, pa: PreparedFeatures, pb: PreparedFeatures, rate: float,
-                 cfg: MatchWebParams, self_pair: bool, pad: float = 1.0,
-                 counts: dict[str, int] | None = None) -> tuple:
-    """:func:`refine_web` on a web's arrays (``build.WebArrays``: path cells, values, offsets,
-    bridges, bridge cells, values, offsets) at ``from_rate``, returning the refined arrays: the
-    tile index of the bands, the chains, then the bridges whose chains survived.
-
-    The kernels are called from here, not from one compiled function of the level: numba links
-    and optimises a caller's callees again in the caller, and such a function cost ~2 s more of
-    compilation on the longest share of the warm-up (``tasks.warm``; ``motionweb demo`` cold, issue
-    23) for ~40 µs of Python per level."""
     fa, fb = pa.n_frames, pb.n_frames
-    s = float(rate / from_rate)
+    s = float(rate / web.rate)
     h = 0.5 + float(pad)
     radius = math.ceil(s)
     mrun = max_run(cfg.slope_k)
     band_w = self_band(cfg, rate) if self_pair else -1
-    cells, _, offsets, bridges, bcells, _, boffsets = arrays
-    old_cells = cells.astype(np.int64)
-    old_bcells = bcells.astype(np.int64)
+    old_cells = web.paths_cells.astype(np.int64)
+    old_bcells = web.bridges_cells.astype(np.int64)
     index = np.full((-(-fa // TILE), -(-fb // TILE)), -1, np.int64)
-    _mark_tiles(old_cells, offsets, s, h, fa, fb, index)
-    _mark_tiles(old_bcells, boffsets, s, h, fa, fb, index)
+    _mark_tiles(old_cells, web.paths_offsets, s, h, fa, fb, index)
+    _mark_tiles(old_bcells, web.bridges_offsets, s, h, fa, fb, index)
     pool = _alloc_tiles(index)
     feats = (index, pool, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms)
-    pc, pv, po, new_id = _refine_chains(old_cells, offsets, s, h, radius, fa, fb, *feats, band_w, mrun)
-    if len(bridges):
-        jn, bc, bv, bo = _refine_bridges(old_cells, offsets, bridges, old_bcells, boffsets, new_id,
-                                         pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
+    pc, pv, po, new_id = _refine_chains(old_cells, web.paths_offsets, s, h, radius, fa, fb, *feats, band_w, mrun)
+    if web.n_bridges:
+        jn, bc, bv, bo = _refine_bridges(old_cells, web.paths_offsets, web.bridges, old_bcells, web.bridges_offsets,
+                                         new_id, pc.astype(np.int64), po, s, h, radius, fa, fb, *feats, band_w, mrun)
     else:
         jn, bc, bv, bo = np.zeros((0, 4), np.int64), empty_cells(), np.zeros(0, np.float32), np.zeros(1, np.int64)
     if counts is not None:
         counts["evaluated"] = counts.get("evaluated", 0) + int(np.count_nonzero(~np.isnan(pool)))
-    return pc, pv, po, jn, bc, bv, bo
+    return MatchWeb(rate=rate, shape=(fa, fb), paths_cells=pc, paths_values=pv, paths_offsets=po, bridges=jn,
+                    bridges_cells=bc, bridges_values=bv, bridges_offsets=bo, self_pair=self_pair)
