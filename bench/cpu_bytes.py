@@ -166,5 +166,6 @@ def compare(args: argparse.Namespace, work: Path) -> None:
                 n = sum(a != b for a, b in zip(ours["webs"], got["webs"], strict=True))
                 print(f"  {code:>10s}  {ours['category']}  {name:24s} {n} of {args.pairs} webs differ")
 
+
 if __name__ == "__main__":
     main()

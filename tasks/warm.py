@@ -120,8 +120,9 @@ def shares(groups: list[str], n: int) -> list[list[tuple[str, str, str, float]]]
     modules go, longest first, to the share with the least so far (LPT). Each share then compiles
     its kernels in the table's order, so that what a command calls first (the BVH reader, then the
     frame distances) is cached first rather than after a long kernel of the same share."""
+    rows_in_order = kernels(groups)
     by_module: dict[str, list[tuple[str, str, str, float]]] = {}
-    for row in kernels(groups):
+    for row in rows_in_order:
         by_module.setdefault(row[0], []).append(row)
     out: list[list[tuple[str, str, str, float]]] = [[] for _ in range(max(1, n))]
     load = [0.0] * len(out)
@@ -129,7 +130,7 @@ def shares(groups: list[str], n: int) -> list[list[tuple[str, str, str, float]]]
         i = load.index(min(load))
         out[i] += rows
         load[i] += sum(x[3] for x in rows)
-    order = {row: k for k, row in enumerate(kernels(groups))}
+    order = {row: k for k, row in enumerate(rows_in_order)}
     return [sorted(s, key=order.__getitem__) for s in out if s]
 
 
