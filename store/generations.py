@@ -31,7 +31,7 @@ import hashlib
 import json
 import logging
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from importlib import metadata
 from typing import Any
 
@@ -90,7 +90,9 @@ class Generation:
     checksums: dict[str, str] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The manifest's fields, not copied (every field is JSON already: dicts, lists, scalars).
+        ``dataclasses.asdict`` copied every record of them: ~4 s of the commit at 146,610 webs."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Generation:
@@ -346,11 +348,12 @@ def repair_current(store: MotionStore) -> PointerError | None:
     return None
 
 
-def _point_to(store: MotionStore, gen: Generation) -> None:
-    """Switch ``current`` to a written manifest, recording the SHA-256 of its bytes."""
+def _point_to(store: MotionStore, gen: Generation) -> str:
+    """Switch ``current`` to a written manifest, recording the SHA-256 of its bytes (returned)."""
     raw = store.fs.cat_file(store.path(_manifest_path(gen.id)))
-    store.write_json(POINTER, {"generation": gen.id, "committed": gen.completed,
-                               "manifest_sha256": hashlib.sha256(raw).hexdigest()})
+    digest = hashlib.sha256(raw).hexdigest()
+    store.write_json(POINTER, {"generation": gen.id, "committed": gen.completed, "manifest_sha256": digest})
+    return digest
 
 
 def load_generation(store: MotionStore, gen_id: str | None = None, lean: bool = False) -> Generation | None:
@@ -422,7 +425,10 @@ def commit(store: MotionStore, gen: Generation) -> str:
     store.ensure_root()
     gen.completed = gen.completed or now_iso()
     store.write_json(_manifest_path(gen.id), gen.to_dict())
-    _point_to(store, gen)
+    digest = _point_to(store, gen)
+    # the store's current generation is the one in hand: gc's check of the pointer right after
+    # (and a rerun's) hashes the manifest's bytes but does not parse them again (~3 s at 146,610 webs)
+    _CURRENT[store.url] = (gen.id, digest, False, gen)
     return gen.id
 
 

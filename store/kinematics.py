@@ -178,19 +178,17 @@ def quat_average(q: np.ndarray, weights: np.ndarray, axis: int = 0) -> np.ndarra
 def forward_kinematics(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """Global joint positions (F, J, 3) and rotations (F, J, 4), in the file's unit.
 
-    O(F·J): one vectorized step over all frames per joint.
+    O(F·J), compiled (:func:`_fk_paths` over every joint: the operations of :func:`quat_mul` and
+    :func:`quat_rotate` in their order, so the same bits as those NumPy formulas, without their
+    per-joint temporaries; the index's features call it three times per clip, KG04 §3.1).
     """
-    sk = motion.skeleton
-    trans = motion.local_translations()
-    local = motion.rotations
-    grot = np.empty_like(local)
-    gpos = np.empty_like(trans)
-    grot[:, 0] = local[:, 0]
-    gpos[:, 0] = trans[:, 0]
-    for j in range(1, sk.n_joints):
-        p = sk.parents[j]
-        grot[:, j] = quat_mul(grot[:, p], local[:, j])
-        gpos[:, j] = gpos[:, p] + quat_rotate(grot[:, p], trans[:, j])
+    f, j = motion.n_frames, motion.skeleton.n_joints
+    gpos = np.empty((f, j, 3))
+    grot = np.empty((f, j, 4))
+    _fk_paths(np.ascontiguousarray(motion.rotations, np.float64),
+              np.ascontiguousarray(motion.local_translations(), np.float64),
+              np.ascontiguousarray(motion.root_positions, np.float64), motion.skeleton.parents,
+              np.arange(j, dtype=np.int64), gpos, grot)
     return gpos, grot
 
 

@@ -421,6 +421,22 @@ def ref_blend_frame(local: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.stack([quat_average(local[:, j], weights) for j in range(local.shape[1])])
 
 
+def ref_forward_kinematics(motion) -> tuple[np.ndarray, np.ndarray]:
+    """Global positions (F, J, 3) and rotations (F, J, 4) by the NumPy quaternion formulas, one
+    joint at a time (``store.kinematics.forward_kinematics`` compiles the same operations)."""
+    from motionweb.store.kinematics import quat_mul, quat_rotate
+
+    trans = motion.local_translations()
+    grot = np.empty_like(motion.rotations)
+    gpos = np.empty_like(trans)
+    grot[:, 0], gpos[:, 0] = motion.rotations[:, 0], trans[:, 0]
+    for j in range(1, motion.skeleton.n_joints):
+        p = motion.skeleton.parents[j]
+        grot[:, j] = quat_mul(grot[:, p], motion.rotations[:, j])
+        gpos[:, j] = gpos[:, p] + quat_rotate(grot[:, p], trans[:, j])
+    return gpos, grot
+
+
 def ref_leg_ik(motion, chain: tuple[int, int, int], frame: int, target: np.ndarray) -> float:
     """Smallest ankle-to-target distance reachable by turning the hip and knee of one frame
     (Nelder-Mead over rotation vectors of both joints): the distance leg IK must reach."""

@@ -55,7 +55,8 @@ def test_demo_compiles_nothing_after_its_warm_up(prefect_harness, tmp_path: Path
     res = json.loads(out.read_text())
     assert res["exit"] == 0, res["output"]
     assert "4 matches" in res["output"] or "matches in" in res["output"], res["output"]
-    # the demo scans its corpus (the BVH reader) before a share could be done: that one in-process
+    # the demo scans its corpus (the BVH reader) and computes its features (the kinematics) before a
+    # share could be done: those in-process
     reader = [[m, n, s] for m, n, s, _ in GROUPS["read"]]
     extra = [row for row in res["compiled"] if row not in reader]
     rows = "\n".join(f'("{m}", "{n}", "{s}", ...),' for m, n, s in extra)

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 from fixtures import ragged_web
+from motionweb.store import generations
 from motionweb.store.generations import (
     Generation,
     PointerError,
@@ -182,8 +183,6 @@ def test_damaged_pointer_is_reported_read_around_and_repaired(tmp_path, caplog, 
 
 def _count_parses(monkeypatch) -> list[str]:
     """The generation ids whose manifest is parsed from now on."""
-    import motionweb.store.generations as generations
-
     seen, parse = [], generations._manifest
 
     def counting(store, gen_id, *args, **kwargs):
@@ -202,6 +201,7 @@ def test_current_generation_parses_the_manifest_once(tmp_path, monkeypatch, lean
         store.write_web(k, ragged_web(np.random.default_rng(i)))
     g3 = _gen(store, keys)
     commit(store, g3)
+    monkeypatch.setattr(generations, "_CURRENT", {})  # another process: nothing held from the commit
     parsed = _count_parses(monkeypatch)
     gen = current_generation(store, lean=lean, strict=True)
     assert parsed == [g3.id] and gen.id == g3.id
@@ -210,12 +210,35 @@ def test_current_generation_parses_the_manifest_once(tmp_path, monkeypatch, lean
     assert current_generation(MotionStore(str(tmp_path / "empty"))) is None
 
 
+def test_a_commit_leaves_its_generation_current_unparsed(tmp_path, monkeypatch):
+    """After a commit, gc's check of the pointer and its list of what is live take the generation
+    in hand (the bytes are still read and hashed): no parse of the manifest just written, and
+    what is held equals that manifest parsed. Damage after the commit is still found."""
+    store, _, _ = _two_generations(tmp_path)
+    keys = [web_key(SHA_A, SHA_B, "wd1")]
+    store.write_web(keys[0], ragged_web(np.random.default_rng(5)))
+    g3 = _gen(store, keys)
+    parsed: list[str] = []
+    real = Generation.from_dict
+    monkeypatch.setattr(Generation, "from_dict", staticmethod(lambda data: parsed.append(data.get("id")) or real(data)))
+    commit(store, g3)
+    assert check_current(store) == g3.id
+    gc(store)
+    assert g3.id not in parsed
+    held = current_generation(store, strict=True)
+    assert held.to_dict() == json.loads((tmp_path / "s" / "generations" / f"{g3.id}.json").read_text())
+    _damage(tmp_path, "edited manifest", g3)
+    with pytest.raises(PointerError, match="differs from the checksum"):
+        check_current(store)
+
+
 def test_the_current_manifest_is_parsed_once_per_run_unless_its_bytes_change(tmp_path, monkeypatch):
     """A rerun reads the current manifest at its start, then gc checks it and lists what it keeps:
     the same bytes are parsed once (each read still hashed); other kept manifests are parsed, and
     the current one again once its bytes differ (an edit is then damage the pointer's checksum
     finds)."""
     store, g1, g2 = _two_generations(tmp_path)
+    monkeypatch.setattr(generations, "_CURRENT", {})  # a rerun: a new process holds nothing yet
     parsed: list[str] = []
     real = Generation.from_dict
 

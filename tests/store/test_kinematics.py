@@ -30,6 +30,7 @@ from motionweb.store.kinematics import (
     to_heading_frame,
 )
 from motionweb.store.motion import Motion, Skeleton
+from naive import ref_forward_kinematics
 from scipy.spatial.transform import Rotation
 
 RNG = np.random.default_rng(0)
@@ -123,6 +124,36 @@ def test_fk_two_bones_against_hand_computation() -> None:
     # end site (0,3,0) under Rz(90) Rx(90): Rx maps y->z, Rz leaves z -> (0,0,3)
     tip = pos[0, 2] + quat_rotate(rot[0, 2], np.array([0.0, 3.0, 0.0]))
     np.testing.assert_allclose(tip, [-1, 1, 3], atol=1e-12)
+
+
+@pytest.mark.parametrize("frames", [1, 2, 57])
+def test_fk_is_the_numpy_formulas_bit_for_bit(frames: int) -> None:
+    """The compiled FK gives the same bits as quat_mul/quat_rotate one joint at a time (the index's
+    features, hence every web, depend on these bits), translated joints included."""
+    m, _ = generate_clip("kick", 2, 7)
+    m = m.slice(0, frames)
+    m = Motion(skeleton=m.skeleton, fps=m.fps, root_positions=RNG.normal(size=(frames, 3)) * 100,
+               rotations=random_quats(frames * m.skeleton.n_joints).reshape(m.rotations.shape), unit=m.unit,
+               translations={3: RNG.normal(size=(frames, 3)), 15: RNG.normal(size=(frames, 3))})
+    g, r = forward_kinematics(m)
+    g0, r0 = ref_forward_kinematics(m)
+    assert g.shape == (frames, m.skeleton.n_joints, 3) and r.shape == (frames, m.skeleton.n_joints, 4)
+    assert np.array_equal(g, g0) and np.array_equal(r, r0)
+
+
+def test_fk_of_real_clips_is_the_numpy_formulas_bit_for_bit(cmu_dir) -> None:
+    """Same bits on real capture: a CMU BVH (31 joints, 2,752 frames) and an ASF/AMC trial."""
+    from motionweb.store.formats import read_motion
+
+    bvh = sorted((cmu_dir / "bvh").rglob("*.bvh"))
+    amc = sorted((cmu_dir / "asf_amc").rglob("*.amc"))
+    if not bvh or not amc:
+        pytest.skip(f"no CMU BVH or AMC trial under {cmu_dir}")
+    for path in (bvh[0], amc[0]):
+        m = read_motion(path)
+        g, r = forward_kinematics(m)
+        g0, r0 = ref_forward_kinematics(m)
+        assert np.array_equal(g, g0) and np.array_equal(r, r0), path
 
 
 def test_fk_of_some_joints_equals_the_full_fk_on_their_paths() -> None:
