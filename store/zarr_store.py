@@ -862,8 +862,10 @@ class MotionStore:
         return f"{self.root.rstrip('/')}/{rel}"
 
     def write_json(self, rel: str, data: Any, atomic: bool = True) -> None:
-        """Write a JSON file; on local disks by rename of a temp file (atomic), elsewhere by one put."""
-        payload = json.dumps(data, indent=1, sort_keys=True, default=str).encode()
+        """Write a JSON file; on local disks by rename of a temp file (atomic), elsewhere by one put.
+        One line, keys sorted: an indented dump takes Python's pure-Python encoder, ~3x the time
+        of the C one (3.05 s against 1.12 s for the 146,610-web manifest of issue 25)."""
+        payload = json.dumps(data, sort_keys=True, default=str).encode()
         path = self.path(rel)
         self.fs.makedirs(os.path.dirname(path) or self.root, exist_ok=True)
         if self._local and atomic:
