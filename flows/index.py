@@ -702,9 +702,12 @@ def webs_task(plan: ChunkPlan, cfg: Config, address: str, bad_sha: set[str]) -> 
 
 
 @task(name="commit", no_cache=True)
-def commit_task(gen: Generation, store_url: str) -> str:
-    """Write the manifest and switch the ``current`` pointer (design §9)."""
-    return commit(MotionStore(store_url), gen)
+def commit_task(gen: Generation, store_url: str, store: MotionStore | None = None) -> str:
+    """Write the manifest and switch the ``current`` pointer (design §9). ``store``: the run's
+    instance of the store at ``store_url`` that took in the web shards after the webs were written
+    (:func:`finish`'s checksums), whose index of them the commit's check of every object then
+    reuses instead of reading every shard's header again (~2 s at 146,610 webs)."""
+    return commit(store if store is not None else MotionStore(store_url), gen)
 
 
 # ------------------------------------------------------------------------------------ flow

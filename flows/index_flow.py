@@ -93,7 +93,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     if shortlists is not None:  # the features were computed before the shortlist
         timings["compute_s"] += timings.get("features_s", 0.0)
     return finish(cfg, store, catalog, plans, results, failed, parent, prev, damage, timings, t0,
-                  lambda gen: commit_task(quote(gen), cfg.store.path), shortlists)
+                  lambda gen: commit_task(quote(gen), cfg.store.path, quote(store)), shortlists)
 
 
 def _features(plans: list[ChunkPlan], cfg: Config, address: str, failed: dict[str, str]) -> None:
