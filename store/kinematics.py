@@ -178,18 +178,11 @@ def quat_average(q: np.ndarray, weights: np.ndarray, axis: int = 0) -> np.ndarra
 def forward_kinematics(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """Global joint positions (F, J, 3) and rotations (F, J, 4), in the file's unit.
 
-    O(F·J), compiled (:func:`_fk_paths` over every joint: the operations of :func:`quat_mul` and
-    :func:`quat_rotate` in their order, so the same bits as those NumPy formulas, without their
+    O(F·J), compiled: :func:`forward_kinematics_of` every joint (the operations of :func:`quat_mul`
+    and :func:`quat_rotate` in their order, so the same bits as those NumPy formulas, without their
     per-joint temporaries; the index's features call it three times per clip, KG04 §3.1).
     """
-    f, j = motion.n_frames, motion.skeleton.n_joints
-    gpos = np.empty((f, j, 3))
-    grot = np.empty((f, j, 4))
-    _fk_paths(np.ascontiguousarray(motion.rotations, np.float64),
-              np.ascontiguousarray(motion.local_translations(), np.float64),
-              np.ascontiguousarray(motion.root_positions, np.float64), motion.skeleton.parents,
-              np.arange(j, dtype=np.int64), gpos, grot)
-    return gpos, grot
+    return forward_kinematics_of(motion, np.arange(motion.skeleton.n_joints))
 
 
 def joint_paths(parents: np.ndarray, joints) -> np.ndarray:
@@ -208,8 +201,8 @@ def forward_kinematics_of(motion: Motion, joints) -> tuple[np.ndarray, np.ndarra
     """Global positions (F, J, 3) and rotations (F, J, 4) of ``joints`` and their ancestors only
     (e.g. the hip-to-foot paths leg IK needs), in the file's unit; every other joint is NaN.
 
-    Equal to :func:`forward_kinematics` on those joints (same operations, compiled): O(F·K) for
-    the K joints on the paths, with no per-joint Python overhead.
+    :func:`forward_kinematics` is this on every joint: O(F·K) for the K joints on the paths, with
+    no per-joint Python overhead.
     """
     order = joint_paths(motion.skeleton.parents, joints)
     f, j = motion.n_frames, motion.skeleton.n_joints
