@@ -298,9 +298,13 @@ def rigid_align_2d(p: np.ndarray, q: np.ndarray, weights: np.ndarray) -> tuple[f
     return theta, t, d
 
 
-@njit(cache=True, fastmath=True, nogil=True)
-def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
-    """D at one cell: the same closed form as the GEMM path, as three dot products."""
+@njit(cache=True, fastmath=True, nogil=True, inline="always")
+def _cell_value(left, left_y, na, right, right_y, nb, i, j) -> float:
+    """D at cell (i, j): the same closed form as the GEMM path, as three dot products over the P
+    points (float32 products, float64 sums). Inlined, at numba's level, into :func:`cell_distance`
+    and :func:`distance_row`, which compile it with the same fastmath flags: LLVM vectorizes the
+    sums over the points the same way in both (tests/tasks/test_features_distance.py checks the
+    bytes for P = 1 … 139). Not to be called from a function compiled with other flags."""
     p = left_y.shape[1]
     a = 0.0
     b = 0.0
@@ -317,6 +321,26 @@ def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
     return max(0.0, d)
 
 
+@njit(cache=True, fastmath=True, nogil=True)
+def cell_distance(left, left_y, na, right, right_y, nb, i, j) -> float:
+    """D at one cell (:func:`_cell_value`; KG04 §3.1 eq. 1)."""
+    return _cell_value(left, left_y, na, right, right_y, nb, i, j)
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def distance_row(left, left_y, na, right, right_y, nb, i, j0, n, out, o) -> None:
+    """D at the ``n`` cells (i, j0 … j0 + n − 1) of one row into ``out[o : o + n]`` (KG04 §3.1 eq. 1).
+
+    The same bytes as :func:`cell_distance` cell by cell, one call per run of cells instead of one
+    per cell: a call passes six arrays by value, ~20 ns of a ~60 ns cell at P = 110
+    (bench/index_scale.py prints the per-cell rate). O(n·P).
+
+    Bounds: the caller keeps i < Fa, j0 ≥ 0, j0 + n ≤ Fb and o + n ≤ len(out).
+    """
+    for u in range(n):
+        out[o + u] = _cell_value(left, left_y, na, right, right_y, nb, i, j0 + u)
+
+
 @njit(cache=True, nogil=True)
 def _cells_kernel(left, left_y, na, right, right_y, nb, rows, cols, out) -> None:
     """Bounds: writes out[:len(rows)] (``out``, ``cols`` as long, checked by :func:`distance_cells`);
@@ -330,8 +354,7 @@ def _grid_kernel(left, left_y, na, right, right_y, nb, out) -> None:
     """Bounds: writes out[i, j] for i < out.shape[0] ≤ Fa, j < out.shape[1] ≤ Fb (checked by
     :func:`distance_grid_cells`, which allocates ``out`` as (Fa, Fb))."""
     for i in range(out.shape[0]):
-        for j in range(out.shape[1]):
-            out[i, j] = cell_distance(left, left_y, na, right, right_y, nb, i, j)
+        distance_row(left, left_y, na, right, right_y, nb, i, 0, out.shape[1], out[i], 0)
 
 
 def distance_grid_cells(pa: PreparedFeatures, pb: PreparedFeatures) -> np.ndarray:

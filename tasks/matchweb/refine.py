@@ -3,8 +3,8 @@
 Each chain is padded by one coarse cell and upsampled into a band (:func:`upsample_band`), its
 endpoints move to the smallest cells near the old ones, and an optimal (least total cost,
 slope-ruled) path joins them inside the band; each bridge likewise, with endpoints on the refined
-chains it joins. Only cells of the bands are evaluated at the finer rates (cell by cell,
-``tasks.distance.cell_distance``, once per cell however many bands overlap it), and of each band
+chains it joins. Only cells of the bands are evaluated at the finer rates (run by run along the
+rows, ``tasks.distance.distance_row``, once per cell however many bands overlap it), and of each band
 only the cells near the old endpoints and those a slope-ruled path between the new ones can cross
 (:func:`_crop_to_ends`): the paths are those of the whole band, so a fine level costs linearly in
 the cells of its search regions rather than Fa·Fb.
@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 from motionweb.store.web import MatchWeb, empty_cells
-from motionweb.tasks.distance import PreparedFeatures, cell_distance
+from motionweb.tasks.distance import PreparedFeatures, distance_row
 from motionweb.tasks.matchweb.band import band_backtrack, band_dp, band_index
 from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run, self_band
 from numba import njit
@@ -109,8 +109,10 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
 
     Each cell is evaluated once per level: its value is kept in the tile ``pool`` and the bands
     of chains and bridges that overlap read it from there. A band row is walked one tile at a
-    time, so the tile is looked up once per TILE columns rather than once per cell (the values,
-    from the same :func:`~motionweb.tasks.distance.cell_distance`, are the same bytes).
+    time, so the tile is looked up once per TILE columns rather than once per cell, and each run
+    of cells not evaluated yet is evaluated by one call (:func:`_fill_run`; the values, from
+    :func:`~motionweb.tasks.distance.distance_row`, are the bytes of
+    :func:`~motionweb.tasks.distance.cell_distance`).
 
     Bounds: writes ``out[off[t] .. off[t] + hi[t] − lo[t]]`` (``off[-1]`` cells, ``out``'s size) and
     the pool tiles that :func:`_mark_tiles` numbered for the same band (index ≥ 0); a row's
@@ -126,17 +128,45 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
             tj = j // TILE
             j0 = tj * TILE
             jend = min(hi[t], j0 + TILE - 1)
-            tile = pool[index[ti, tj]]
+            row = pool[index[ti, tj], ri]
+            u = j
+            while u <= jend:  # each run of cells not evaluated yet, in one call
+                if not math.isnan(row[u - j0]):
+                    u += 1
+                    continue
+                w = u
+                while w < jend and math.isnan(row[w + 1 - j0]):
+                    w += 1
+                _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb)
+                u = w + 1
             for jj in range(j, jend + 1):
-                v = tile[ri, jj - j0]
-                if math.isnan(v):
-                    if band >= 0 and abs(i - jj) <= band:
-                        v = INF
-                    else:
-                        v = cell_distance(left, left_y, na, right, right_y, nb, i, jj)
-                    tile[ri, jj - j0] = v
-                out[base + jj] = v
+                out[base + jj] = row[jj - j0]
             j = jend + 1
+
+
+@njit(cache=True, nogil=True)
+def _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb) -> None:
+    """Values of cells (i, u … w) into ``row[u − j0 … w − j0]`` (one tile row): inf inside the
+    ignored self band |i − j| ≤ ``band``, :func:`~motionweb.tasks.distance.distance_row` on the
+    run's parts either side of it.
+
+    Bounds: u ≤ w lie in the tile's columns j0 … j0 + TILE − 1 (:func:`_eval_band`); each part
+    written is a sub-run of u … w.
+    """
+    if band < 0:
+        distance_row(left, left_y, na, right, right_y, nb, i, u, w - u + 1, row, u - j0)
+        return
+    b0 = max(u, i - band)  # the run's cells in the self band: b0 … b1 (none when b0 > b1)
+    b1 = min(w, i + band)
+    if b0 > b1:
+        distance_row(left, left_y, na, right, right_y, nb, i, u, w - u + 1, row, u - j0)
+        return
+    if u < b0:
+        distance_row(left, left_y, na, right, right_y, nb, i, u, b0 - u, row, u - j0)
+    for jj in range(b0, b1 + 1):
+        row[jj - j0] = INF
+    if b1 < w:
+        distance_row(left, left_y, na, right, right_y, nb, i, b1 + 1, w - b1, row, b1 + 1 - j0)
 
 
 @njit(cache=True, nogil=True)

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from motionweb.tasks.blend import ease_offsets, leg_ik
-from motionweb.tasks.distance import distance_cells, prepare_pair
+from motionweb.tasks.distance import _cells_kernel, distance_cells, prepare_pair
 from motionweb.tasks.guided_warp.features import knn_mean_distance
 from motionweb.tasks.guided_warp.paths import dag_path, fixed_length_path
 from motionweb.tasks.matchweb.band import band_buffers, band_dp, optimal_path
@@ -25,8 +25,10 @@ from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_reg
 from motionweb.tasks.matchweb.params import max_run
 from motionweb.tasks.matchweb.refine import (
     AVERAGE,
+    TILE,
     TOTAL,
     _crop_to_ends,
+    _eval_band,
     _dp_buffers,
     _path_cells_near,
     _position,
@@ -310,6 +312,39 @@ def test_distance_cells_match_the_slow_grid(fa: int, fb: int, n: int, rnd) -> No
     rows, cols = rng.integers(0, fa, n), rng.integers(0, fb, n)
     got = distance_cells(*prepare_pair(a, b, w, np.float64), rows, cols)
     np.testing.assert_allclose(got, slow_grid(a, b, w)[rows, cols], atol=1e-9)
+
+
+@SETTINGS
+@given(st.integers(1, 3 * TILE), st.integers(1, 3 * TILE), st.integers(1, 19), st.integers(-1, 6), st.data())
+def test_band_values_are_the_cell_distances_outside_the_self_band(fa: int, fb: int, p: int, band: int, data) -> None:
+    """refine._eval_band (runs of cells not evaluated yet, one tasks.distance.distance_row call
+    each, the self band's cells inf) gives the bytes of the per-cell kernel, with some cells already
+    in the tiles (an overlapping band evaluated them) and again from the filled tiles."""
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31), label="seed"))
+    a = (rng.normal(size=(fa, p, 3)) * rng.uniform(1e-3, 10, (fa, p, 1))).astype(np.float32)
+    b = rng.normal(size=(fb, p, 3)).astype(np.float32)
+    pa, pb = prepare_pair(a, b, rng.uniform(0.5, 1.5, p))
+    row0 = int(rng.integers(0, fa))
+    nr = int(rng.integers(1, fa - row0 + 1))
+    lo = rng.integers(0, fb, nr)
+    hi = np.minimum(fb - 1, lo + rng.integers(-1, fb, nr))  # hi < lo: an empty row
+    off = np.concatenate([[0], np.cumsum(np.maximum(0, hi - lo + 1))])
+    index = np.arange(-(-fa // TILE) * -(-fb // TILE)).reshape(-(-fa // TILE), -(-fb // TILE))
+    pool = np.full((index.size, TILE, TILE), np.nan)
+    rows = np.repeat(np.arange(row0, row0 + nr), np.maximum(0, hi - lo + 1))
+    cols = np.concatenate([np.arange(lo[t], hi[t] + 1) for t in range(nr)] + [np.zeros(0, np.int64)])
+    want = np.empty(len(rows))  # one cell_distance call per cell
+    _cells_kernel(pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, rows.astype(np.int64),
+                  cols.astype(np.int64), want)
+    if band >= 0:
+        want[np.abs(rows - cols) <= band] = np.inf
+    for k in np.flatnonzero(rng.uniform(size=len(rows)) < 0.3):  # already evaluated by another band
+        pool[index[rows[k] // TILE, cols[k] // TILE], rows[k] % TILE, cols[k] % TILE] = want[k]
+    args = (row0, lo, hi, off, index, pool, pa.left, pa.left_y, pa.norms, pb.right, pb.right_y, pb.norms, band)
+    for _ in range(2):
+        out = np.full(off[-1], -1.0)
+        _eval_band(*args, out)
+        assert out.tobytes() == want.tobytes()
 
 
 def test_distance_cells_refuse_cells_off_the_grid() -> None:
