@@ -36,9 +36,7 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     Each state has its own few candidates, taken in a fixed order with a strict ``<`` (ties keep
     the first): state 0 (diagonal) the source, then the diagonal predecessor's states in order;
     up-run 1 the up predecessor's states r ≤ 0 in order, up-run r + 1 its state r; right runs
-    likewise from the left neighbour. Each cell's states are found in registers and written once,
-    each candidate taken by selects rather than branches (the loads are unconditional: the
-    comparisons are data-dependent, and a mispredicted branch per cell cost ~30% of the DP).
+    likewise from the left neighbour. Each cell's states are found in registers and written once.
     ``tests/naive.ref_band_dp`` is the same rule written out per transition.
 
     Bounds: writes rows ``off[t] .. off[t] + hi[t] − lo[t]`` of ``cost``/``length``/``ptr`` (so at
@@ -49,6 +47,7 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     ns = 2 * mrun + 1
     c0 = mrun
     for t in range(lo.shape[0]):
+        # previous row's interval (empty for the first row)
         plo = lo[t - 1] if t > 0 else 0
         phi = hi[t - 1] if t > 0 else -1
         pbase = off[t - 1] - plo if t > 0 else 0
@@ -62,6 +61,7 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                     length[k, s] = 0
                     ptr[k, s] = -2
                 continue
+            # diagonal (and source) → state c0
             bc = INF
             bl = 0
             bp = -2
@@ -73,16 +73,16 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                 kd = pbase + j - 1
                 for s in range(ns):
                     c = cost[kd, s] + v
-                    ln = length[kd, s] + 1
-                    better = c < bc
-                    bc = c if better else bc
-                    bl = ln if better else bl
-                    bp = s if better else bp
+                    if c < bc:
+                        bc = c
+                        bl = length[kd, s] + 1
+                        bp = s
             cost[k, c0] = bc
             length[k, c0] = bl
             ptr[k, c0] = bp
             if mrun == 0:
                 continue
+            # up: states r ≤ 0 → run 1; run r → r + 1 (≤ mrun)
             if plo <= j <= phi and flags[pbase + j] != 2:
                 kv = pbase + j
                 bc = INF
@@ -90,25 +90,29 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                 bp = -2
                 for s in range(c0 + 1):
                     c = cost[kv, s] + v
-                    ln = length[kv, s] + 1
-                    better = c < bc
-                    bc = c if better else bc
-                    bl = ln if better else bl
-                    bp = s if better else bp
+                    if c < bc:
+                        bc = c
+                        bl = length[kv, s] + 1
+                        bp = s
                 cost[k, c0 + 1] = bc
                 length[k, c0 + 1] = bl
                 ptr[k, c0 + 1] = bp
                 for s in range(c0 + 1, ns - 1):
                     c = cost[kv, s] + v
-                    fin = c < INF
-                    cost[k, s + 1] = c if fin else INF
-                    length[k, s + 1] = length[kv, s] + 1 if fin else 0
-                    ptr[k, s + 1] = s if fin else -2
+                    if c < INF:
+                        cost[k, s + 1] = c
+                        length[k, s + 1] = length[kv, s] + 1
+                        ptr[k, s + 1] = s
+                    else:
+                        cost[k, s + 1] = INF
+                        length[k, s + 1] = 0
+                        ptr[k, s + 1] = -2
             else:
                 for s in range(c0 + 1, ns):
                     cost[k, s] = INF
                     length[k, s] = 0
                     ptr[k, s] = -2
+            # right: states r ≥ 0 → run −1; run r < 0 → r − 1 (≥ −mrun)
             if j > lo[t] and flags[k - 1] != 2:
                 kh = k - 1
                 bc = INF
@@ -116,20 +120,23 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
                 bp = -2
                 for s in range(c0, ns):
                     c = cost[kh, s] + v
-                    ln = length[kh, s] + 1
-                    better = c < bc
-                    bc = c if better else bc
-                    bl = ln if better else bl
-                    bp = s if better else bp
+                    if c < bc:
+                        bc = c
+                        bl = length[kh, s] + 1
+                        bp = s
                 cost[k, c0 - 1] = bc
                 length[k, c0 - 1] = bl
                 ptr[k, c0 - 1] = bp
                 for s in range(1, c0):
                     c = cost[kh, s] + v
-                    fin = c < INF
-                    cost[k, s - 1] = c if fin else INF
-                    length[k, s - 1] = length[kh, s] + 1 if fin else 0
-                    ptr[k, s - 1] = s if fin else -2
+                    if c < INF:
+                        cost[k, s - 1] = c
+                        length[k, s - 1] = length[kh, s] + 1
+                        ptr[k, s - 1] = s
+                    else:
+                        cost[k, s - 1] = INF
+                        length[k, s - 1] = 0
+                        ptr[k, s - 1] = -2
             else:
                 for s in range(c0):
                     cost[k, s] = INF
