@@ -438,7 +438,10 @@ def gc(store: MotionStore, keep: int = 3) -> list[str]:
     Kept: the current generation and the ``keep - 1`` manifests committed before it. Removed:
     other manifests (older ones, and uncommitted ones newer than the current), ``*.tmp-*`` files
     of killed writes, feature and grid objects no kept manifest lists (or left incomplete), and
-    shards that serve no kept web (orphans of killed runs, superseded or damaged shards). Never
+    shards that serve no kept web (orphans of killed runs, superseded or damaged shards). The
+    older kept manifests are read only when the store holds an object or shard the current one
+    does not list (a nightly run that only added webs reads none; a damaged one is then dropped
+    from the kept, as when it is read). Never
     run it concurrently with an index run (``motionweb index`` runs it after its commit). A store
     whose pointer or current manifest is damaged is not touched (:class:`PointerError`): which
     generations are committed is unknown until ``motionweb index`` repairs it.
@@ -452,22 +455,33 @@ def gc(store: MotionStore, keep: int = 3) -> list[str]:
     committed = [i for i in ids if i <= cur]
     kept = set(committed[-keep:]) | {cur}
     live: set[str] = set()
-    for gid in sorted(kept):
-        try:
-            g = _manifest(store, gid)
-        except (OSError, ValueError):
-            kept.discard(gid)
-            continue
-        live |= {w["key"] for w in g.webs} | {grid_key(w["key"]) for w in g.webs}
-        live |= {k for rates in g.features.values() for k in rates.values()}
-    removed: list[str] = []
-    for top, depth in (("features", 3), ("grids", 3)):
-        for key in store.leaf_keys(top, depth):
-            if key not in live or not store.has(key):
-                store.delete(key)
-                removed.append(key)
+
+    def keep_listed(gids: list[str]) -> None:
+        for gid in gids:
+            try:
+                g = _manifest(store, gid)
+            except (OSError, ValueError):
+                kept.discard(gid)
+                continue
+            live.update(w["key"] for w in g.webs)
+            live.update(grid_key(w["key"]) for w in g.webs)
+            live.update(k for rates in g.features.values() for k in rates.values())
+
+    keep_listed([cur])  # held in hand after a commit (no parse)
+    objects = [key for top, depth in (("features", 3), ("grids", 3)) for key in store.leaf_keys(top, depth)]
+    shards = store.leaf_keys(SHARDS, 2)
     serving = {store.web_shard(k) for k in live if k.startswith("webs/")}
-    for shard in store.leaf_keys(SHARDS, 2):
+    if any(k not in live for k in objects) or any(s not in serving for s in shards):
+        # only an object the current generation does not list can be one an older kept generation
+        # needs: their manifests (~1–2 s of parse each at 146,610 webs) are read only then
+        keep_listed(sorted(kept - {cur}))
+        serving = {store.web_shard(k) for k in live if k.startswith("webs/")}
+    removed: list[str] = []
+    for key in objects:
+        if key not in live or not store.has(key):
+            store.delete(key)
+            removed.append(key)
+    for shard in shards:
         if shard not in serving:
             store.delete(shard)
             removed.append(shard)
