@@ -601,9 +601,11 @@ def plan_task(chunks: list[Chunk], cfg: Config, prev: Generation | None,
     then ``stage="pairs"`` the pairs of each chunk's shortlist (``keep``, by chunk name).
     ``verified``: the answers by object key, filled here (and those already in it taken: a
     plan of the same store and generation, see :data:`VERIFIED`). ``store``: the run's instance of
-    the store, whose index of the web shards the commit then reuses (else one of its own): only
-    for a run that writes no web in between (:func:`unchanged_summary`), as an instance that has
-    taken in a web's shard does not look for a newer shard holding it.
+    the store, whose index of the web shards :func:`finish` and the commit then reuse (else one of
+    its own): an instance that has taken in a web's shard does not look for a newer shard holding
+    it, so :func:`finish` lists the shards again and takes in those the workers wrote since (their
+    headers alone: names sort by time, so a recomputed web's new shard is taken in last and serves
+    it, as in a store opened afresh).
     """
     store = store if store is not None else MotionStore(cfg.store.path)
     fdig = feature_digest(cfg)
@@ -746,6 +748,7 @@ def finish(cfg: Config, store: MotionStore, catalog: Catalog, plans: list[ChunkP
     ``commit_fn`` unless it lists the current one's content, gc, and the run summary."""
     logger = run_logger()
     repaired = "" if damage is None else repair_note(damage)
+    store.web_keys(web_digest(cfg))  # the shards written since the plan, taken in (see plan_task)
     cached_keys = {j.key for p in plans for j in p.cached}
     cached_meta = {w["key"]: w for w in (prev.webs if prev else []) if w["key"] in cached_keys}
     for key in cached_keys - set(cached_meta):

@@ -75,7 +75,7 @@ def index_library(config: str | Config) -> dict[str, Any]:
     else:
         shortlists = None
         t = time.perf_counter()
-        plans = plan_task(quote(chunks), cfg, quote(prev))
+        plans = plan_task(quote(chunks), cfg, quote(prev), store=quote(store))
         timings["plan_s"] = time.perf_counter() - t
     todo_cells = sum(j.cells for p in plans for j in p.todo)
     t = time.perf_counter()
