@@ -467,7 +467,7 @@ def gc(store: MotionStore, keep: int = 3) -> list[str]:
             live.update(grid_key(w["key"]) for w in g.webs)
             live.update(k for rates in g.features.values() for k in rates.values())
 
-    keep_listed([cur])  # held in hand after a commit (no parse)
+    keep_listed([cur])  # held after a commit (no parse then)
     objects = [key for top, depth in (("features", 3), ("grids", 3)) for key in store.leaf_keys(top, depth)]
     shards = store.leaf_keys(SHARDS, 2)
     serving = {store.web_shard(k) for k in live if k.startswith("webs/")}
