@@ -21,8 +21,9 @@ operands, the coarse grid (GEMM) and web, and per finer level the refinement (th
 values and the paths, chains and bridges: ``refine.refine_web``), then the write. It counts the
 cells each level evaluates (``refine_web``'s own count: unique cells of the cropped bands) against
 the full grid, and prints two arithmetic floors measured in the same run on the working-rate grids of
-the sampled pairs: those cells at the per-cell kernel's rate (``tasks.distance.cell_distance``,
-whose float64 sums the stored webs' values are, every level's since ``store.keys.WEB_VALUES`` 2),
+the sampled pairs: those cells at the row kernel's rate (``tasks.distance.distance_row``, whose
+float64 sums, the bytes of ``tasks.distance.cell_distance``, the stored webs' values are, every
+level's since ``store.keys.WEB_VALUES`` 2; the per-cell call's rate printed beside it),
 and every level's whole grid by the GEMM path (float32 sums in BLAS's order: values that differ
 in the last bits, and from CPU to CPU, bench/cpu_bytes.py).
 
@@ -265,7 +266,7 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
     coarse = cells["evaluated"][rates[0]] / m
     # the per-cell kernel (the stored values) and the GEMM path (the coarsest level's) on the
     # working-rate grids of the first 20 pairs, each cell once
-    per_cell = gemm_cell = 0.0
+    per_cell = gemm_cell = row_cell = 0.0
     n_cells = 0
     for j in sample[:20]:
         oa = ops[j.a.sha256]
@@ -276,15 +277,22 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
         out = np.empty(len(rows))
         _cells_kernel(pa0.left, pa0.left_y, pa0.norms, pb0.right, pb0.right_y, pb0.norms, rows, cols, out)
         distance_grid_prepared(pa0, pb0)
+        grid = distance_grid_cells(pa0, pb0)
+        if grid.reshape(-1).tobytes() != out.astype(grid.dtype).tobytes():
+            raise SystemExit("the row kernel's grid differs from the per-cell kernel's values")
         t = time.perf_counter()
         _cells_kernel(pa0.left, pa0.left_y, pa0.norms, pb0.right, pb0.right_y, pb0.norms, rows, cols, out)
         t1 = time.perf_counter()
         distance_grid_prepared(pa0, pb0)
+        t2 = time.perf_counter()
+        distance_grid_cells(pa0, pb0)
         per_cell += t1 - t
-        gemm_cell += time.perf_counter() - t1
+        gemm_cell += t2 - t1
+        row_cell += time.perf_counter() - t2
         n_cells += len(rows)
     per_cell /= n_cells
     gemm_cell /= n_cells
+    row_cell /= n_cells
     total = sum(sec.values()) / m
     print(f"{m} random pairs of {len(jobs)}; P = {p} points per frame; load {load:.1f} "
           f"(at the end {os.getloadavg()[0]:.1f}); clip read + operands: {read_s * 1e3:.2f} ms per clip")
@@ -296,11 +304,13 @@ def breakdown(store: Path, entries: list, cfg: Config, n: int, scale_to: tuple[s
         print(f"cells at {r:g} Hz: {cells['evaluated'][r] / m:9.0f} evaluated of {cells['full'][r] / m:9.0f} "
               f"({cells['evaluated'][r] / max(1, cells['full'][r]):.0%})")
     print(f"a cell at the working rate: {per_cell * 1e9:.1f} ns by the per-cell kernel "
-          f"(tasks.distance.cell_distance, {flops_cell / per_cell / 1e9:.1f} GFLOP/s), {gemm_cell * 1e9:.1f} ns "
-          f"by the GEMM path on the whole grid (distance_grid_prepared, {flops_cell / gemm_cell / 1e9:.1f} GFLOP/s)")
-    floor_cells = (fine + coarse) * per_cell
+          f"(tasks.distance.cell_distance, {flops_cell / per_cell / 1e9:.1f} GFLOP/s), {row_cell * 1e9:.1f} ns "
+          f"by the row kernel on whole rows (distance_row, the same bytes, {flops_cell / row_cell / 1e9:.1f} "
+          f"GFLOP/s), {gemm_cell * 1e9:.1f} ns by the GEMM path on the whole grid (distance_grid_prepared, "
+          f"{flops_cell / gemm_cell / 1e9:.1f} GFLOP/s)")
+    floor_cells = (fine + coarse) * row_cell
     floor_gemm = sum(cells["full"][r] for r in rates) / m * gemm_cell
-    print(f"floors per pair: the evaluated cells at the per-cell kernel's rate (every level's values since "
+    print(f"floors per pair: the evaluated cells at the row kernel's rate (every level's values since "
           f"store.keys.WEB_VALUES 2) {floor_cells * 1e3:.3f} ms; every level's whole grid by the GEMM path "
           f"{floor_gemm * 1e3:.3f} ms; measured {total * 1e3:.3f} ms = {total / floor_cells:.1f}x / "
           f"{total / floor_gemm:.1f}x")

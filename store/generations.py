@@ -229,12 +229,14 @@ def _valid_id(value: Any) -> bool:
             and "/" not in value and "\\" not in value and value.isprintable())
 
 
-def check_current(store: MotionStore) -> str | None:
+def check_current(store: MotionStore, lean: bool | None = None) -> str | None:
     """Id of the current generation, strictly: None for a store that was never indexed (no
     pointer and no manifest); :class:`PointerError` when the pointer is missing (manifests
     exist), truncated, garbage or names a missing generation, or the manifest it names is
-    unreadable, incomplete or differs from the checksum the pointer recorded."""
-    gen = _checked_current(store, lean=None)
+    unreadable, incomplete or differs from the checksum the pointer recorded. ``lean``: the
+    parse to keep (:func:`load_generation`; None: either), for a caller that loads the current
+    generation next (:func:`current_generation` then takes it without a second parse)."""
+    gen = _checked_current(store, lean=lean)
     return gen.id if gen is not None else None
 
 
@@ -326,7 +328,7 @@ def pointer_signature(store: MotionStore) -> tuple | None:
     return raw, info.get("size"), info.get("mtime", info.get("LastModified", info.get("last_modified")))
 
 
-def repair_current(store: MotionStore) -> PointerError | None:
+def repair_current(store: MotionStore, lean: bool | None = None) -> PointerError | None:
     """Make a damaged pointer sound again; returns the damage found (None: nothing to repair).
 
     The pointer is rewritten to the newest intact generation (:func:`newest_intact`), the one
@@ -336,11 +338,12 @@ def repair_current(store: MotionStore) -> PointerError | None:
     after the run's next commit). When it is the current manifest that is damaged, its listing
     is lost: the caller commits a fresh generation (``motionweb index`` does, even when it lists
     the same content as the fallback) so that the store's newest generation is intact again.
-    With no intact generation the pointer is left as it is and the run's commit replaces it."""
+    With no intact generation the pointer is left as it is and the run's commit replaces it.
+    ``lean``: as for :func:`check_current`."""
     if store.read_only:
         raise PermissionError(f"{store.url}: store opened read-only")
     try:
-        check_current(store)
+        check_current(store, lean)
     except PointerError as exc:
         if exc.fallback is not None:
             _point_to(store, _manifest(store, exc.fallback))

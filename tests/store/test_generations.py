@@ -124,6 +124,22 @@ def test_gc_reads_older_kept_manifests_only_for_objects_the_current_one_does_not
     assert store.has(k_old) and store.has(k_new)
 
 
+def test_an_index_runs_check_parses_the_manifest_it_then_loads(tmp_path, monkeypatch):
+    """The index flow checks the pointer (repair_current) asking for the whole parse, which
+    current_generation then takes: one parse of the current manifest, not a lean one and a whole one."""
+    store, _, g2 = _two_generations(tmp_path)
+    monkeypatch.setattr(generations, "_CURRENT", {})  # a new process
+    parsed: list[str] = []
+    real = Generation.from_dict
+    monkeypatch.setattr(Generation, "from_dict", staticmethod(lambda data: parsed.append(data.get("id")) or real(data)))
+    lean_parses: list[int] = []
+    real_lean = generations.parse_manifest
+    monkeypatch.setattr(generations, "parse_manifest", lambda *a, **k: lean_parses.append(1) or real_lean(*a, **k))
+    assert repair_current(store, lean=False) is None
+    gen = current_generation(store, strict=True)
+    assert gen.id == g2.id and parsed == [g2.id] and lean_parses == []
+
+
 def test_gc_removes_leftovers_of_killed_runs(tmp_path):
     store = MotionStore(str(tmp_path / "s"))
     rng = np.random.default_rng(6)
