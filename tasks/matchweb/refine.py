@@ -146,9 +146,9 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
 
 @njit(cache=True, nogil=True)
 def _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb) -> None:
-    """Values of cells (i, u … w) into ``row[u − j0 … w − j0]`` (one tile row): inf inside the
-    ignored self band |i − j| ≤ ``band``, :func:`~motionweb.tasks.distance.distance_row` on the
-    run's parts either side of it.
+    """Values of cells (i, u … w) into ``row[u − j0 … w − j0]`` (one tile row; KG04 §3.1 eq. 1 at
+    the finer levels of §3.2): inf inside the ignored self band |i − j| ≤ ``band`` (design §4),
+    :func:`~motionweb.tasks.distance.distance_row` on the run's parts either side of it.
 
     Bounds: u ≤ w lie in the tile's columns j0 … j0 + TILE − 1 (:func:`_eval_band`); each part
     written is a sub-run of u … w.
