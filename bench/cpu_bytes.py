@@ -9,7 +9,8 @@ the index uses): the whole grid by the GEMM path (three GEMMs and the fused ``_c
 ``tasks.distance.distance_grid_prepared``: the coarse level of webs before ``store.keys.WEB_VALUES``
 2, and ``keep_grids``), the per-cell values (float64, ``tasks.distance.cell_distance``: the fine
 levels), and the whole grid cell by cell (``distance_grid_cells``: the coarse level of webs now), once compiled for this CPU and once for each
-``--cpu`` given (``NUMBA_CPU_NAME``, each with a fresh ``NUMBA_CACHE_DIR``), and once more with
+``--cpu`` given (``NUMBA_CPU_NAME`` and that CPU's ``NUMBA_CPU_FEATURES``, :data:`CPU_FEATURES`,
+each with a fresh ``NUMBA_CACHE_DIR``), and once more with
 OpenBLAS told another core type (``OPENBLAS_CORETYPE``, each of ``--blas``). Printed: how many
 values differ from this CPU's, and by how much at most. Exits 1 unless each variant computed
 the sizes asked for.
@@ -36,6 +37,26 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+
+#: LLVM target features of the CPUs compared. numba passes the host's own features unless
+#: NUMBA_CPU_FEATURES is set, so NUMBA_CPU_NAME alone keeps this machine's AVX-512 and FMA and
+#: compares little: each name comes with its CPU's feature set.
+CPU_FEATURES = {
+    "haswell": ("+64bit,+avx,+avx2,+bmi,+bmi2,+cmov,+cx16,+f16c,+fma,+fsgsbase,+lzcnt,+movbe,+mmx,+pclmul,+popcnt,"
+                "+rdrnd,+sse,+sse2,+sse3,+sse4.1,+sse4.2,+ssse3,+xsave,+xsaveopt,-avx512f,-avx512dq,-avx512bw,"
+                "-avx512vl,-avx512cd"),
+    "sandybridge": ("+64bit,+avx,+cmov,+cx16,+mmx,+pclmul,+popcnt,+sse,+sse2,+sse3,+sse4.1,+sse4.2,+ssse3,+xsave,"
+                    "-avx2,-fma,-avx512f,-avx512dq,-avx512bw,-avx512vl,-avx512cd"),
+}
+
+
+def cpu_env(env: dict[str, str], cpu: str, cache: Path) -> dict[str, str]:
+    """``env`` with numba compiling for ``cpu`` (its name and its features, :data:`CPU_FEATURES`)
+    into a cache of its own."""
+    if cpu not in CPU_FEATURES:
+        raise SystemExit(f"--cpu {cpu}: no feature set known (known: {', '.join(sorted(CPU_FEATURES))})")
+    return {**env, "NUMBA_CPU_NAME": cpu, "NUMBA_CPU_FEATURES": CPU_FEATURES[cpu], "NUMBA_CACHE_DIR": str(cache)}
+
 
 CHILD = r"""
 import sys
@@ -137,8 +158,7 @@ def compare(args: argparse.Namespace, work: Path) -> None:
     print(f"one pair of {args.frames} x {args.frames - 20} frames, P = 110; compared with this CPU's values "
           f"(numba for {os.environ.get('NUMBA_CPU_NAME', 'the host')}, "
           f"OpenBLAS core type {os.environ.get('OPENBLAS_CORETYPE', 'detected')})")
-    variants = [(f"numba for {c}", {**base_env, "NUMBA_CPU_NAME": c, "NUMBA_CACHE_DIR": str(work / f"cache-{c}")})
-                for c in args.cpu]
+    variants = [(f"numba for {c}", cpu_env(base_env, c, work / f"cache-{c}")) for c in args.cpu]
     variants += [(f"OpenBLAS as {b}", {**base_env, "OPENBLAS_CORETYPE": b, "NUMBA_CACHE_DIR": str(work / "cache-host")})
                  for b in args.blas]
     print(f"{'variant':24s} {'GEMM grid (float32)':>30s} {'per-cell values (float64)':>30s} "

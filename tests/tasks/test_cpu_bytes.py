@@ -4,7 +4,11 @@
 A Dask cluster may mix machines, and numba compiles for the CPU it runs on. Every level of a web
 takes its values from tasks.distance.cell_distance (the coarsest grid through
 distance_grid_cells): here they are computed again in a child process with the kernels compiled
-for older x86-64 CPUs (NUMBA_CPU_NAME, a cache of its own) and must be the same bytes.
+for older x86-64 CPUs (NUMBA_CPU_NAME with that CPU's NUMBA_CPU_FEATURES, bench.cpu_bytes
+.CPU_FEATURES: the name alone keeps this machine's features; a cache of its own) and must be the
+same bytes on a CPU with AVX2 and FMA (Haswell, 2013, and later). On a CPU without FMA (Sandy
+Bridge) the float32 products are rounded twice instead of fused and the values differ in the
+last bits (~1e-8 relative): a known limit, kept here as a strict xfail.
 bench/cpu_bytes.py prints the same comparison for the GEMM path, which differs.
 """
 
@@ -18,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bench.cpu_bytes import cpu_env
 from motionweb.tasks.distance import distance_cells
 
 #: the values of one pair, as a source both this process and the child run
@@ -54,10 +59,10 @@ def here() -> dict[str, np.ndarray]:
 
 
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="compares x86-64 CPU targets")
-@pytest.mark.parametrize("cpu", ["haswell", "sandybridge"])
+@pytest.mark.parametrize("cpu", ["haswell", pytest.param("sandybridge", marks=pytest.mark.xfail(
+    strict=True, reason="no FMA: the float32 products are rounded twice, the values differ in the last bits"))])
 def test_web_values_are_the_same_bytes_compiled_for_another_cpu(cpu: str, tmp_path: Path) -> None:
-    env = {**os.environ, "NUMBA_CPU_NAME": cpu, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    env.pop("NUMBA_CPU_FEATURES", None)
+    env = cpu_env(dict(os.environ), cpu, tmp_path / "cache")
     out = tmp_path / "values.npz"
     r = subprocess.run([sys.executable, "-c", CHILD, str(out)], env=env, capture_output=True, text=True,
                        timeout=600, check=False)
