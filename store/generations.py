@@ -470,15 +470,18 @@ def gc(store: MotionStore, keep: int = 3) -> list[str]:
             live.update(grid_key(w["key"]) for w in g.webs)
             live.update(k for rates in g.features.values() for k in rates.values())
 
+    def serving_live() -> set[str | None]:
+        return {store.web_shard(k) for k in live if k.startswith("webs/")}
+
     keep_listed([cur])  # held after a commit (no parse then)
     objects = [key for top, depth in (("features", 3), ("grids", 3)) for key in store.leaf_keys(top, depth)]
     shards = store.leaf_keys(SHARDS, 2)
-    serving = {store.web_shard(k) for k in live if k.startswith("webs/")}
+    serving = serving_live()
     if any(k not in live for k in objects) or any(s not in serving for s in shards):
         # only an object the current generation does not list can be one an older kept generation
         # needs: their manifests (~1–2 s of parse each at 146,610 webs) are read only then
         keep_listed(sorted(kept - {cur}))
-        serving = {store.web_shard(k) for k in live if k.startswith("webs/")}
+        serving = serving_live()
     removed: list[str] = []
     for key in objects:
         if key not in live or not store.has(key):

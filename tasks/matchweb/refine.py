@@ -150,23 +150,21 @@ def _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb) -> N
     the finer levels of §3.2): inf inside the ignored self band |i − j| ≤ ``band`` (design §4),
     :func:`~motionweb.tasks.distance.distance_row` on the run's parts either side of it.
 
-    Bounds: u ≤ w lie in the tile's columns j0 … j0 + TILE − 1 (:func:`_eval_band`); each part
-    written is a sub-run of u … w.
+    Bounds: u ≤ w lie in the tile's columns j0 … j0 + TILE − 1 (:func:`_eval_band`); the self
+    band's cells b0 … b1 and the two parts either side are sub-runs of u … w.
     """
-    if band < 0:
-        distance_row(left, left_y, na, right, right_y, nb, i, u, w - u + 1, row, u - j0)
-        return
-    b0 = max(u, i - band)  # the run's cells in the self band: b0 … b1 (none when b0 > b1)
-    b1 = min(w, i + band)
-    if b0 > b1:
-        distance_row(left, left_y, na, right, right_y, nb, i, u, w - u + 1, row, u - j0)
-        return
-    if u < b0:
-        distance_row(left, left_y, na, right, right_y, nb, i, u, b0 - u, row, u - j0)
+    b0 = w + 1  # the run's cells in the self band: b0 … b1 (none: b0 = w + 1, b1 = w)
+    b1 = w
+    if band >= 0 and max(u, i - band) <= min(w, i + band):
+        b0 = max(u, i - band)
+        b1 = min(w, i + band)
     for jj in range(b0, b1 + 1):
         row[jj - j0] = INF
-    if b1 < w:
-        distance_row(left, left_y, na, right, right_y, nb, i, b1 + 1, w - b1, row, b1 + 1 - j0)
+    for part in range(2):  # the cells before the self band's, then those after them
+        s = u if part == 0 else b1 + 1
+        e = b0 - 1 if part == 0 else w
+        if s <= e:
+            distance_row(left, left_y, na, right, right_y, nb, i, s, e - s + 1, row, s - j0)
 
 
 @njit(cache=True, nogil=True)
