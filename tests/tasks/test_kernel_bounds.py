@@ -19,7 +19,7 @@ from motionweb.tasks.blend import ease_offsets, leg_ik
 from motionweb.tasks.distance import _cells_kernel, distance_cells, prepare_pair
 from motionweb.tasks.guided_warp.features import knn_mean_distance
 from motionweb.tasks.guided_warp.paths import dag_path, fixed_length_path
-from motionweb.tasks.matchweb.band import band_buffers, band_dp, optimal_path
+from motionweb.tasks.matchweb.band import _band_dp_any, band_buffers, band_dp, optimal_path
 from motionweb.tasks.matchweb.bridges import find_bridges
 from motionweb.tasks.matchweb.minima import find_chains, local_minima, valid_region
 from motionweb.tasks.matchweb.params import max_run
@@ -184,6 +184,34 @@ def test_band_dp_equals_the_transition_by_transition_reference(rows, mrun: int, 
     band_dp(lo, hi, off, vals, init, flags, mrun, *got)
     for g, w in zip(got, ref_band_dp(lo, hi, off, vals, init, flags, mrun), strict=True):
         np.testing.assert_array_equal(g, w)
+
+
+@SETTINGS
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(-1, 40)), min_size=0, max_size=40), st.integers(0, 2**32 - 1))
+def test_the_unrolled_kernel_of_slope_k_3_is_the_loop_kernel(rows, seed: int) -> None:
+    """slope_k = 3 (mrun 2, the default) runs band_dp's unrolled kernel: the same costs, lengths
+    and predecessors as the kernel with the states in loops, on wider random bands than the
+    reference can walk (ties, blocked, terminal cells and sources anywhere)."""
+    rng = np.random.default_rng(seed)
+    lo, hi, off, vals = random_band(rows, rng)
+    n = len(vals)
+    init = np.where(rng.random(n) < 0.1, vals, np.inf)
+    flags = rng.choice(np.array([0] * 12 + [1, 2], np.uint8), n)
+    got, want = band_buffers(n, 2), band_buffers(n, 2)
+    band_dp(lo, hi, off, vals, init, flags, 2, *got)
+    _band_dp_any(lo, hi, off, vals, init, flags, 2, *want)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g, w)
+
+
+@pytest.mark.parametrize("mrun", [1, 2, 3])
+def test_band_dp_refuses_buffers_too_small(mrun: int) -> None:
+    lo, hi, off = np.array([0, 0]), np.array([3, 3]), np.array([0, 4, 8])
+    vals, init, flags = np.ones(8), np.full(8, np.inf), np.zeros(8, np.uint8)
+    with pytest.raises(ValueError, match="narrower"):
+        band_dp(lo, hi, off, vals, init, flags, mrun, *band_buffers(8, mrun - 1))
+    with pytest.raises(ValueError, match="shorter"):
+        band_dp(lo, hi, off, vals, init, flags, mrun, *band_buffers(7, mrun))
 
 
 @pytest.mark.parametrize("k", [0, 65, 1000])
