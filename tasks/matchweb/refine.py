@@ -129,19 +129,35 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
             j0 = tj * TILE
             jend = min(hi[t], j0 + TILE - 1)
             row = pool[index[ti, tj], ri]
-            u = j
-            while u <= jend:  # each run of cells not evaluated yet, in one call
-                if not math.isnan(row[u - j0]):
-                    u += 1
-                    continue
-                w = u
-                while w < jend and math.isnan(row[w + 1 - j0]):
-                    w += 1
-                _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb)
-                u = w + 1
-            for jj in range(j, jend + 1):
-                out[base + jj] = row[jj - j0]
+            if _copy_run(row, j - j0, jend - j0, out, base + j0):  # a cell not evaluated yet
+                u = j
+                while u <= jend:  # each run of cells not evaluated yet, in one call
+                    if not math.isnan(row[u - j0]):
+                        u += 1
+                        continue
+                    w = u
+                    while w < jend and math.isnan(row[w + 1 - j0]):
+                        w += 1
+                    _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb)
+                    u = w + 1
+                _copy_run(row, j - j0, jend - j0, out, base + j0)
             j = jend + 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _copy_run(row, a, b, out, o) -> bool:
+    """Copy ``row[a .. b]`` to ``out[o + a .. o + b]``; whether a copied value was NaN (a cell not
+    evaluated yet). Unsigned indices (0 ≤ a, o + a: a tile row's columns and a band's flat cells)
+    spare numba's negative-index wraparound on each cell.
+
+    Bounds: the caller's (:func:`_eval_band`): a ≤ b inside the tile row, o + b < ``out``'s size.
+    """
+    nan = False
+    for u in range(np.uint64(a), np.uint64(b) + np.uint64(1)):
+        x = row[u]
+        out[np.uint64(o) + u] = x
+        nan |= x != x
+    return nan
 
 
 @njit(cache=True, nogil=True)
