@@ -25,7 +25,7 @@ from motionweb.store.errors import (
 from motionweb.store.kinematics import quat_from_euler, quat_identity, quat_to_euler
 from motionweb.store.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 from motionweb.store.textfile import decode, number, read_bytes, text_lines
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 _CHANNELS = {c.lower(): c for c in POSITION_CHANNELS + ROTATION_CHANNELS}
 

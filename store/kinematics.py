@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 from motionweb.store.motion import Motion
-from numba import njit
+from motionweb.store.numba_cache import njit
 from scipy.spatial.transform import Rotation
 
 AXES = {"x": 0, "y": 1, "z": 2}

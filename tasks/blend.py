@@ -58,7 +58,7 @@ from motionweb.store.motion import Motion, Skeleton
 from motionweb.tasks.matchgraph import Segment
 from motionweb.tasks.params.blend import BlendParams
 from motionweb.tasks.register import Registration
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 SIDES = ("left", "right")
 _Y = np.array([0.0, 1.0, 0.0])

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from motionweb.store.cache import array_bytes
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 DTypeLike = type[np.floating] | np.dtype | str
 

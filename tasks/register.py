@@ -54,7 +54,7 @@ from motionweb.tasks.matchgraph import MatchGraph, Segment
 from motionweb.tasks.matchweb.band import band_backtrack, band_buffers, band_dp, band_index, best_state_total
 from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run
 from motionweb.tasks.matchweb.refine import upsample_band
-from numba import njit
+from motionweb.store.numba_cache import njit
 from scipy.interpolate import PchipInterpolator
 
 # ----------------------------------------------------------------------------------------------

@@ -63,7 +63,7 @@ from motionweb.store.webs import WebSource
 from motionweb.tasks.matchgraph import MatchEdge, MatchGraph, MatchNode, Segment
 from motionweb.tasks.matchweb.params import MatchWebParams, min_chain_extent
 from motionweb.tasks.params.search import SearchParams
-from numba import njit
+from motionweb.store.numba_cache import njit
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numba
+from motionweb.store.numba_cache import njit
 import numpy as np
 from motionweb.store.kinematics import (
     axis_index,
@@ -176,7 +176,7 @@ def triple_index(n: int, skip: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return j[ok], a[ok], b[ok]
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _triples_kernel(pos, local, angle, up, j, a, b, root_motion, wp, wv, wa, out):  # pragma: no cover - compiled
     """Row t of ``out`` = [wp·pose, wv·vel, wa·acc] of triple (j−a, j, j+b), as :func:`triple_blocks`
     followed by :meth:`FeatureSpec.combine`, without per-triple temporaries.
@@ -228,7 +228,7 @@ def triple_features(track: Track, j: np.ndarray, a: np.ndarray, b: np.ndarray, s
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _kmin_mean(qq, zz, dots, k, out):  # pragma: no cover - compiled
     """out[i] = mean of the k smallest sqrt(max(qq[i] + zz[r] - 2 dots[i, r], 0)) over r.
 

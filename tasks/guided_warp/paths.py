@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numba
+from motionweb.store.numba_cache import njit
 import numpy as np
 
 # Shortest paths (HDP07 §3.3)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _fixed_length_kernel(table, lo, hi):  # pragma: no cover - compiled
     """Layered DP c_p(j,k) = min_i c_{p-1}(i,j) + f(i,j,k) over the allowed windows [lo_p, hi_p].
 
@@ -50,7 +50,7 @@ def _fixed_length_kernel(table, lo, hi):  # pragma: no cover - compiled
     return prev, back
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _dag_kernel(table):  # pragma: no cover - compiled
     """Unconstrained DAG shortest path over vertices (k - b, k) in increasing k.
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 from motionweb.tasks.matchweb.params import INF, max_run
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 
 @njit(cache=True, nogil=True)

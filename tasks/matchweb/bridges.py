@@ -12,7 +12,7 @@ import numpy as np
 from motionweb.tasks.matchweb.band import band_backtrack, band_dp, best_state_avg
 from motionweb.tasks.matchweb.minima import as_grid
 from motionweb.tasks.matchweb.params import INF, max_run
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 
 @njit(cache=True, nogil=True)

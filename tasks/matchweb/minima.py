@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 from motionweb.tasks.matchweb.params import INF, max_run
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 
 def as_grid(grid: np.ndarray) -> np.ndarray:

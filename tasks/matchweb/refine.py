@@ -19,7 +19,7 @@ from motionweb.store.web import MatchWeb, empty_cells
 from motionweb.tasks.distance import PreparedFeatures, distance_row
 from motionweb.tasks.matchweb.band import band_backtrack, band_dp, band_index
 from motionweb.tasks.matchweb.params import INF, MatchWebParams, max_run, self_band
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 
 @njit(cache=True, nogil=True)

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import numba
+from motionweb.store.numba_cache import njit
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Motion, Skeleton
@@ -485,7 +485,7 @@ def gravity_terms(body: BodyModel, q: np.ndarray, data: pin.Data | None = None) 
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def weight_jacobians(jac: np.ndarray, h: np.ndarray, mass: np.ndarray, support: np.ndarray, out: np.ndarray) -> None:
     """out[f, v, b] = −(m_b J_v − (m_b p_b) × J_ω)[:, v] where body b moves with dof v, else 0.
 

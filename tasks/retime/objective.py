@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from motionweb.tasks.retime.contacts import Contacts
 from motionweb.tasks.retime.polygons import N_ROOT, FeasiblePolygons, polygon_area
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 
 @dataclass(frozen=True, eq=False)

@@ -31,7 +31,7 @@ import numpy as np
 from motionweb.tasks.params.retime import PolygonParams
 from motionweb.tasks.retime.contacts import Contacts
 from motionweb.tasks.retime.simplex import INFEASIBLE, OPTIMAL, UNBOUNDED, DenseLP
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 N_ROOT = 6
 INF = highspy.kHighsInf

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from motionweb.tasks.retime.polygons import FeasiblePolygons
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 #: ṗ² floor of a profile (no timing stops the clip): 1e-6 is 1/1000 of normal speed
 X_FLOOR = 1e-6

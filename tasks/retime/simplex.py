@@ -22,7 +22,7 @@ Cost: O(m²) per pivot plus O(m · (n + m)) pricing; O(m³) per refactorization.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from motionweb.store.numba_cache import njit
 
 OPTIMAL, INFEASIBLE, UNBOUNDED, ITERATION_LIMIT, NUMERICAL = 0, 1, 2, 3, 4
 STATUS_NAMES = ("optimal", "infeasible", "unbounded", "iteration limit", "numerical trouble")

@@ -20,7 +20,7 @@ from typing import Protocol
 import numpy as np
 from motionweb.tasks.retime.errors import RetimeError
 from motionweb.tasks.retime.objective import BakedObjective, objective_kernel
-from numba import njit
+from motionweb.store.numba_cache import njit
 from scipy.interpolate import BSpline
 from scipy.optimize import minimize
 
