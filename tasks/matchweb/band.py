@@ -40,7 +40,7 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     ``tests/naive.ref_band_dp`` is the same rule written out per transition.
 
     slope_k = 3 (``mrun`` = 2, the default) runs :func:`_band_dp_run2`, the same rule with the five
-    states unrolled (~2× faster, ``bench/band_dp.py``); any other ``mrun`` runs :func:`_band_dp_any`.
+    states unrolled (~2.1× faster on smooth values, ``bench/band_dp.py``); any other ``mrun`` runs :func:`_band_dp_any`.
 
     Bounds: writes rows ``off[t] .. off[t] + hi[t] − lo[t]`` of ``cost``/``length``/``ptr`` (so at
     most ``off[-1]`` rows: the caller sizes them from the band, ``off[t + 1] = off[t] + hi[t] − lo[t]
@@ -162,12 +162,21 @@ def _band_dp_any(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> Non
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _better(bc, bl, bp, c, ln, s):
-    """The candidate (cost c, length ln, predecessor state s) if it is strictly cheaper than the best
-    so far (bc, bl, bp), else the best so far: taken in candidate order, ties keep the first."""
+def _better(bc, bp, c, s):
+    """The candidate (cost c, predecessor state s) if it is strictly cheaper than the best so far
+    (bc, bp), else the best so far: taken in candidate order, ties keep the first."""
     if c < bc:
-        return c, ln, s
-    return bc, bl, bp
+        return c, s
+    return bc, bp
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _length(length, q, p):
+    """Cells of the path ending in a state whose predecessor state is ``p`` at the cell whose
+    states start at flat index ``q``: that state's length + 1; 1 at a source (p = −1), 0 unreached
+    (p = −2). The load is made whatever ``p`` (of state 0 then: ``q`` is always a cell's index)."""
+    n = length[q + np.uint64(max(p, 0))] + 1
+    return n if p >= 0 else (1 if p == -1 else 0)
 
 
 @njit(cache=True, nogil=True)
@@ -177,16 +186,17 @@ def _band_dp_run2(lo, hi, off, vals, init, flags, cost, length, ptr) -> None:
     ((cells · 5,), cell k's states at 5k .. 5k + 4).
 
     The same candidates in the same order as :func:`_band_dp_any`, unrolled: each predecessor's five
-    states are read once into registers (the up predecessor of cell j is the diagonal one of
-    j + 1, and the left neighbour's states are the ones just found), and each state is chosen by
-    :func:`_better`. A blocked or terminal predecessor counts as one with every state unreached,
-    which is what reading a blocked cell's states gives, so the outputs are the same bytes
-    (``tests/tasks/test_kernel_bounds.py``). Flat indices are taken as unsigned: numba then skips
-    the negative-index wraparound on each of the ~25 reads and writes of a cell. O(cells).
+    costs are read once into registers (the up predecessor of cell j is the diagonal one of
+    j + 1, and the left neighbour's states are the ones just found), each state is chosen by
+    :func:`_better` on costs alone, and its length is read from the chosen predecessor state
+    afterwards (:func:`_length`). A blocked or terminal predecessor counts as one with every state
+    unreached, which is what reading a blocked cell's states gives, so the outputs are the same
+    bytes (``tests/tasks/test_kernel_bounds.py``). Flat indices are taken as unsigned: numba then
+    skips the negative-index wraparound on each of the ~25 reads and writes of a cell. O(cells).
 
     Bounds: every index is 5k + s with k < ``off[-1]`` a band cell (or its row's predecessor
-    row's cell, also < ``off[-1]``) and s ≤ 4; :func:`band_dp` checked that the buffers hold
-    ``off[-1]`` cells of 5 states.
+    row's cell, also < ``off[-1]``; 0, a cell too, where there is no predecessor) and s ≤ 4;
+    :func:`band_dp` checked that the buffers hold ``off[-1]`` cells of 5 states.
     """
     u1, u2, u3, u4 = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4)  # unsigned + signed is signed
     for t in range(lo.shape[0]):
@@ -194,26 +204,24 @@ def _band_dp_run2(lo, hi, off, vals, init, flags, cost, length, ptr) -> None:
         phi = hi[t - 1] if t > 0 else -1
         pbase = off[t - 1] - plo if t > 0 else 0
         base = off[t] - lo[t]
-        # the diagonal predecessor (t − 1, j − 1) of the row's first cell
+        # the diagonal predecessor (t − 1, j − 1) of the row's first cell: its states' index, costs
+        qd = np.uint64(0)
         dc0 = dc1 = dc2 = dc3 = dc4 = INF
-        dl0 = dl1 = dl2 = dl3 = dl4 = 0
         j = lo[t]
         if plo <= j - 1 <= phi and flags[pbase + j - 1] != 2:
-            q = np.uint64(5 * (pbase + j - 1))
-            dc0, dc1, dc2, dc3, dc4 = cost[q], cost[q + u1], cost[q + u2], cost[q + u3], cost[q + u4]
-            dl0, dl1, dl2, dl3, dl4 = length[q], length[q + u1], length[q + u2], length[q + u3], length[q + u4]
+            qd = np.uint64(5 * (pbase + j - 1))
+            dc0, dc1, dc2, dc3, dc4 = cost[qd], cost[qd + u1], cost[qd + u2], cost[qd + u3], cost[qd + u4]
         # the left neighbour's states 1-4 (none at the row's first cell)
+        qh = np.uint64(0)
         hc1 = hc2 = hc3 = hc4 = INF
-        hl1 = hl2 = hl3 = hl4 = 0
         for j in range(lo[t], hi[t] + 1):
             k = np.uint64(base + j)
             # the up predecessor (t − 1, j)
+            qu = np.uint64(0)
             uc0 = uc1 = uc2 = uc3 = uc4 = INF
-            ul0 = ul1 = ul2 = ul3 = ul4 = 0
             if plo <= j <= phi and flags[pbase + j] != 2:
-                q = np.uint64(5 * (pbase + j))
-                uc0, uc1, uc2, uc3, uc4 = cost[q], cost[q + u1], cost[q + u2], cost[q + u3], cost[q + u4]
-                ul0, ul1, ul2, ul3, ul4 = length[q], length[q + u1], length[q + u2], length[q + u3], length[q + u4]
+                qu = np.uint64(5 * (pbase + j))
+                uc0, uc1, uc2, uc3, uc4 = cost[qu], cost[qu + u1], cost[qu + u2], cost[qu + u3], cost[qu + u4]
             v = vals[k]
             o = np.uint64(5) * k
             if not v < INF or flags[k] == 1:
@@ -222,38 +230,40 @@ def _band_dp_run2(lo, hi, off, vals, init, flags, cost, length, ptr) -> None:
                     length[o + np.uint64(s)] = 0
                     ptr[o + np.uint64(s)] = -2
                 hc1 = hc2 = hc3 = hc4 = INF
-                hl1 = hl2 = hl3 = hl4 = 0
             else:
                 # state 2: the source, then the diagonal predecessor's states 0-4
-                c2, l2, p2 = INF, 0, -2
+                c2, p2 = INF, -2
                 if init[k] < INF:
-                    c2, l2, p2 = init[k], 1, -1
-                c2, l2, p2 = _better(c2, l2, p2, dc0 + v, dl0 + 1, 0)
-                c2, l2, p2 = _better(c2, l2, p2, dc1 + v, dl1 + 1, 1)
-                c2, l2, p2 = _better(c2, l2, p2, dc2 + v, dl2 + 1, 2)
-                c2, l2, p2 = _better(c2, l2, p2, dc3 + v, dl3 + 1, 3)
-                c2, l2, p2 = _better(c2, l2, p2, dc4 + v, dl4 + 1, 4)
+                    c2, p2 = init[k], -1
+                c2, p2 = _better(c2, p2, dc0 + v, 0)
+                c2, p2 = _better(c2, p2, dc1 + v, 1)
+                c2, p2 = _better(c2, p2, dc2 + v, 2)
+                c2, p2 = _better(c2, p2, dc3 + v, 3)
+                c2, p2 = _better(c2, p2, dc4 + v, 4)
                 # state 3 (up run 1): the up predecessor's states 0-2; state 4: its state 3
-                c3, l3, p3 = _better(INF, 0, -2, uc0 + v, ul0 + 1, 0)
-                c3, l3, p3 = _better(c3, l3, p3, uc1 + v, ul1 + 1, 1)
-                c3, l3, p3 = _better(c3, l3, p3, uc2 + v, ul2 + 1, 2)
-                c4, l4, p4 = _better(INF, 0, -2, uc3 + v, ul3 + 1, 3)
+                c3, p3 = _better(INF, -2, uc0 + v, 0)
+                c3, p3 = _better(c3, p3, uc1 + v, 1)
+                c3, p3 = _better(c3, p3, uc2 + v, 2)
+                c4, p4 = _better(INF, -2, uc3 + v, 3)
                 # state 1 (right run 1): the left neighbour's states 2-4; state 0: its state 1
-                c1, l1, p1 = _better(INF, 0, -2, hc2 + v, hl2 + 1, 2)
-                c1, l1, p1 = _better(c1, l1, p1, hc3 + v, hl3 + 1, 3)
-                c1, l1, p1 = _better(c1, l1, p1, hc4 + v, hl4 + 1, 4)
-                c0, l0, p0 = _better(INF, 0, -2, hc1 + v, hl1 + 1, 1)
+                c1, p1 = _better(INF, -2, hc2 + v, 2)
+                c1, p1 = _better(c1, p1, hc3 + v, 3)
+                c1, p1 = _better(c1, p1, hc4 + v, 4)
+                c0, p0 = _better(INF, -2, hc1 + v, 1)
                 cost[o], cost[o + u1], cost[o + u2], cost[o + u3], cost[o + u4] = c0, c1, c2, c3, c4
-                length[o], length[o + u1], length[o + u2], length[o + u3], length[o + u4] = l0, l1, l2, l3, l4
+                length[o] = _length(length, qh, p0)
+                length[o + u1] = _length(length, qh, p1)
+                length[o + u2] = _length(length, qd, p2)
+                length[o + u3] = _length(length, qu, p3)
+                length[o + u4] = _length(length, qu, p4)
                 ptr[o], ptr[o + u1], ptr[o + u2], ptr[o + u3], ptr[o + u4] = p0, p1, p2, p3, p4
                 if flags[k] == 2:  # terminal: entered, never left
                     hc1 = hc2 = hc3 = hc4 = INF
-                    hl1 = hl2 = hl3 = hl4 = 0
                 else:
+                    qh = o
                     hc1, hc2, hc3, hc4 = c1, c2, c3, c4
-                    hl1, hl2, hl3, hl4 = l1, l2, l3, l4
+            qd = qu
             dc0, dc1, dc2, dc3, dc4 = uc0, uc1, uc2, uc3, uc4
-            dl0, dl1, dl2, dl3, dl4 = ul0, ul1, ul2, ul3, ul4
 
 
 @njit(cache=True, nogil=True)
