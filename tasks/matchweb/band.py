@@ -40,7 +40,8 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     ``tests/naive.ref_band_dp`` is the same rule written out per transition.
 
     slope_k = 3 (``mrun`` = 2, the default) runs :func:`_band_dp_run2`, the same rule with the five
-    states unrolled (~2.1× faster on smooth values, ``bench/band_dp.py``); any other ``mrun`` runs :func:`_band_dp_any`.
+    states unrolled (~2.1× faster on smooth values, ``bench/band_dp.py``); any other ``mrun`` runs
+    :func:`_band_dp_any`.
 
     Bounds: writes rows ``off[t] .. off[t] + hi[t] − lo[t]`` of ``cost``/``length``/``ptr`` (so at
     most ``off[-1]`` rows: the caller sizes them from the band, ``off[t + 1] = off[t] + hi[t] − lo[t]
