@@ -10,8 +10,9 @@ package's folders: the same cache folder and file names as the locator numba wou
 with the stamp extended by a digest of every ``.py`` file under those folders
 (:func:`source_digest`), so an edit of any of them makes every cached kernel of the package
 compile again, and nothing else changes. The kernels are declared with :func:`njit`, which
-installs it first (the CLI's start, which loads no kernel, does not import numba). ``tests/store/test_numba_cache.py`` edits a callee
-between two processes and checks the caller runs the new code.
+installs it first (the CLI's start, which loads no kernel, does not import numba).
+``tests/store/test_numba_cache.py`` edits a callee between two processes and checks the caller
+runs the new code.
 
 Cost: one read and SHA-256 of the package's kernel sources per process (~150 files, a few ms),
 on the first kernel it loads or compiles; a release install changes nothing (its files are new

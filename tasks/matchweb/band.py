@@ -51,7 +51,8 @@ def band_dp(lo, hi, off, vals, init, flags, mrun, cost, length, ptr) -> None:
     """
     if cost.shape[1] < 2 * mrun + 1 or length.shape[1] < 2 * mrun + 1 or ptr.shape[1] < 2 * mrun + 1:
         raise ValueError("band_dp: buffers narrower than the 2·mrun + 1 states")
-    if min(cost.shape[0], length.shape[0], ptr.shape[0], vals.shape[0], init.shape[0], flags.shape[0]) < off[-1]:
+    rows = min(cost.shape[0], length.shape[0], ptr.shape[0], vals.shape[0], init.shape[0], flags.shape[0])
+    if rows < off[-1]:
         raise ValueError("band_dp: buffers shorter than the band")
     if mrun == 2 and cost.shape[1] == 5 and length.shape[1] == 5 and ptr.shape[1] == 5:
         _band_dp_run2(lo, hi, off, vals, init, flags, cost.reshape(-1), length.reshape(-1), ptr.reshape(-1))
