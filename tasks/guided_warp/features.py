@@ -5,13 +5,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from motionweb.store.numba_cache import njit
 import numpy as np
 from motionweb.store.kinematics import (
     axis_index,
     forward_kinematics,
     heading_angle,
 )
+from motionweb.store.numba_cache import njit
 from motionweb.store.motion import Motion
 from scipy.ndimage import uniform_filter1d
 

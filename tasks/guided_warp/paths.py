@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from motionweb.store.numba_cache import njit
 import numpy as np
+from motionweb.store.numba_cache import njit
 
 # Shortest paths (HDP07 §3.3)
 

@@ -13,7 +13,7 @@ from motionweb.tasks.matchweb.params import INF, max_run
 from motionweb.store.numba_cache import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def band_index(lo: np.ndarray, hi: np.ndarray, off: np.ndarray, t: int, j: int) -> int:
     """Flat index of band cell (t, j), or −1 when it lies outside the band."""
     if t < 0 or t >= lo.shape[0] or j < lo[t] or j > hi[t]:
@@ -307,7 +307,7 @@ def band_backtrack(row0, lo, hi, off, ptr, t, j, s, mrun) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def best_state_total(cost, k) -> int:
     """State of least total cost at flat cell ``k`` (``cost``: (cells, 2·mrun + 1))."""
     best = 0
@@ -317,7 +317,7 @@ def best_state_total(cost, k) -> int:
     return best
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def best_state_avg(cost, length, k) -> tuple[int, float]:
     """(state, average cost) of least average cost at flat cell ``k``; (−1, inf) when unreached."""
     best = -1

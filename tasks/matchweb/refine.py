@@ -128,8 +128,9 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
             tj = j // TILE
             j0 = tj * TILE
             jend = min(hi[t], j0 + TILE - 1)
-            row = pool[index[ti, tj], ri]
-            if _copy_run(row, j - j0, jend - j0, out, base + j0):  # a cell not evaluated yet
+            tix = index[ti, tj]
+            if _copy_run(pool, tix, ri, j - j0, jend - j0, out, base + j):  # a cell not evaluated yet
+                row = pool[tix, ri]
                 u = j
                 while u <= jend:  # each run of cells not evaluated yet, in one call
                     if not math.isnan(row[u - j0]):
@@ -140,22 +141,28 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
                         w += 1
                     _fill_run(row, j0, i, u, w, band, left, left_y, na, right, right_y, nb)
                     u = w + 1
-                _copy_run(row, j - j0, jend - j0, out, base + j0)
+                _copy_run(pool, tix, ri, j - j0, jend - j0, out, base + j)
             j = jend + 1
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _copy_run(row, a, b, out, o) -> bool:
-    """Copy ``row[a .. b]`` to ``out[o + a .. o + b]``; whether a copied value was NaN (a cell not
-    evaluated yet). Unsigned indices (0 ≤ a, o + a: a tile row's columns and a band's flat cells)
-    spare numba's negative-index wraparound on each cell.
+def _copy_run(pool, tix, ri, a, b, out, o) -> bool:
+    """Copy columns ``a .. b`` of row ``ri`` of tile ``tix`` to ``out[o .. o + b − a]``; whether a
+    copied value was NaN (a cell not evaluated yet). The tile is indexed in place (a view of its
+    row would cost two reference-count updates per band row), with unsigned indices (all ≥ 0),
+    which spare numba's negative-index wraparound on each cell.
 
-    Bounds: the caller's (:func:`_eval_band`): a ≤ b inside the tile row, o + b < ``out``'s size.
+    Bounds: the caller's (:func:`_eval_band`): a ≤ b are columns of the tile, ``tix`` one of its
+    pool's tiles, o + b − a < ``out``'s size.
     """
     nan = False
-    for u in range(np.uint64(a), np.uint64(b) + np.uint64(1)):
-        x = row[u]
-        out[np.uint64(o) + u] = x
+    ut = np.uint64(tix)
+    ur = np.uint64(ri)
+    ua = np.uint64(a)
+    uo = np.uint64(o)
+    for u in range(np.uint64(b - a + 1)):
+        x = pool[ut, ur, ua + u]
+        out[uo + u] = x
         nan |= x != x
     return nan
 
@@ -297,7 +304,7 @@ def _fit_values(vbuf, n):
     return np.empty(2 * n, np.float64)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _flat_index(row0, lo, hi, off, i, j) -> int:
     return band_index(lo, hi, off, i - row0, j)
 
@@ -318,8 +325,9 @@ def _solve_between(row0, lo, hi, off, sources, targets, mrun, by_average, buf, v
     _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y, nb, band, vals)
     path = _solve(row0, lo, hi, off, vals, src, dst, mrun, by_average, buf)
     pv = np.empty(path.shape[0], np.float32)
-    for u in range(path.shape[0]):
-        pv[u] = vals[_flat_index(row0, lo, hi, off, path[u, 0], path[u, 1])]
+    for u in range(path.shape[0]):  # band cells (band_backtrack checks): no search, no bounds test
+        t = path[u, 0] - row0
+        pv[u] = vals[off[t] + path[u, 1] - lo[t]]
     return path, pv, buf, vbuf
 
 
@@ -403,7 +411,7 @@ def _offsets_of(parts):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _rows_window(path, r0, r1):
     """[q0, q1): the cells of ``path`` with rows in r0..r1, found by bisection.
 
@@ -462,7 +470,7 @@ def _position(path, i, j) -> int:
     return -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _band_cell(row0, lo, off, k):
     """(row, column) of band cell ``k`` (flat index < ``off[-1]``), by bisection on ``off``."""
     a = 0

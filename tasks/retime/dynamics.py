@@ -19,10 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from motionweb.store.numba_cache import njit
 import numpy as np
 import pinocchio as pin
 from motionweb.store.motion import Motion, Skeleton
+from motionweb.store.numba_cache import njit
 from motionweb.tasks.params.retime import DEFAULT_TOTAL_MASS
 
 WATER_DENSITY = 1000.0  # kg / m^3
