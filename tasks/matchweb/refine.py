@@ -148,9 +148,9 @@ def _eval_band(row0, lo, hi, off, index, pool, left, left_y, na, right, right_y,
 @njit(cache=True, nogil=True, inline="always")
 def _copy_run(pool, tix, ri, a, b, out, o) -> bool:
     """Copy columns ``a .. b`` of row ``ri`` of tile ``tix`` to ``out[o .. o + b − a]``; whether a
-    copied value was NaN (a cell not evaluated yet). The tile is indexed in place (a view of its
-    row would cost two reference-count updates per band row), with unsigned indices (all ≥ 0),
-    which spare numba's negative-index wraparound on each cell.
+    copied value was NaN (a cell not evaluated yet). The tile is indexed in place, not through a
+    view of its row, with unsigned indices (all ≥ 0), which spare numba's negative-index
+    wraparound on each cell.
 
     Bounds: the caller's (:func:`_eval_band`): a ≤ b are columns of the tile, ``tix`` one of its
     pool's tiles, o + b − a < ``out``'s size.
@@ -531,18 +531,6 @@ def _crop_to_ends(row0, lo, hi, off, sources, targets, mrun):
     clo = np.empty(m, np.int64)
     chi = np.empty(m, np.int64)
     coff = np.zeros(m + 1, np.int64)
-    # d // (mrun + 1) for every row distance d < nr (sources and targets are band cells), by
-    # counting: a division by a number known only at run time costs ~20 cycles, and the loops
-    # below would take one per row and endpoint
-    quot = np.empty(nr, np.int64)
-    qv = 0
-    rem = 0
-    for d in range(nr):
-        quot[d] = qv
-        rem += 1
-        if rem == mrun + 1:
-            rem = 0
-            qv += 1
     for u in range(m):
         i = row0 + t0 + u
         a = max(lo[t0 + u], c0)
@@ -552,7 +540,7 @@ def _crop_to_ends(row0, lo, hi, off, sources, targets, mrun):
         for q in range(si.shape[0]):
             d = i - si[q]
             if d >= 0:
-                slo = min(slo, sj[q] + quot[d])
+                slo = min(slo, sj[q] + d // (mrun + 1))
                 shi = max(shi, sj[q] + mrun + (mrun + 1) * d)
         tlo = big  # hull of the targets' reverse cones on row i
         thi = -1
@@ -560,7 +548,7 @@ def _crop_to_ends(row0, lo, hi, off, sources, targets, mrun):
             d = ti[q] - i
             if d >= 0:
                 tlo = min(tlo, tj[q] - mrun - (mrun + 1) * d)
-                thi = max(thi, tj[q] - quot[d])
+                thi = max(thi, tj[q] - d // (mrun + 1))
         clo[u] = max(a, max(slo, tlo))
         chi[u] = min(b, min(shi, thi))
         coff[u + 1] = coff[u] + max(0, chi[u] - clo[u] + 1)
